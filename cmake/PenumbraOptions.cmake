@@ -1,0 +1,42 @@
+# INTERFACE targets that carry compiler options. Every Penumbra target links
+# penumbra_warnings and penumbra_sanitizers; nothing is set globally.
+
+add_library(penumbra_warnings INTERFACE)
+target_compile_features(penumbra_warnings INTERFACE cxx_std_20)
+target_compile_options(penumbra_warnings INTERFACE
+  -Wall -Wextra -Wpedantic -Wshadow=local -Wno-unused-parameter)
+
+add_library(penumbra_sanitizers INTERFACE)
+if(PENUMBRA_ENABLE_ASAN AND PENUMBRA_ENABLE_TSAN)
+  message(FATAL_ERROR "PENUMBRA_ENABLE_ASAN and PENUMBRA_ENABLE_TSAN cannot be combined")
+endif()
+if(PENUMBRA_ENABLE_ASAN)
+  target_compile_options(penumbra_sanitizers INTERFACE
+    -fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=undefined)
+  target_link_options(penumbra_sanitizers INTERFACE -fsanitize=address,undefined)
+endif()
+if(PENUMBRA_ENABLE_TSAN)
+  target_compile_options(penumbra_sanitizers INTERFACE -fsanitize=thread -fno-omit-frame-pointer)
+  target_link_options(penumbra_sanitizers INTERFACE -fsanitize=thread)
+endif()
+
+# Convenience: the two interface targets every Penumbra target links.
+add_library(penumbra_build_options INTERFACE)
+target_link_libraries(penumbra_build_options INTERFACE penumbra_warnings penumbra_sanitizers)
+
+# penumbra_add_gtest(<name> LABEL unit|integration SOURCES ... LIBS ...)
+# A GoogleTest executable whose cases ctest discovers one by one.
+function(penumbra_add_gtest name)
+  cmake_parse_arguments(ARG "" "LABEL;TIMEOUT" "SOURCES;LIBS" ${ARGN})
+  if(NOT ARG_LABEL)
+    set(ARG_LABEL unit)
+  endif()
+  if(NOT ARG_TIMEOUT)
+    set(ARG_TIMEOUT 120)
+  endif()
+  add_executable(${name} ${ARG_SOURCES})
+  target_link_libraries(${name} PRIVATE ${ARG_LIBS} GTest::gtest_main GTest::gmock penumbra_build_options)
+  gtest_discover_tests(${name}
+    PROPERTIES LABELS ${ARG_LABEL} TIMEOUT ${ARG_TIMEOUT}
+    DISCOVERY_TIMEOUT 60)
+endfunction()

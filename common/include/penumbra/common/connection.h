@@ -1,0 +1,158 @@
+#pragma once
+// A framed TCP connection carrying wire::Envelopes (Boost.Beast/Asio style):
+// one strand per connection, every handler runs on it; one write queue with a
+// byte limit; a size limit on every frame; a read timeout; heartbeats when
+// idle. Protocol logic (handshake, requests) belongs to the owner, which
+// receives decoded envelopes through a handler.
+//
+// Threads: Send, Close and FailAndClose may be called from any thread. The
+// handlers run on the connection's strand, never concurrently with each other.
+// The owner must not block in a handler.
+
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "penumbra/common/asio.h"
+#include "penumbra/common/endpoint.h"
+#include "penumbra/common/expected.h"
+#include "penumbra/common/framing.h"
+#include "penumbra/wire.pb.h"
+
+namespace spdlog {
+class logger;
+}
+
+namespace penumbra::net {
+
+struct ConnectionOptions {
+  uint32_t maxFrameBytes = kDefaultMaxFrameBytes;  // larger incoming frames close the connection
+  size_t maxQueuedBytes = size_t(64) << 20;        // Send() refuses beyond this
+  std::chrono::milliseconds readTimeout{20000};    // silence longer than this closes
+  std::chrono::milliseconds heartbeatInterval{5000};  // idle sender sends a Heartbeat
+};
+
+class Connection : public std::enable_shared_from_this<Connection> {
+ public:
+  using MessageHandler = std::function<void(wire::Envelope&&)>;
+  /// Called exactly once, with why the connection ended.
+  using CloseHandler = std::function<void(const std::string& reason)>;
+
+  /// `id` names the connection in every log line ("sma#3 127.0.0.1:51234").
+  static std::shared_ptr<Connection> Create(tcp::socket socket, ConnectionOptions options, std::string id);
+  ~Connection();
+
+  /// Begins reading. Heartbeats are answered here and not passed on.
+  void Start(MessageHandler onMessage, CloseHandler onClose);
+
+  /// Queues an envelope. Returns false (and drops it) when the connection is
+  /// closing or the queue would exceed maxQueuedBytes. Thread-safe.
+  bool Send(const wire::Envelope& envelope);
+  /// Same, for an already encoded frame (EncodeEnvelopeFrame), so one
+  /// encoding can go to many connections.
+  bool SendFrame(std::shared_ptr<const std::string> frame);
+
+  /// Sends `error` (its fatal flag should be set), stops reading, and closes
+  /// once the write queue has drained (or after a short grace period).
+  void FailAndClose(const wire::Envelope& error, std::string reason);
+  /// Stops reading and closes once queued writes are sent.
+  void CloseAfterFlush(std::string reason);
+  /// Closes now; queued writes are dropped. Thread-safe, idempotent.
+  void Close(std::string reason);
+
+  /// Backpressure: while paused no reads are issued and the read timeout is
+  /// suspended. Thread-safe.
+  void SetReadPaused(bool paused);
+
+  bool IsOpen() const { return !closed_.load(); }
+  size_t QueuedBytes() const { return queuedBytes_.load(); }
+  uint64_t BytesSent() const { return bytesSent_.load(); }
+  uint64_t BytesReceived() const { return bytesReceived_.load(); }
+  const std::string& Id() const { return id_; }
+  /// The strand every handler runs on; post here to touch owner state that
+  /// handlers also touch.
+  const asio::strand<asio::any_io_executor>& Strand() const { return strand_; }
+
+ private:
+  Connection(tcp::socket socket, ConnectionOptions options, std::string id);
+
+  void DoRead();
+  void OnRead(const boost::system::error_code& ec, size_t n);
+  void DoWrite();
+  void OnWrite(const boost::system::error_code& ec, size_t n);
+  void ArmTick();
+  void OnTick();
+  void DoClose(const std::string& reason);
+  void BeginDrain(std::string reason);
+
+  asio::strand<asio::any_io_executor> strand_;
+  tcp::socket socket_;
+  asio::steady_timer tick_;
+  ConnectionOptions options_;
+  std::string id_;
+  std::shared_ptr<spdlog::logger> log_;
+
+  // Strand-owned state.
+  FrameDecoder decoder_;
+  std::vector<char> readBuffer_;
+  std::deque<std::shared_ptr<const std::string>> writeQueue_;
+  bool writing_ = false;
+  bool reading_ = false;
+  bool readPaused_ = false;
+  bool draining_ = false;  // closing once the queue is empty
+  std::string drainReason_;
+  std::chrono::steady_clock::time_point lastReceive_;
+  std::chrono::steady_clock::time_point lastSend_;
+  std::chrono::steady_clock::time_point drainDeadline_;
+  MessageHandler onMessage_;
+  CloseHandler onClose_;
+
+  // Shared with other threads.
+  std::atomic<bool> closed_{false};
+  std::atomic<size_t> queuedBytes_{0};
+  std::atomic<uint64_t> bytesSent_{0};
+  std::atomic<uint64_t> bytesReceived_{0};
+};
+
+/// Accepts TCP connections; each accepted socket gets its own strand.
+/// Start/Stop are thread-safe.
+class Listener : public std::enable_shared_from_this<Listener> {
+ public:
+  using AcceptHandler = std::function<void(tcp::socket)>;
+
+  static std::shared_ptr<Listener> Create(asio::io_context& io, AcceptHandler onAccept);
+
+  /// Resolves, binds and listens. Port 0 picks a free port; the returned
+  /// endpoint says which.
+  Expected<tcp::endpoint> Listen(const HostPort& where);
+  void Start();
+  void Stop();
+
+ private:
+  Listener(asio::io_context& io, AcceptHandler onAccept);
+  void DoAccept();
+
+  asio::io_context& io_;
+  tcp::acceptor acceptor_;
+  AcceptHandler onAccept_;
+  std::atomic<bool> stopped_{false};
+};
+
+/// Resolves `where` to every address it names (a DNS name behind which
+/// several hosts stand yields them all). Blocking; call off the I/O threads.
+Expected<std::vector<tcp::endpoint>> ResolveAll(asio::io_context& io, const HostPort& where);
+
+/// Connects a socket (on its own strand executor) within `timeout`.
+/// The handler runs on an io_context thread with an error or the socket.
+void AsyncConnect(asio::io_context& io, const tcp::endpoint& endpoint, std::chrono::milliseconds timeout,
+                  std::function<void(const boost::system::error_code&, tcp::socket)> handler);
+
+/// "host:port" of a socket's peer, or "?" when it has none.
+std::string PeerAddress(const tcp::socket& socket);
+
+}  // namespace penumbra::net

@@ -1,0 +1,23 @@
+#pragma once
+// HOST:PORT parsing for --listen / --renderer / --connect flags.
+
+#include <cstdint>
+#include <string>
+#include <string_view>
+
+#include "penumbra/common/expected.h"
+
+namespace penumbra {
+
+struct HostPort {
+  std::string host;  // name, IPv4, or IPv6 (given in brackets: [::1]:7000)
+  uint16_t port = 0;
+
+  std::string ToString() const;
+};
+
+/// Parses "host:port", "[v6]:port" or ":port" (host then "0.0.0.0").
+/// Port 0 is accepted only when `allowPortZero` (listen on any free port).
+Expected<HostPort> ParseHostPort(std::string_view text, bool allowPortZero = false);
+
+}  // namespace penumbra

@@ -1,0 +1,154 @@
+#include "penumbra/common/camera.h"
+
+#include <fstream>
+#include <sstream>
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+namespace penumbra {
+
+Status ValidateCameraView(const CameraView& v) {
+  const auto& p = v.pose;
+  if (!IsFinite(p.eye) || !IsFinite(p.target) || !IsFinite(p.up))
+    return Fail("camera eye, target and up must be finite");
+  const Vec3 forward = p.target - p.eye;
+  if (glm::length(forward) <= 0.0f) return Fail("camera eye and target coincide");
+  if (glm::length(p.up) <= 0.0f) return Fail("camera up is the zero vector");
+  if (glm::length(glm::cross(glm::normalize(forward), glm::normalize(p.up))) < 1e-4f)
+    return Fail("camera up is parallel to the view direction");
+  if (!(v.fovYDeg >= 1.0f && v.fovYDeg <= 179.0f))
+    return Fail(fmt::format("vertical field of view {} is outside [1, 179] degrees", v.fovYDeg));
+  if (v.width < 1 || v.height < 1 || v.width > 16384 || v.height > 16384)
+    return Fail(fmt::format("viewport {}x{} is outside 1..16384 pixels per side", v.width, v.height));
+  return Status::Ok();
+}
+
+PinholeCamera::PinholeCamera(const CameraView& view)
+    : origin_(view.pose.eye),
+      forward_(glm::normalize(view.pose.target - view.pose.eye)),
+      right_(glm::normalize(glm::cross(forward_, view.pose.up))),
+      up_(glm::cross(right_, forward_)),
+      tanHalfFovY_(std::tan(0.5f * view.fovYDeg * kPi / 180.0f)),
+      aspect_(float(view.width) / float(view.height)),
+      width_(view.width),
+      height_(view.height) {}
+
+Vec3 PinholeCamera::DirectionThrough(float px, float py) const {
+  const float sx = (2.0f * px / float(width_) - 1.0f) * tanHalfFovY_ * aspect_;
+  const float sy = (1.0f - 2.0f * py / float(height_)) * tanHalfFovY_;
+  return glm::normalize(forward_ + sx * right_ + sy * up_);
+}
+
+double CameraPath::DurationSeconds() const {
+  return keyframes.empty() ? 0.0 : keyframes.back().timeSeconds - keyframes.front().timeSeconds;
+}
+
+CameraPose CameraPath::PoseAt(double t) const {
+  if (keyframes.size() == 1 || t <= keyframes.front().timeSeconds) return keyframes.front().pose;
+  if (t >= keyframes.back().timeSeconds) return keyframes.back().pose;
+  size_t i = 1;
+  while (keyframes[i].timeSeconds < t) ++i;
+  const auto& a = keyframes[i - 1];
+  const auto& b = keyframes[i];
+  const double span = b.timeSeconds - a.timeSeconds;
+  const float s = span > 0.0 ? float((t - a.timeSeconds) / span) : 1.0f;
+  CameraPose pose;
+  pose.eye = glm::mix(a.pose.eye, b.pose.eye, s);
+  pose.target = glm::mix(a.pose.target, b.pose.target, s);
+  pose.up = glm::mix(a.pose.up, b.pose.up, s);
+  return pose;
+}
+
+CameraView CameraPath::ViewAt(double t) const {
+  CameraView view;
+  view.pose = PoseAt(t);
+  view.fovYDeg = fovYDeg;
+  view.width = width;
+  view.height = height;
+  return view;
+}
+
+namespace {
+
+using Json = nlohmann::json;
+
+Expected<Vec3> ReadVec3(const Json& parent, const char* key, std::string_view where, bool required,
+                        Vec3 fallback = Vec3(0.0f)) {
+  if (!parent.contains(key)) {
+    if (required) return Fail(fmt::format("{}: missing \"{}\"", where, key));
+    return fallback;
+  }
+  const Json& v = parent.at(key);
+  if (!v.is_array() || v.size() != 3 || !v[0].is_number() || !v[1].is_number() || !v[2].is_number())
+    return Fail(fmt::format("{}: \"{}\" must be an array of 3 numbers", where, key));
+  const Vec3 out(v[0].get<float>(), v[1].get<float>(), v[2].get<float>());
+  if (!IsFinite(out)) return Fail(fmt::format("{}: \"{}\" is not finite", where, key));
+  return out;
+}
+
+}  // namespace
+
+Expected<CameraPath> ParseCameraPathJson(std::string_view text, std::string_view sourceName) {
+  Json doc = Json::parse(text.begin(), text.end(), nullptr, /*allow_exceptions=*/false);
+  if (doc.is_discarded()) return Fail(fmt::format("{}: not valid JSON", sourceName));
+  if (!doc.is_object()) return Fail(fmt::format("{}: a camera path must be a JSON object", sourceName));
+  CameraPath path;
+  auto number = [&](const char* key, double fallback) -> Expected<double> {
+    if (!doc.contains(key)) return fallback;
+    if (!doc[key].is_number()) return Fail(fmt::format("{}: \"{}\" must be a number", sourceName, key));
+    return doc[key].get<double>();
+  };
+  auto fov = number("fov_y_deg", 45.0);
+  if (!fov) return fov.error();
+  auto width = number("width", 640);
+  if (!width) return width.error();
+  auto height = number("height", 480);
+  if (!height) return height.error();
+  path.fovYDeg = float(*fov);
+  path.width = int(*width);
+  path.height = int(*height);
+  if (doc.contains("name") && doc["name"].is_string()) path.name = doc["name"].get<std::string>();
+  if (!doc.contains("keyframes") || !doc["keyframes"].is_array() || doc["keyframes"].empty())
+    return Fail(fmt::format("{}: \"keyframes\" must be a non-empty array", sourceName));
+  for (size_t i = 0; i < doc["keyframes"].size(); ++i) {
+    const Json& k = doc["keyframes"][i];
+    const std::string where = fmt::format("{}: keyframe {}", sourceName, i);
+    if (!k.is_object()) return Fail(fmt::format("{} must be an object", where));
+    CameraKeyframe key;
+    if (k.contains("t")) {
+      if (!k["t"].is_number()) return Fail(fmt::format("{}: \"t\" must be a number", where));
+      key.timeSeconds = k["t"].get<double>();
+    } else if (i > 0) {
+      return Fail(fmt::format("{}: missing \"t\"", where));
+    }
+    auto eye = ReadVec3(k, "eye", where, true);
+    if (!eye) return eye.error();
+    auto target = ReadVec3(k, "target", where, true);
+    if (!target) return target.error();
+    auto up = ReadVec3(k, "up", where, false, Vec3(0.0f, 1.0f, 0.0f));
+    if (!up) return up.error();
+    key.pose = CameraPose{*eye, *target, *up};
+    if (!std::isfinite(key.timeSeconds) ||
+        (!path.keyframes.empty() && key.timeSeconds < path.keyframes.back().timeSeconds))
+      return Fail(fmt::format("{}: times must be finite and non-decreasing", where));
+    path.keyframes.push_back(key);
+  }
+  for (size_t i = 0; i < path.keyframes.size(); ++i) {
+    if (auto ok = ValidateCameraView(path.ViewAt(path.keyframes[i].timeSeconds)); !ok)
+      return Fail(fmt::format("{}: keyframe {}: {}", sourceName, i, ok.error().message));
+  }
+  return path;
+}
+
+Expected<CameraPath> LoadCameraPath(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return Fail(fmt::format("{}: cannot open camera path file", path.string()));
+  std::ostringstream text;
+  text << in.rdbuf();
+  auto parsed = ParseCameraPathJson(text.str(), path.string());
+  if (parsed && parsed->name.empty()) parsed->name = path.stem().string();
+  return parsed;
+}
+
+}  // namespace penumbra

@@ -1,0 +1,356 @@
+#include "penumbra/common/connection.h"
+
+#include <algorithm>
+
+#include <fmt/format.h>
+
+#include "penumbra/common/logging.h"
+#include "penumbra/common/messages.h"
+
+namespace penumbra::net {
+
+namespace {
+using Clock = std::chrono::steady_clock;
+using boost::system::error_code;
+
+constexpr size_t kReadChunkBytes = 64 * 1024;
+constexpr size_t kMaxGatherFrames = 64;
+constexpr auto kDrainGrace = std::chrono::seconds(2);
+
+std::chrono::milliseconds TickInterval(const ConnectionOptions& o) {
+  const auto shortest = std::min(o.heartbeatInterval, o.readTimeout);
+  return std::clamp(shortest / 4, std::chrono::milliseconds(20), std::chrono::milliseconds(1000));
+}
+}  // namespace
+
+std::shared_ptr<Connection> Connection::Create(tcp::socket socket, ConnectionOptions options, std::string id) {
+  return std::shared_ptr<Connection>(new Connection(std::move(socket), options, std::move(id)));
+}
+
+Connection::Connection(tcp::socket socket, ConnectionOptions options, std::string id)
+    : strand_(asio::make_strand(socket.get_executor())),
+      socket_(std::move(socket)),
+      tick_(strand_),
+      options_(options),
+      id_(std::move(id)),
+      log_(Logger("net")),
+      decoder_(options.maxFrameBytes),
+      readBuffer_(kReadChunkBytes) {
+  error_code ec;
+  socket_.set_option(tcp::no_delay(true), ec);  // small deltas and replies must not wait for Nagle
+}
+
+Connection::~Connection() = default;
+
+void Connection::Start(MessageHandler onMessage, CloseHandler onClose) {
+  asio::dispatch(strand_, [self = shared_from_this(), onMessage = std::move(onMessage),
+                           onClose = std::move(onClose)]() mutable {
+    self->onMessage_ = std::move(onMessage);
+    self->onClose_ = std::move(onClose);
+    self->lastReceive_ = self->lastSend_ = Clock::now();
+    if (self->closed_) {
+      // Closed before it started: still report it, exactly once.
+      if (auto handler = std::move(self->onClose_)) handler("closed before start");
+      self->onMessage_ = nullptr;
+      return;
+    }
+    self->DoRead();
+    self->ArmTick();
+  });
+}
+
+bool Connection::Send(const wire::Envelope& envelope) {
+  return SendFrame(std::make_shared<const std::string>(EncodeEnvelopeFrame(envelope)));
+}
+
+bool Connection::SendFrame(std::shared_ptr<const std::string> frame) {
+  if (closed_) return false;
+  const size_t size = frame->size();
+  if (queuedBytes_.fetch_add(size) + size > options_.maxQueuedBytes) {
+    queuedBytes_.fetch_sub(size);
+    return false;
+  }
+  asio::post(strand_, [self = shared_from_this(), frame = std::move(frame)]() mutable {
+    if (self->closed_ || self->draining_) {
+      self->queuedBytes_.fetch_sub(frame->size());
+      return;
+    }
+    self->writeQueue_.push_back(std::move(frame));
+    if (!self->writing_) self->DoWrite();
+  });
+  return true;
+}
+
+void Connection::FailAndClose(const wire::Envelope& error, std::string reason) {
+  auto frame = std::make_shared<const std::string>(EncodeEnvelopeFrame(error));
+  asio::dispatch(strand_, [self = shared_from_this(), frame = std::move(frame), reason = std::move(reason)]() mutable {
+    if (self->closed_ || self->draining_) return;
+    // The error goes out even over the queue limit: it is the last frame.
+    self->queuedBytes_.fetch_add(frame->size());
+    self->writeQueue_.push_back(std::move(frame));
+    self->BeginDrain(std::move(reason));
+  });
+}
+
+void Connection::CloseAfterFlush(std::string reason) {
+  asio::dispatch(strand_, [self = shared_from_this(), reason = std::move(reason)]() mutable {
+    if (self->closed_ || self->draining_) return;
+    self->BeginDrain(std::move(reason));
+  });
+}
+
+void Connection::Close(std::string reason) {
+  asio::dispatch(strand_, [self = shared_from_this(), reason = std::move(reason)] { self->DoClose(reason); });
+}
+
+void Connection::SetReadPaused(bool paused) {
+  asio::dispatch(strand_, [self = shared_from_this(), paused] {
+    if (self->readPaused_ == paused) return;
+    self->readPaused_ = paused;
+    if (!paused && !self->closed_) {
+      self->lastReceive_ = Clock::now();
+      // Frames may already be buffered: deliver them before reading more.
+      self->OnRead(error_code(), 0);
+    }
+  });
+}
+
+void Connection::BeginDrain(std::string reason) {
+  draining_ = true;
+  drainReason_ = std::move(reason);
+  drainDeadline_ = Clock::now() + kDrainGrace;
+  error_code ec;
+  // Stop taking input; the peer still gets what we have queued.
+  socket_.shutdown(tcp::socket::shutdown_receive, ec);
+  if (!writing_) {
+    if (writeQueue_.empty())
+      DoClose(drainReason_);
+    else
+      DoWrite();
+  }
+}
+
+void Connection::DoRead() {
+  if (closed_ || reading_ || readPaused_ || draining_) return;
+  reading_ = true;
+  socket_.async_read_some(asio::buffer(readBuffer_),
+                          asio::bind_executor(strand_, [self = shared_from_this()](const error_code& ec, size_t n) {
+                            self->reading_ = false;
+                            self->OnRead(ec, n);
+                          }));
+}
+
+void Connection::OnRead(const error_code& ec, size_t n) {
+  if (closed_) return;
+  if (ec) {
+    if (draining_) return;  // we shut the receive side down ourselves
+    DoClose(ec == asio::error::eof ? std::string("peer closed the connection") : ec.message());
+    return;
+  }
+  if (n > 0) {
+    bytesReceived_ += n;
+    lastReceive_ = Clock::now();
+    decoder_.Feed(readBuffer_.data(), n);
+  }
+  while (!closed_ && !draining_ && !readPaused_) {
+    auto next = decoder_.Next();
+    if (!next) {
+      log_->warn("{}: {}", id_, next.error().message);
+      FailAndClose(MakeError(0, wire::ERROR_CODE_FRAME_TOO_LARGE, next.error().message, true),
+                   next.error().message);
+      return;
+    }
+    if (!next->has_value()) break;
+    auto envelope = DecodeEnvelope(**next);
+    if (!envelope) {
+      log_->warn("{}: {}", id_, envelope.error().message);
+      FailAndClose(MakeError(0, wire::ERROR_CODE_BAD_FRAME, envelope.error().message, true),
+                   envelope.error().message);
+      return;
+    }
+    if (envelope->has_heartbeat()) continue;
+    if (onMessage_) onMessage_(std::move(*envelope));
+  }
+  DoRead();
+}
+
+void Connection::DoWrite() {
+  if (closed_ || writeQueue_.empty()) return;
+  writing_ = true;
+  std::vector<asio::const_buffer> buffers;
+  const size_t count = std::min(writeQueue_.size(), kMaxGatherFrames);
+  buffers.reserve(count);
+  for (size_t i = 0; i < count; ++i) buffers.emplace_back(asio::buffer(*writeQueue_[i]));
+  asio::async_write(socket_, buffers,
+                    asio::bind_executor(strand_, [self = shared_from_this(), count](const error_code& ec, size_t n) {
+                      self->writing_ = false;
+                      if (self->closed_) return;
+                      if (ec) {
+                        self->DoClose(fmt::format("write failed: {}", ec.message()));
+                        return;
+                      }
+                      self->bytesSent_ += n;
+                      self->lastSend_ = Clock::now();
+                      for (size_t i = 0; i < count; ++i) {
+                        self->queuedBytes_.fetch_sub(self->writeQueue_.front()->size());
+                        self->writeQueue_.pop_front();
+                      }
+                      if (!self->writeQueue_.empty())
+                        self->DoWrite();
+                      else if (self->draining_)
+                        self->DoClose(self->drainReason_);
+                    }));
+}
+
+void Connection::ArmTick() {
+  if (closed_) return;
+  tick_.expires_after(TickInterval(options_));
+  tick_.async_wait(asio::bind_executor(strand_, [self = shared_from_this()](const error_code& ec) {
+    if (!ec) self->OnTick();
+  }));
+}
+
+void Connection::OnTick() {
+  if (closed_) return;
+  const auto now = Clock::now();
+  if (draining_) {
+    if (now >= drainDeadline_) {
+      DoClose(drainReason_ + " (flush timed out)");
+      return;
+    }
+  } else if (!readPaused_ && now - lastReceive_ > options_.readTimeout) {
+    const auto ms = std::chrono::duration_cast<std::chrono::milliseconds>(now - lastReceive_).count();
+    const std::string why = fmt::format("peer silent for {} ms (read timeout {} ms)", ms, options_.readTimeout.count());
+    log_->warn("{}: {}", id_, why);
+    FailAndClose(MakeError(0, wire::ERROR_CODE_TIMEOUT, why, true), why);
+  } else if (now - lastSend_ >= options_.heartbeatInterval && writeQueue_.empty() && !writing_) {
+    lastSend_ = now;
+    auto frame = std::make_shared<const std::string>(EncodeEnvelopeFrame(MakeHeartbeat()));
+    queuedBytes_.fetch_add(frame->size());
+    writeQueue_.push_back(std::move(frame));
+    DoWrite();
+  }
+  ArmTick();
+}
+
+void Connection::DoClose(const std::string& reason) {
+  if (closed_.exchange(true)) return;
+  error_code ec;
+  tick_.cancel();
+  socket_.shutdown(tcp::socket::shutdown_both, ec);
+  socket_.close(ec);
+  for (const auto& frame : writeQueue_) queuedBytes_.fetch_sub(frame->size());
+  writeQueue_.clear();
+  log_->debug("{}: closed: {}", id_, reason);
+  onMessage_ = nullptr;
+  // Handlers usually capture their owner; dropping them here breaks the
+  // owner <-> connection cycle.
+  if (auto handler = std::move(onClose_)) handler(reason);
+}
+
+// --- Listener ---------------------------------------------------------------
+
+std::shared_ptr<Listener> Listener::Create(asio::io_context& io, AcceptHandler onAccept) {
+  return std::shared_ptr<Listener>(new Listener(io, std::move(onAccept)));
+}
+
+Listener::Listener(asio::io_context& io, AcceptHandler onAccept)
+    : io_(io), acceptor_(io), onAccept_(std::move(onAccept)) {}
+
+Expected<tcp::endpoint> Listener::Listen(const HostPort& where) {
+  error_code ec;
+  tcp::resolver resolver(io_);
+  auto results = resolver.resolve(where.host, std::to_string(where.port), tcp::resolver::passive, ec);
+  if (ec || results.empty())
+    return Fail(fmt::format("cannot resolve listen address {}: {}", where.ToString(), ec.message()));
+  const tcp::endpoint endpoint = results.begin()->endpoint();
+  acceptor_.open(endpoint.protocol(), ec);
+  if (!ec) acceptor_.set_option(asio::socket_base::reuse_address(true), ec);
+  if (!ec) acceptor_.bind(endpoint, ec);
+  if (!ec) acceptor_.listen(asio::socket_base::max_listen_connections, ec);
+  if (ec) return Fail(fmt::format("cannot listen on {}: {}", where.ToString(), ec.message()));
+  auto local = acceptor_.local_endpoint(ec);
+  if (ec) return Fail(fmt::format("cannot read the bound address of {}: {}", where.ToString(), ec.message()));
+  return local;
+}
+
+void Listener::Start() {
+  asio::post(io_, [self = shared_from_this()] { self->DoAccept(); });
+}
+
+void Listener::Stop() {
+  stopped_ = true;
+  asio::post(io_, [self = shared_from_this()] {
+    error_code ec;
+    self->acceptor_.close(ec);
+  });
+}
+
+void Listener::DoAccept() {
+  if (stopped_) return;
+  acceptor_.async_accept(asio::make_strand(io_), [self = shared_from_this()](const error_code& ec, tcp::socket socket) {
+    if (self->stopped_ || ec == asio::error::operation_aborted) return;
+    if (ec) {
+      // Out of descriptors and similar: log, wait a little, keep accepting.
+      Logger("net")->warn("accept failed: {}", ec.message());
+      auto timer = std::make_shared<asio::steady_timer>(self->io_, std::chrono::milliseconds(100));
+      timer->async_wait([self, timer](const error_code&) { self->DoAccept(); });
+      return;
+    }
+    self->onAccept_(std::move(socket));
+    self->DoAccept();
+  });
+}
+
+// --- Client-side helpers ----------------------------------------------------
+
+Expected<std::vector<tcp::endpoint>> ResolveAll(asio::io_context& io, const HostPort& where) {
+  error_code ec;
+  tcp::resolver resolver(io);
+  auto results = resolver.resolve(where.host, std::to_string(where.port), ec);
+  if (ec) return Fail(fmt::format("cannot resolve {}: {}", where.ToString(), ec.message()));
+  std::vector<tcp::endpoint> endpoints;
+  for (const auto& r : results)
+    if (std::find(endpoints.begin(), endpoints.end(), r.endpoint()) == endpoints.end())
+      endpoints.push_back(r.endpoint());
+  if (endpoints.empty()) return Fail(fmt::format("{} resolves to no address", where.ToString()));
+  return endpoints;
+}
+
+void AsyncConnect(asio::io_context& io, const tcp::endpoint& endpoint, std::chrono::milliseconds timeout,
+                  std::function<void(const error_code&, tcp::socket)> handler) {
+  struct State {
+    explicit State(asio::io_context& ctx) : socket(asio::make_strand(ctx)), timer(socket.get_executor()) {}
+    tcp::socket socket;
+    asio::steady_timer timer;
+    bool done = false;
+    std::function<void(const error_code&, tcp::socket)> handler;
+  };
+  auto state = std::make_shared<State>(io);
+  state->handler = std::move(handler);
+  state->timer.expires_after(timeout);
+  state->timer.async_wait([state](const error_code& ec) {
+    if (ec || state->done) return;
+    error_code ignored;
+    state->socket.cancel(ignored);
+    state->socket.close(ignored);
+  });
+  state->socket.async_connect(endpoint, [state](const error_code& ec) {
+    state->done = true;
+    state->timer.cancel();
+    if (ec && !state->socket.is_open())
+      state->handler(asio::error::timed_out, std::move(state->socket));
+    else
+      state->handler(ec, std::move(state->socket));
+  });
+}
+
+std::string PeerAddress(const tcp::socket& socket) {
+  error_code ec;
+  const auto endpoint = socket.remote_endpoint(ec);
+  if (ec) return "?";
+  return endpoint.address().is_v6() ? fmt::format("[{}]:{}", endpoint.address().to_string(), endpoint.port())
+                                    : fmt::format("{}:{}", endpoint.address().to_string(), endpoint.port());
+}
+
+}  // namespace penumbra::net

@@ -1,0 +1,43 @@
+#include "penumbra/common/logging.h"
+
+#include <mutex>
+
+#include <spdlog/sinks/stdout_color_sinks.h>
+
+namespace penumbra {
+namespace {
+
+std::mutex& SetupMutex() {
+  static std::mutex m;
+  return m;
+}
+
+spdlog::sink_ptr& SharedSink() {
+  static spdlog::sink_ptr sink = std::make_shared<spdlog::sinks::stderr_color_sink_mt>();
+  return sink;
+}
+
+}  // namespace
+
+bool SetupLogging(std::string_view level) {
+  std::lock_guard lock(SetupMutex());
+  const auto parsed = spdlog::level::from_str(std::string(level));
+  // from_str maps unknown names to "off"; only accept "off" when asked for.
+  const bool known = parsed != spdlog::level::off || level == "off";
+  spdlog::set_level(known ? parsed : spdlog::level::info);
+  spdlog::set_pattern("%Y-%m-%d %H:%M:%S.%e [%n] %^%l%$ %v");
+  spdlog::flush_on(spdlog::level::info);
+  return known;
+}
+
+std::shared_ptr<spdlog::logger> Logger(const std::string& name) {
+  std::lock_guard lock(SetupMutex());
+  if (auto existing = spdlog::get(name)) return existing;
+  auto logger = std::make_shared<spdlog::logger>(name, SharedSink());
+  logger->set_level(spdlog::get_level());
+  logger->flush_on(spdlog::level::info);
+  spdlog::register_logger(logger);
+  return logger;
+}
+
+}  // namespace penumbra

@@ -1,0 +1,375 @@
+// Scene data, SceneBuilder (welding and crease splitting) and Finalize().
+// File loading lives in scene_loader.cpp.
+
+#include "penumbra/common/scene.h"
+
+#include <cmath>
+#include <cstring>
+#include <numeric>
+#include <unordered_map>
+
+#include <fmt/format.h>
+
+#include "penumbra/common/hash.h"
+
+namespace penumbra {
+
+// --- Texture ----------------------------------------------------------------
+
+Rgb Texture::Sample(Vec2 uv) const {
+  if (width <= 0 || height <= 0 || texels.empty()) return Rgb(1.0f);
+  // Continuous texel coordinates; texel centres at integer + 0.5. Image row 0
+  // is the top, and v grows upward, hence the flip.
+  const float x = uv.x * float(width) - 0.5f;
+  const float y = (1.0f - uv.y) * float(height) - 0.5f;
+  const float fx = std::floor(x);
+  const float fy = std::floor(y);
+  const float tx = x - fx;
+  const float ty = y - fy;
+  auto wrap = [](long i, int n) {
+    const long m = i % n;
+    return int(m < 0 ? m + n : m);
+  };
+  // Coordinates far outside [0,1] (tiling UVs) stay exact through the wrap.
+  const long ix = std::isfinite(fx) ? long(fx) : 0;
+  const long iy = std::isfinite(fy) ? long(fy) : 0;
+  const int x0 = wrap(ix, width), x1 = wrap(ix + 1, width);
+  const int y0 = wrap(iy, height), y1 = wrap(iy + 1, height);
+  auto at = [&](int xx, int yy) -> const Rgb& { return texels[size_t(yy) * size_t(width) + size_t(xx)]; };
+  const Rgb top = (1.0f - tx) * at(x0, y0) + tx * at(x1, y0);
+  const Rgb bottom = (1.0f - tx) * at(x0, y1) + tx * at(x1, y1);
+  return (1.0f - ty) * top + ty * bottom;
+}
+
+// --- SkyLight ---------------------------------------------------------------
+
+Rgb SkyLight::Radiance(const Vec3& direction) const {
+  const float c = std::clamp(glm::dot(direction, up), -1.0f, 1.0f);
+  return c >= 0.0f ? glm::mix(horizon, zenith, c) : glm::mix(horizon, ground, -c);
+}
+
+// --- Scene ------------------------------------------------------------------
+
+Vec3 Scene::GeometricNormal(uint32_t triangle) const {
+  const Vec3& p0 = Position(triangle, 0);
+  const Vec3 n = glm::cross(Position(triangle, 1) - p0, Position(triangle, 2) - p0);
+  const float len = glm::length(n);
+  return len > 0.0f ? n / len : Vec3(0.0f, 0.0f, 1.0f);
+}
+
+float Scene::Area(uint32_t triangle) const {
+  const Vec3& p0 = Position(triangle, 0);
+  return 0.5f * glm::length(glm::cross(Position(triangle, 1) - p0, Position(triangle, 2) - p0));
+}
+
+Vec3 Scene::PointAt(uint32_t triangle, float b1, float b2) const {
+  return (1.0f - b1 - b2) * Position(triangle, 0) + b1 * Position(triangle, 1) +
+         b2 * Position(triangle, 2);
+}
+
+Rgb Scene::AlbedoAt(uint32_t triangle, float b1, float b2) const {
+  const Triangle& tri = triangles[triangle];
+  const Material& m = materials[tri.material];
+  if (m.albedoTexture < 0) return m.albedo;
+  const Vec2 uv = (1.0f - b1 - b2) * tri.uv[0] + b1 * tri.uv[1] + b2 * tri.uv[2];
+  return m.albedo * textures[size_t(m.albedoTexture)].Sample(uv);
+}
+
+const CameraPreset* Scene::FindCamera(std::string_view cameraName) const {
+  for (const auto& c : cameras)
+    if (c.name == cameraName) return &c;
+  return nullptr;
+}
+
+const CameraPath* Scene::FindPath(std::string_view pathName) const {
+  for (const auto& p : paths)
+    if (p.name == pathName) return &p;
+  return nullptr;
+}
+
+namespace {
+
+bool IsFiniteRgb(const Rgb& c) { return IsFinite(c); }
+
+template <class T>
+void HashPod(Hasher& h, const std::vector<T>& values) {
+  h.Update(uint64_t(values.size()));
+  h.Update(values.data(), values.size() * sizeof(T));
+}
+
+uint64_t ComputeIdentity(const Scene& s) {
+  Hasher h;
+  HashPod(h, s.vertices);
+  h.Update(uint64_t(s.triangles.size()));
+  for (const Triangle& t : s.triangles) {
+    h.Update(t.v.data(), sizeof t.v);
+    h.Update(t.uv.data(), sizeof t.uv);
+    h.Update(uint64_t(t.material));
+  }
+  h.Update(uint64_t(s.materials.size()));
+  for (const Material& m : s.materials) {
+    h.Update(&m.albedo, sizeof m.albedo);
+    h.Update(uint64_t(int64_t(m.albedoTexture)));
+    h.Update(&m.emission, sizeof m.emission);
+  }
+  h.Update(uint64_t(s.textures.size()));
+  for (const Texture& t : s.textures) {
+    h.Update(uint64_t(t.width));
+    h.Update(uint64_t(t.height));
+    HashPod(h, t.texels);
+  }
+  h.Update(uint64_t(s.sun.has_value()));
+  if (s.sun) {
+    h.Update(&s.sun->directionToSun, sizeof(Vec3));
+    h.Update(&s.sun->radiance, sizeof(Rgb));
+    h.Update(&s.sun->angularDiameterRad, sizeof(float));
+  }
+  h.Update(uint64_t(s.sky.has_value()));
+  if (s.sky) {
+    h.Update(&s.sky->up, sizeof(Vec3));
+    h.Update(&s.sky->zenith, sizeof(Rgb));
+    h.Update(&s.sky->horizon, sizeof(Rgb));
+    h.Update(&s.sky->ground, sizeof(Rgb));
+  }
+  return h.Digest();
+}
+
+}  // namespace
+
+Status Scene::Finalize() {
+  const std::string where = sourcePath.empty() ? name : sourcePath.string();
+  if (triangles.empty()) return Fail(fmt::format("{}: the scene has no triangles", where));
+  if (materials.empty()) return Fail(fmt::format("{}: the scene has no materials", where));
+  for (size_t i = 0; i < vertices.size(); ++i) {
+    if (!IsFinite(vertices[i].position))
+      return Fail(fmt::format("{}: vertex {} has a non-finite coordinate", where, i));
+    if (!IsFinite(vertices[i].normal))
+      return Fail(fmt::format("{}: vertex {} has a non-finite normal", where, i));
+  }
+  for (size_t i = 0; i < triangles.size(); ++i) {
+    for (uint32_t v : triangles[i].v)
+      if (v >= vertices.size())
+        return Fail(fmt::format("{}: triangle {} refers to vertex {} of {}", where, i, v, vertices.size()));
+    if (triangles[i].material >= materials.size())
+      return Fail(fmt::format("{}: triangle {} refers to material {} of {}", where, i,
+                              triangles[i].material, materials.size()));
+  }
+  for (const Material& m : materials) {
+    if (!IsFiniteRgb(m.albedo) || !IsFiniteRgb(m.emission))
+      return Fail(fmt::format("{}: material '{}' has a non-finite colour", where, m.name));
+    if (m.albedoTexture >= int32_t(textures.size()))
+      return Fail(fmt::format("{}: material '{}' refers to texture {} of {}", where, m.name,
+                              m.albedoTexture, textures.size()));
+  }
+  for (const Texture& t : textures)
+    if (t.width <= 0 || t.height <= 0 || t.texels.size() != size_t(t.width) * size_t(t.height))
+      return Fail(fmt::format("{}: texture '{}' has inconsistent size", where, t.path));
+  if (sun && (!IsFinite(sun->directionToSun) || !IsFiniteRgb(sun->radiance) ||
+              !(sun->angularDiameterRad > 0.0f && sun->angularDiameterRad < kPi)))
+    return Fail(fmt::format("{}: the sun needs a finite direction and radiance and an angular diameter in (0, 180) degrees", where));
+  if (sun) sun->directionToSun = glm::normalize(sun->directionToSun);
+  if (sky && (!IsFinite(sky->up) || glm::length(sky->up) == 0.0f || !IsFiniteRgb(sky->zenith) ||
+              !IsFiniteRgb(sky->horizon) || !IsFiniteRgb(sky->ground)))
+    return Fail(fmt::format("{}: the sky needs a finite up direction and finite radiances", where));
+  if (sky) sky->up = glm::normalize(sky->up);
+
+  emissiveTriangles.clear();
+  bounds = Bounds3{};
+  for (uint32_t i = 0; i < triangles.size(); ++i) {
+    if (MaterialOf(i).IsEmissive()) emissiveTriangles.push_back(i);
+    for (int c = 0; c < 3; ++c) bounds.Extend(Position(i, c));
+  }
+  identity = ComputeIdentity(*this);
+  return Status::Ok();
+}
+
+// --- SceneBuilder -----------------------------------------------------------
+
+SceneBuilder::SceneBuilder(float creaseAngleDeg)
+    : cosCrease_(std::cos(std::clamp(creaseAngleDeg, 0.0f, 180.0f) * kPi / 180.0f)) {}
+
+uint32_t SceneBuilder::AddMaterial(Material material) {
+  materials_.push_back(std::move(material));
+  return uint32_t(materials_.size() - 1);
+}
+
+int32_t SceneBuilder::AddTexture(Texture texture) {
+  textures_.push_back(std::move(texture));
+  return int32_t(textures_.size() - 1);
+}
+
+void SceneBuilder::AddTriangle(const std::array<Vec3, 3>& positions, uint32_t material,
+                               const std::array<Vec2, 3>& uv) {
+  const Vec3 n = glm::cross(positions[1] - positions[0], positions[2] - positions[0]);
+  // A triangle with no area has no normal and no sample worth taking. (NaN
+  // coordinates pass this test and are reported by Finalize.)
+  if (glm::dot(n, n) == 0.0f) {
+    ++degenerate_;
+    return;
+  }
+  for (int c = 0; c < 3; ++c) corners_.push_back(Corner{positions[c], uv[c]});
+  materialOf_.push_back(material);
+}
+
+void SceneBuilder::AddQuad(const Vec3& corner, const Vec3& edge1, const Vec3& edge2,
+                           uint32_t material) {
+  const Vec3 p0 = corner, p1 = corner + edge1, p2 = corner + edge1 + edge2, p3 = corner + edge2;
+  AddTriangle({p0, p1, p2}, material, {Vec2(0, 0), Vec2(1, 0), Vec2(1, 1)});
+  AddTriangle({p0, p2, p3}, material, {Vec2(0, 0), Vec2(1, 1), Vec2(0, 1)});
+}
+
+namespace {
+
+struct PositionKey {
+  uint32_t x, y, z;
+  bool operator==(const PositionKey&) const = default;
+};
+struct PositionKeyHash {
+  size_t operator()(const PositionKey& k) const {
+    return size_t(HashCombine(HashCombine(Mix64(k.x), k.y), k.z));
+  }
+};
+PositionKey KeyOf(const Vec3& p) {
+  PositionKey k;
+  // +0.0f folds -0 into +0 so that the two weld together.
+  const float x = p.x + 0.0f, y = p.y + 0.0f, z = p.z + 0.0f;
+  std::memcpy(&k.x, &x, 4);
+  std::memcpy(&k.y, &y, 4);
+  std::memcpy(&k.z, &z, 4);
+  return k;
+}
+
+// Union-find over the corners incident to one welded position.
+struct DisjointSets {
+  std::vector<uint32_t> parent;
+  explicit DisjointSets(size_t n) : parent(n) { std::iota(parent.begin(), parent.end(), 0u); }
+  uint32_t Find(uint32_t i) {
+    while (parent[i] != i) i = parent[i] = parent[parent[i]];
+    return i;
+  }
+  void Union(uint32_t a, uint32_t b) { parent[Find(a)] = Find(b); }
+};
+
+}  // namespace
+
+Status SceneBuilder::BuildInto(Scene& scene) {
+  const size_t triangleCount = corners_.size() / 3;
+  if (triangleCount == 0) {
+    const std::string where = scene.sourcePath.empty() ? scene.name : scene.sourcePath.string();
+    return Fail(degenerate_ > 0
+                    ? fmt::format("{}: the mesh has no triangles with area ({} degenerate ones dropped)",
+                                  where, degenerate_)
+                    : fmt::format("{}: the mesh has no triangles", where));
+  }
+
+  // 1. Weld corners by exact position.
+  std::unordered_map<PositionKey, uint32_t, PositionKeyHash> positionIndex;
+  positionIndex.reserve(corners_.size());
+  std::vector<uint32_t> positionOfCorner(corners_.size());
+  std::vector<Vec3> positions;
+  for (size_t c = 0; c < corners_.size(); ++c) {
+    auto [it, inserted] = positionIndex.try_emplace(KeyOf(corners_[c].position), uint32_t(positions.size()));
+    if (inserted) positions.push_back(corners_[c].position);
+    positionOfCorner[c] = it->second;
+  }
+
+  // 2. Face normals, and the interior angle at every corner (the weight of
+  // that face in the vertex normal: angle weighting is independent of how a
+  // surface happens to be triangulated).
+  std::vector<Vec3> faceNormal(triangleCount);
+  std::vector<float> cornerAngle(corners_.size());
+  for (size_t t = 0; t < triangleCount; ++t) {
+    const Vec3& p0 = corners_[3 * t].position;
+    const Vec3& p1 = corners_[3 * t + 1].position;
+    const Vec3& p2 = corners_[3 * t + 2].position;
+    faceNormal[t] = glm::normalize(glm::cross(p1 - p0, p2 - p0));
+    const Vec3 p[3] = {p0, p1, p2};
+    for (int c = 0; c < 3; ++c) {
+      const Vec3 a = p[(c + 1) % 3] - p[c];
+      const Vec3 b = p[(c + 2) % 3] - p[c];
+      const float denom = glm::length(a) * glm::length(b);
+      cornerAngle[3 * t + c] = denom > 0.0f ? std::acos(std::clamp(glm::dot(a, b) / denom, -1.0f, 1.0f)) : 0.0f;
+    }
+  }
+
+  // 3. Corners incident to each position (CSR layout).
+  std::vector<uint32_t> start(positions.size() + 1, 0);
+  for (uint32_t p : positionOfCorner) ++start[p + 1];
+  std::partial_sum(start.begin(), start.end(), start.begin());
+  std::vector<uint32_t> incident(corners_.size());
+  {
+    std::vector<uint32_t> fill(start.begin(), start.end() - 1);
+    for (uint32_t c = 0; c < corners_.size(); ++c) incident[fill[positionOfCorner[c]]++] = c;
+  }
+
+  // 4. At each position, faces that share an edge through it and whose
+  // normals are within the crease angle are one smooth sheet and share a
+  // vertex; every other group gets its own vertex.
+  std::vector<uint32_t> vertexOfCorner(corners_.size());
+  std::vector<Vertex> vertices;
+  vertices.reserve(positions.size() + positions.size() / 4);
+  for (uint32_t p = 0; p < positions.size(); ++p) {
+    const uint32_t begin = start[p], end = start[p + 1];
+    const uint32_t k = end - begin;
+    DisjointSets sets(k);
+    for (uint32_t i = 0; i < k; ++i) {
+      const uint32_t ci = incident[begin + i];
+      const uint32_t ti = ci / 3;
+      for (uint32_t j = i + 1; j < k; ++j) {
+        const uint32_t cj = incident[begin + j];
+        const uint32_t tj = cj / 3;
+        if (glm::dot(faceNormal[ti], faceNormal[tj]) < cosCrease_) continue;
+        // Adjacent around p: the two faces share a second position.
+        bool adjacent = false;
+        for (int a = 0; a < 3 && !adjacent; ++a) {
+          const uint32_t pa = positionOfCorner[3 * ti + a];
+          if (pa == p) continue;
+          for (int b = 0; b < 3; ++b)
+            if (positionOfCorner[3 * tj + b] == pa) adjacent = true;
+        }
+        if (adjacent) sets.Union(i, j);
+      }
+    }
+    std::vector<int64_t> vertexOfRoot(k, -1);
+    for (uint32_t i = 0; i < k; ++i) {
+      const uint32_t root = sets.Find(i);
+      if (vertexOfRoot[root] < 0) {
+        vertexOfRoot[root] = int64_t(vertices.size());
+        vertices.push_back(Vertex{positions[p], Vec3(0.0f)});
+      }
+      const uint32_t c = incident[begin + i];
+      Vertex& v = vertices[size_t(vertexOfRoot[root])];
+      v.normal += cornerAngle[c] * faceNormal[c / 3];
+      vertexOfCorner[c] = uint32_t(vertexOfRoot[root]);
+    }
+  }
+  for (uint32_t c = 0; c < corners_.size(); ++c) {
+    Vertex& v = vertices[vertexOfCorner[c]];
+    const float len = glm::length(v.normal);
+    // A zero sum cannot happen within a crease angle below 90 degrees, but a
+    // caller may ask for 180: fall back to the face's own normal.
+    if (!(len > 1e-20f)) v.normal = faceNormal[c / 3];
+  }
+  for (Vertex& v : vertices) {
+    const float len = glm::length(v.normal);
+    if (len > 0.0f) v.normal /= len;
+  }
+
+  scene.vertices = std::move(vertices);
+  scene.triangles.resize(triangleCount);
+  for (size_t t = 0; t < triangleCount; ++t) {
+    Triangle& tri = scene.triangles[t];
+    for (int c = 0; c < 3; ++c) {
+      tri.v[c] = vertexOfCorner[3 * t + c];
+      tri.uv[c] = corners_[3 * t + c].uv;
+    }
+    tri.material = materialOf_[t];
+  }
+  scene.materials = std::move(materials_);
+  scene.textures = std::move(textures_);
+  corners_.clear();
+  materialOf_.clear();
+  return scene.Finalize();
+}
+
+}  // namespace penumbra
