@@ -36,7 +36,13 @@ function(penumbra_add_gtest name)
   endif()
   add_executable(${name} ${ARG_SOURCES})
   target_link_libraries(${name} PRIVATE ${ARG_LIBS} GTest::gtest_main GTest::gmock penumbra_build_options)
+  # Integration tests start real processes that use every core: run them
+  # one at a time so their timeouts measure the code, not the contention.
+  set(serial FALSE)
+  if(ARG_LABEL STREQUAL "integration")
+    set(serial TRUE)
+  endif()
   gtest_discover_tests(${name}
-    PROPERTIES LABELS ${ARG_LABEL} TIMEOUT ${ARG_TIMEOUT}
+    PROPERTIES LABELS ${ARG_LABEL} TIMEOUT ${ARG_TIMEOUT} RUN_SERIAL ${serial}
     DISCOVERY_TIMEOUT 60)
 endfunction()

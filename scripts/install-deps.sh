@@ -1,0 +1,43 @@
+#!/usr/bin/env bash
+# Installs Penumbra's build and test dependencies from Debian 12 packages.
+# Idempotent: installs only what is missing, and runs apt-get update only then.
+set -euo pipefail
+
+packages=(
+  # toolchain
+  cmake g++ make pkg-config ca-certificates
+  # libraries
+  libboost-dev libprotobuf-dev protobuf-compiler libembree-dev libopenimageio-dev
+  libglfw3-dev libglm-dev libspdlog-dev libassimp-dev libcli11-dev nlohmann-json3-dev
+  libtbb-dev libepoxy-dev libegl-dev
+  # tests and benchmarks
+  libgtest-dev libgmock-dev libbenchmark-dev
+  # headless OpenGL (client tests, screenshots)
+  xvfb xauth libgl1-mesa-dri libglx-mesa0
+  # multi-host tests and deployment checks
+  iproute2 docker-compose
+)
+
+missing=()
+for p in "${packages[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
+    missing+=("$p")
+  fi
+done
+
+if [ ${#missing[@]} -eq 0 ]; then
+  echo "install-deps: all ${#packages[@]} packages present"
+  exit 0
+fi
+
+echo "install-deps: installing ${missing[*]}"
+sudo=""
+if [ "$(id -u)" -ne 0 ]; then
+  if command -v sudo >/dev/null 2>&1; then sudo="sudo"; else
+    echo "install-deps: need root (or sudo) to install: ${missing[*]}" >&2
+    exit 1
+  fi
+fi
+export DEBIAN_FRONTEND=noninteractive
+$sudo apt-get update -qq
+$sudo apt-get install -y -qq --no-install-recommends "${missing[@]}"
