@@ -1,0 +1,229 @@
+#pragma once
+// The hierarchical subdivision mesh (founding paper §2, §4.2).
+//
+// Every base triangle of the scene is the root of its own tree. A node is a
+// triangle on its base triangle's plane, given by three corner vertices and
+// their barycentric coordinates on the base triangle. A node is split at most
+// once, either
+//   1 -> 4 at its three edge midpoints (Loop-style topology; positions stay on
+//          the base triangle's plane), or
+//   1 -> 2 across one edge: the opposite corner joins that edge's midpoint.
+// Leaves (nodes without children) form the refined mesh.
+//
+// Vertices (shading samples). The corners of root nodes are the scene's
+// vertices. A midpoint vertex is identified by the edge it splits, given by
+// its two endpoint vertices, so the nodes on both sides of an edge share it:
+// one sample, no duplicate work. Because the scene splits vertices at creases,
+// the two sides of a crease edge have different endpoint vertices and so
+// different midpoints (same position, each with its side's normal).
+//
+// Conformity. Adjacency is by position: two leaves are neighbours across an
+// edge when their edges join the same two points, whatever the vertices'
+// normals. Refine() splits a leaf 1 -> 4 and then every neighbour that would
+// otherwise have a T-vertex: a neighbour whose height over the shared edge is
+// less than `aspectThreshold` times the edge's length splits 1 -> 2 and the
+// propagation stops there; otherwise it splits 1 -> 4 and propagation goes on
+// from its other edges -- across base-triangle boundaries too. After every
+// Refine() no leaf edge has a vertex of another leaf at its midpoint (input
+// meshes may carry T-junctions of their own; Refine never adds any).
+//
+// Ids. NodeId and VertexId are dense indices, stable for the life of the
+// hierarchy (nodes and vertices are never removed). Root node id == base
+// triangle index; base vertex id == scene vertex index. Clients key their
+// triangles and vertices by these ids (widened to 64 bits on the wire).
+//
+// Threads: not synchronised. The SMA guards a Hierarchy with its state lock;
+// const member functions may run concurrently with each other.
+
+#include <array>
+#include <cstdint>
+#include <span>
+#include <unordered_map>
+#include <vector>
+
+#include <boost/container/small_vector.hpp>
+
+#include "penumbra/common/math.h"
+#include "penumbra/common/scene.h"
+
+namespace penumbra::sma {
+
+using NodeId = uint32_t;
+using VertexId = uint32_t;
+inline constexpr NodeId kNoNode = ~NodeId(0);
+inline constexpr VertexId kNoVertex = ~VertexId(0);
+
+/// A shading sample's place: what the renderer needs to shade it.
+struct SampleVertex {
+  Vec3 position;          // world space
+  Vec3 normal;            // world space, unit
+  uint32_t point = 0;     // position identity: vertices at the same point share it
+  uint32_t baseTriangle = 0;  // a base triangle the vertex lies on
+  Vec2 bary{0.0f};        // (b1, b2) of `position` on `baseTriangle`
+  uint8_t depth = 0;      // 0 for scene vertices, else the depth of the node whose split made it
+};
+
+struct Node {
+  uint32_t baseTriangle = 0;
+  std::array<VertexId, 3> v{};  // corners, counter-clockwise like the base triangle
+  std::array<Vec2, 3> bary{};   // corners' (b1, b2) on the base triangle
+  NodeId parent = kNoNode;
+  NodeId firstChild = kNoNode;  // children are contiguous: firstChild .. firstChild+childCount-1
+  uint8_t childCount = 0;       // 0 (leaf), 2 or 4
+  uint8_t splitEdge = 0;        // 1 -> 2 splits: the edge split, named by its opposite corner
+  uint8_t depth = 0;            // 0 for roots
+  /// Vertices this node's split added: midpoints of edges 0, 1, 2 (edge k is
+  /// opposite corner k) for 1 -> 4; only [splitEdge] for 1 -> 2; else kNoVertex.
+  std::array<VertexId, 3> mid{kNoVertex, kNoVertex, kNoVertex};
+
+  bool IsLeaf() const { return childCount == 0; }
+};
+
+struct RefineOptions {
+  /// A neighbour whose height over the shared edge is below this multiple of
+  /// the edge's length is "slim": it splits 1 -> 2 and propagation stops.
+  /// 1.2 lets common shapes (equilateral 0.87, right isosceles across a leg
+  /// 1.0) stop the wave, while elongated neighbours, which 1 -> 2 would cut
+  /// into slivers, split 1 -> 4 and pass it on.
+  float aspectThreshold = 1.2f;
+  /// Most 1 -> 4 splits one Refine() makes; beyond it neighbours split 1 -> 2
+  /// (which always ends propagation), so a pathological mesh stays bounded.
+  uint32_t maxSplits4 = 4096;
+  uint8_t maxDepth = 20;  // nodes at this depth are never split 1 -> 4 (float precision); 1 -> 2 still conforms
+};
+
+/// What one Refine() did.
+struct RefineResult {
+  std::vector<NodeId> split;            // nodes that received children
+  std::vector<VertexId> newVertices;    // vertices created (to be shaded)
+};
+
+class Hierarchy {
+ public:
+  /// Roots for every scene triangle; base vertices for every scene vertex.
+  /// The scene must outlive the hierarchy.
+  explicit Hierarchy(const Scene& scene);
+
+  const Scene& GetScene() const { return scene_; }
+  size_t NodeCount() const { return nodes_.size(); }
+  size_t VertexCount() const { return vertices_.size(); }
+  size_t BaseTriangleCount() const { return scene_.triangles.size(); }
+  const Node& GetNode(NodeId id) const { return nodes_[id]; }
+  const SampleVertex& GetVertex(VertexId id) const { return vertices_[id]; }
+
+  /// The node containing point (b1, b2) of `baseTriangle` reached by
+  /// descending from the root while `descend(node)` is true for nodes with
+  /// children. Points on a shared edge go to one side deterministically.
+  template <class DescendPredicate>
+  NodeId Locate(uint32_t baseTriangle, float b1, float b2, DescendPredicate descend) const;
+
+  /// From node `from` (containing the point with node-local barycentrics
+  /// `lambda`), descends further while `descend` holds; updates `lambda`.
+  template <class DescendPredicate>
+  NodeId Descend(NodeId from, std::array<float, 3>& lambda, DescendPredicate descend) const;
+
+  /// Splits leaf `leaf` 1 -> 4 and propagates to neighbours as described
+  /// above. Returns what changed; splitting a non-leaf does nothing.
+  RefineResult Refine(NodeId leaf, const RefineOptions& options);
+
+  /// The leaves whose edge joins the same two points as edge `edge` of leaf
+  /// `leaf` (the leaf itself excluded).
+  boost::container::small_vector<NodeId, 2> EdgeNeighbours(NodeId leaf, int edge) const;
+
+  /// Area of a node in world units (for tests and statistics).
+  float Area(NodeId id) const;
+  /// Texture coordinates of a node's corner, interpolated from the base triangle.
+  Vec2 CornerUv(NodeId id, int corner) const;
+
+  /// Calls f(leafId) for every leaf under `root` (or under every root).
+  template <class F>
+  void ForEachLeaf(NodeId root, F&& f) const;
+
+ private:
+  using EdgeKey = uint64_t;
+  static EdgeKey KeyOf(uint32_t a, uint32_t b) {
+    return a < b ? (EdgeKey(a) << 32) | b : (EdgeKey(b) << 32) | a;
+  }
+  EdgeKey PointEdge(NodeId id, int edge) const;
+  VertexId MidpointVertex(NodeId id, int edge);
+  NodeId AddChild(NodeId parent, const std::array<VertexId, 3>& v, const std::array<Vec2, 3>& bary);
+  void Split4(NodeId id, RefineResult& result);
+  void Split2(NodeId id, int edge, RefineResult& result);
+  void LinkEdges(NodeId id);
+  void UnlinkEdges(NodeId id);
+  float HeightToEdgeRatio(NodeId id, int edge) const;
+
+  const Scene& scene_;
+  std::vector<Node> nodes_;
+  std::vector<SampleVertex> vertices_;
+  uint32_t pointCount_ = 0;
+  std::unordered_map<EdgeKey, VertexId> midpointOfVertexEdge_;  // vertex edge -> midpoint vertex
+  std::unordered_map<EdgeKey, uint32_t> midpointOfPointEdge_;   // point edge -> midpoint point
+  std::unordered_map<EdgeKey, boost::container::small_vector<NodeId, 2>> leavesOfPointEdge_;
+};
+
+// --- Template definitions ---------------------------------------------------
+
+template <class DescendPredicate>
+NodeId Hierarchy::Descend(NodeId from, std::array<float, 3>& l, DescendPredicate descend) const {
+  NodeId id = from;
+  while (true) {
+    const Node& n = nodes_[id];
+    if (n.childCount == 0 || !descend(n)) return id;
+    if (n.childCount == 4) {
+      // Child order and the barycentric maps are derived in hierarchy.cpp.
+      if (l[0] >= 0.5f) {
+        l = {2.0f * l[0] - 1.0f, 2.0f * l[1], 2.0f * l[2]};
+        id = n.firstChild;
+      } else if (l[1] >= 0.5f) {
+        l = {2.0f * l[0], 2.0f * l[1] - 1.0f, 2.0f * l[2]};
+        id = n.firstChild + 1;
+      } else if (l[2] >= 0.5f) {
+        l = {2.0f * l[0], 2.0f * l[1], 2.0f * l[2] - 1.0f};
+        id = n.firstChild + 2;
+      } else {
+        l = {1.0f - 2.0f * l[0], 1.0f - 2.0f * l[1], 1.0f - 2.0f * l[2]};
+        id = n.firstChild + 3;
+      }
+    } else {
+      // Split of edge k (corners i = k+1, j = k+2) at its midpoint m:
+      // child 0 = (k, i, m), child 1 = (k, m, j).
+      const int k = n.splitEdge, i = (k + 1) % 3, j = (k + 2) % 3;
+      if (l[i] >= l[j]) {
+        l = {l[k], l[i] - l[j], 2.0f * l[j]};
+        id = n.firstChild;
+      } else {
+        l = {l[k], 2.0f * l[i], l[j] - l[i]};
+        id = n.firstChild + 1;
+      }
+    }
+  }
+}
+
+template <class DescendPredicate>
+NodeId Hierarchy::Locate(uint32_t baseTriangle, float b1, float b2, DescendPredicate descend) const {
+  std::array<float, 3> lambda{1.0f - b1 - b2, b1, b2};
+  return Descend(NodeId(baseTriangle), lambda, descend);
+}
+
+template <class F>
+void Hierarchy::ForEachLeaf(NodeId root, F&& f) const {
+  if (root == kNoNode) {
+    for (NodeId r = 0; r < scene_.triangles.size(); ++r) ForEachLeaf(r, f);
+    return;
+  }
+  // Iterative: hierarchies can be deep.
+  boost::container::small_vector<NodeId, 64> stack{root};
+  while (!stack.empty()) {
+    const NodeId id = stack.back();
+    stack.pop_back();
+    const Node& n = nodes_[id];
+    if (n.childCount == 0) {
+      f(id);
+      continue;
+    }
+    for (uint8_t c = 0; c < n.childCount; ++c) stack.push_back(n.firstChild + c);
+  }
+}
+
+}  // namespace penumbra::sma

@@ -1,0 +1,240 @@
+#include "penumbra/sma/hierarchy.h"
+
+#include <cstring>
+#include <deque>
+
+#include "penumbra/common/hash.h"
+
+namespace penumbra::sma {
+
+// Child layouts (edge k is opposite corner k; m_k is its midpoint):
+//   1 -> 4: child 0 = (c0, m2, m1)   child 1 = (m2, c1, m0)
+//           child 2 = (m1, m0, c2)   child 3 = (m0, m1, m2)  (the middle one)
+//   1 -> 2 on edge k, with i = k+1, j = k+2 (mod 3):
+//           child 0 = (ck, ci, mk)   child 1 = (ck, mk, cj)
+// All children keep the parent's counter-clockwise orientation. The
+// barycentric maps in Hierarchy::Descend follow from these layouts: e.g. for
+// child 0 of a 1 -> 4 split, p = l0 c0 + l1 c1 + l2 c2 = mu0 c0 + mu1 (c0+c1)/2
+// + mu2 (c0+c2)/2 gives mu = (2 l0 - 1, 2 l1, 2 l2).
+
+namespace {
+
+struct PointKey {
+  uint32_t x, y, z;
+  bool operator==(const PointKey&) const = default;
+};
+struct PointKeyHash {
+  size_t operator()(const PointKey& k) const { return size_t(HashCombine(HashCombine(Mix64(k.x), k.y), k.z)); }
+};
+PointKey KeyOfPosition(const Vec3& p) {
+  PointKey k;
+  const float x = p.x + 0.0f, y = p.y + 0.0f, z = p.z + 0.0f;  // fold -0 into +0
+  std::memcpy(&k.x, &x, 4);
+  std::memcpy(&k.y, &y, 4);
+  std::memcpy(&k.z, &z, 4);
+  return k;
+}
+
+constexpr std::array<Vec2, 3> kRootBary = {Vec2(0.0f, 0.0f), Vec2(1.0f, 0.0f), Vec2(0.0f, 1.0f)};
+
+}  // namespace
+
+Hierarchy::Hierarchy(const Scene& scene) : scene_(scene) {
+  // Base vertices: one per scene vertex; vertices at one point (split at a
+  // crease) share a point id.
+  vertices_.resize(scene.vertices.size());
+  std::unordered_map<PointKey, uint32_t, PointKeyHash> pointOf;
+  pointOf.reserve(scene.vertices.size());
+  for (size_t i = 0; i < scene.vertices.size(); ++i) {
+    SampleVertex& v = vertices_[i];
+    v.position = scene.vertices[i].position;
+    v.normal = scene.vertices[i].normal;
+    v.point = pointOf.try_emplace(KeyOfPosition(v.position), uint32_t(pointOf.size())).first->second;
+  }
+  pointCount_ = uint32_t(pointOf.size());
+  // Each base vertex needs a triangle it lies on, for the renderer.
+  for (uint32_t t = uint32_t(scene.triangles.size()); t-- > 0;) {
+    for (int c = 0; c < 3; ++c) {
+      SampleVertex& v = vertices_[scene.triangles[t].v[c]];
+      v.baseTriangle = t;
+      v.bary = kRootBary[c];
+    }
+  }
+  nodes_.resize(scene.triangles.size());
+  leavesOfPointEdge_.reserve(scene.triangles.size() * 2);
+  for (uint32_t t = 0; t < scene.triangles.size(); ++t) {
+    Node& n = nodes_[t];
+    n.baseTriangle = t;
+    n.v = scene.triangles[t].v;
+    n.bary = kRootBary;
+    LinkEdges(t);
+  }
+}
+
+Hierarchy::EdgeKey Hierarchy::PointEdge(NodeId id, int edge) const {
+  const Node& n = nodes_[id];
+  return KeyOf(vertices_[n.v[(edge + 1) % 3]].point, vertices_[n.v[(edge + 2) % 3]].point);
+}
+
+void Hierarchy::LinkEdges(NodeId id) {
+  for (int k = 0; k < 3; ++k) leavesOfPointEdge_[PointEdge(id, k)].push_back(id);
+}
+
+void Hierarchy::UnlinkEdges(NodeId id) {
+  for (int k = 0; k < 3; ++k) {
+    auto it = leavesOfPointEdge_.find(PointEdge(id, k));
+    if (it == leavesOfPointEdge_.end()) continue;
+    auto& leaves = it->second;
+    leaves.erase(std::remove(leaves.begin(), leaves.end(), id), leaves.end());
+    if (leaves.empty()) leavesOfPointEdge_.erase(it);
+  }
+}
+
+VertexId Hierarchy::MidpointVertex(NodeId id, int edge) {
+  const int i = (edge + 1) % 3, j = (edge + 2) % 3;
+  const Node& n = nodes_[id];
+  const VertexId a = n.v[i], b = n.v[j];
+  auto [it, inserted] = midpointOfVertexEdge_.try_emplace(KeyOf(a, b), VertexId(vertices_.size()));
+  if (!inserted) return it->second;
+
+  const SampleVertex& va = vertices_[a];
+  const SampleVertex& vb = vertices_[b];
+  SampleVertex m;
+  // The midpoint of the two positions, computed the same way on both sides
+  // of the edge, so neighbours agree on it to the bit.
+  m.position = 0.5f * (va.position + vb.position);
+  const Vec3 sum = va.normal + vb.normal;
+  const float len = glm::length(sum);
+  m.normal = len > 1e-6f ? sum / len : va.normal;
+  m.point = midpointOfPointEdge_.try_emplace(KeyOf(va.point, vb.point), pointCount_).first->second;
+  if (m.point == pointCount_) ++pointCount_;
+  m.baseTriangle = n.baseTriangle;
+  m.bary = 0.5f * (n.bary[i] + n.bary[j]);
+  m.depth = uint8_t(std::min(255, n.depth + 1));
+  vertices_.push_back(m);
+  return it->second;
+}
+
+NodeId Hierarchy::AddChild(NodeId parent, const std::array<VertexId, 3>& v, const std::array<Vec2, 3>& bary) {
+  Node child;
+  child.baseTriangle = nodes_[parent].baseTriangle;
+  child.v = v;
+  child.bary = bary;
+  child.parent = parent;
+  child.depth = uint8_t(std::min(255, nodes_[parent].depth + 1));
+  nodes_.push_back(child);
+  const NodeId id = NodeId(nodes_.size() - 1);
+  LinkEdges(id);
+  return id;
+}
+
+void Hierarchy::Split4(NodeId id, RefineResult& result) {
+  const size_t verticesBefore = vertices_.size();
+  std::array<VertexId, 3> m;
+  for (int k = 0; k < 3; ++k) m[k] = MidpointVertex(id, k);
+  for (VertexId v = VertexId(verticesBefore); v < vertices_.size(); ++v) result.newVertices.push_back(v);
+  UnlinkEdges(id);
+  // Copies: AddChild grows nodes_, which would invalidate a reference.
+  const std::array<VertexId, 3> c = nodes_[id].v;
+  const std::array<Vec2, 3> b = nodes_[id].bary;
+  const std::array<Vec2, 3> mb = {0.5f * (b[1] + b[2]), 0.5f * (b[2] + b[0]), 0.5f * (b[0] + b[1])};
+  const NodeId first = AddChild(id, {c[0], m[2], m[1]}, {b[0], mb[2], mb[1]});
+  AddChild(id, {m[2], c[1], m[0]}, {mb[2], b[1], mb[0]});
+  AddChild(id, {m[1], m[0], c[2]}, {mb[1], mb[0], b[2]});
+  AddChild(id, {m[0], m[1], m[2]}, {mb[0], mb[1], mb[2]});
+  Node& n = nodes_[id];
+  n.firstChild = first;
+  n.childCount = 4;
+  n.mid = m;
+  result.split.push_back(id);
+}
+
+void Hierarchy::Split2(NodeId id, int k, RefineResult& result) {
+  const size_t verticesBefore = vertices_.size();
+  const VertexId m = MidpointVertex(id, k);
+  if (vertices_.size() > verticesBefore) result.newVertices.push_back(m);
+  UnlinkEdges(id);
+  const int i = (k + 1) % 3, j = (k + 2) % 3;
+  const std::array<VertexId, 3> c = nodes_[id].v;
+  const std::array<Vec2, 3> b = nodes_[id].bary;
+  const Vec2 mb = 0.5f * (b[i] + b[j]);
+  const NodeId first = AddChild(id, {c[k], c[i], m}, {b[k], b[i], mb});
+  AddChild(id, {c[k], m, c[j]}, {b[k], mb, b[j]});
+  Node& n = nodes_[id];
+  n.firstChild = first;
+  n.childCount = 2;
+  n.splitEdge = uint8_t(k);
+  n.mid[k] = m;
+  result.split.push_back(id);
+}
+
+float Hierarchy::HeightToEdgeRatio(NodeId id, int edge) const {
+  const Node& n = nodes_[id];
+  const Vec3& pk = vertices_[n.v[edge]].position;
+  const Vec3& pi = vertices_[n.v[(edge + 1) % 3]].position;
+  const Vec3& pj = vertices_[n.v[(edge + 2) % 3]].position;
+  const float base = glm::length(pj - pi);
+  if (!(base > 0.0f)) return 0.0f;
+  // height = 2 * area / base; the ratio to the base is 2 * area / base^2.
+  return glm::length(glm::cross(pi - pk, pj - pk)) / (base * base);
+}
+
+RefineResult Hierarchy::Refine(NodeId leaf, const RefineOptions& options) {
+  RefineResult result;
+  if (leaf >= nodes_.size() || !nodes_[leaf].IsLeaf() || nodes_[leaf].depth >= options.maxDepth) return result;
+
+  // Point edges that have just received a midpoint: every leaf still having
+  // such an edge whole must be split on it.
+  std::deque<EdgeKey> splitEdges;
+  auto split4 = [&](NodeId id) {
+    const EdgeKey keys[3] = {PointEdge(id, 0), PointEdge(id, 1), PointEdge(id, 2)};
+    Split4(id, result);
+    splitEdges.insert(splitEdges.end(), std::begin(keys), std::end(keys));
+  };
+  uint32_t budget = options.maxSplits4;
+  split4(leaf);
+  --budget;
+  while (!splitEdges.empty()) {
+    const EdgeKey key = splitEdges.front();
+    splitEdges.pop_front();
+    while (true) {
+      auto it = leavesOfPointEdge_.find(key);
+      if (it == leavesOfPointEdge_.end()) break;
+      const NodeId neighbour = it->second.front();  // splitting it removes it from the list
+      int edge = 0;
+      while (edge < 2 && PointEdge(neighbour, edge) != key) ++edge;
+      const bool tall = HeightToEdgeRatio(neighbour, edge) >= options.aspectThreshold;
+      if (tall && budget > 0 && nodes_[neighbour].depth < options.maxDepth) {
+        split4(neighbour);
+        --budget;
+      } else {
+        Split2(neighbour, edge, result);
+      }
+    }
+  }
+  return result;
+}
+
+boost::container::small_vector<NodeId, 2> Hierarchy::EdgeNeighbours(NodeId leaf, int edge) const {
+  boost::container::small_vector<NodeId, 2> out;
+  auto it = leavesOfPointEdge_.find(PointEdge(leaf, edge));
+  if (it == leavesOfPointEdge_.end()) return out;
+  for (NodeId n : it->second)
+    if (n != leaf) out.push_back(n);
+  return out;
+}
+
+float Hierarchy::Area(NodeId id) const {
+  const Node& n = nodes_[id];
+  const Vec3& p0 = vertices_[n.v[0]].position;
+  return 0.5f * glm::length(glm::cross(vertices_[n.v[1]].position - p0, vertices_[n.v[2]].position - p0));
+}
+
+Vec2 Hierarchy::CornerUv(NodeId id, int corner) const {
+  const Node& n = nodes_[id];
+  const Triangle& t = scene_.triangles[n.baseTriangle];
+  const Vec2 b = n.bary[corner];
+  return (1.0f - b.x - b.y) * t.uv[0] + b.x * t.uv[1] + b.y * t.uv[2];
+}
+
+}  // namespace penumbra::sma

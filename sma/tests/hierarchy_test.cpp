@@ -1,0 +1,321 @@
+#include "penumbra/sma/hierarchy.h"
+
+#include <map>
+#include <random>
+#include <set>
+
+#include <gtest/gtest.h>
+
+namespace penumbra::sma {
+namespace {
+
+Scene GridScene(int n, float creaseAngle = kDefaultCreaseAngleDeg) {
+  // n x n quads on the y = 0 plane, each cut into two right triangles.
+  SceneBuilder b(creaseAngle);
+  Material m;
+  const uint32_t mat = b.AddMaterial(m);
+  for (int i = 0; i < n; ++i)
+    for (int j = 0; j < n; ++j) b.AddQuad(Vec3(float(i), 0, float(j)), Vec3(0, 0, 1), Vec3(1, 0, 0), mat);
+  Scene s;
+  EXPECT_TRUE(b.BuildInto(s).ok());
+  return s;
+}
+
+Scene CubeScene() {
+  SceneBuilder b;
+  Material m;
+  const uint32_t mat = b.AddMaterial(m);
+  b.AddQuad(Vec3(0, 0, 0), Vec3(1, 0, 0), Vec3(0, 0, 1), mat);
+  b.AddQuad(Vec3(0, 1, 0), Vec3(0, 0, 1), Vec3(1, 0, 0), mat);
+  b.AddQuad(Vec3(0, 0, 0), Vec3(0, 0, 1), Vec3(0, 1, 0), mat);
+  b.AddQuad(Vec3(1, 0, 0), Vec3(0, 1, 0), Vec3(0, 0, 1), mat);
+  b.AddQuad(Vec3(0, 0, 0), Vec3(0, 1, 0), Vec3(1, 0, 0), mat);
+  b.AddQuad(Vec3(0, 0, 1), Vec3(1, 0, 0), Vec3(0, 1, 0), mat);
+  Scene s;
+  EXPECT_TRUE(b.BuildInto(s).ok());
+  return s;
+}
+
+std::vector<NodeId> Leaves(const Hierarchy& h) {
+  std::vector<NodeId> out;
+  h.ForEachLeaf(kNoNode, [&](NodeId id) { out.push_back(id); });
+  return out;
+}
+
+// Independent conformity check: no leaf corner lies strictly inside any leaf
+// edge (a T-vertex), tested geometrically on positions.
+size_t CountTVertices(const Hierarchy& h) {
+  const auto leaves = Leaves(h);
+  std::vector<Vec3> corners;
+  for (NodeId id : leaves)
+    for (VertexId v : h.GetNode(id).v) corners.push_back(h.GetVertex(v).position);
+  size_t count = 0;
+  for (NodeId id : leaves) {
+    const Node& n = h.GetNode(id);
+    for (int k = 0; k < 3; ++k) {
+      const Vec3 a = h.GetVertex(n.v[(k + 1) % 3]).position;
+      const Vec3 b = h.GetVertex(n.v[(k + 2) % 3]).position;
+      const Vec3 ab = b - a;
+      const float len2 = glm::dot(ab, ab);
+      for (const Vec3& p : corners) {
+        const float t = glm::dot(p - a, ab) / len2;
+        if (t <= 1e-4f || t >= 1.0f - 1e-4f) continue;
+        const Vec3 closest = a + t * ab;
+        if (glm::length(p - closest) < 1e-5f * std::sqrt(len2)) ++count;
+      }
+    }
+  }
+  return count;
+}
+
+bool PointInNode(const Hierarchy& h, NodeId id, const Vec3& p) {
+  const Node& n = h.GetNode(id);
+  const Vec3 a = h.GetVertex(n.v[0]).position, b = h.GetVertex(n.v[1]).position, c = h.GetVertex(n.v[2]).position;
+  const Vec3 nrm = glm::cross(b - a, c - a);
+  const float eps = -1e-5f * glm::dot(nrm, nrm);
+  return glm::dot(glm::cross(b - a, p - a), nrm) >= eps && glm::dot(glm::cross(c - b, p - b), nrm) >= eps &&
+         glm::dot(glm::cross(a - c, p - c), nrm) >= eps;
+}
+
+TEST(HierarchyTest, RootsAndBaseVerticesKeepSceneIndices) {
+  const Scene s = GridScene(2);
+  Hierarchy h(s);
+  ASSERT_EQ(h.NodeCount(), s.triangles.size());
+  ASSERT_EQ(h.VertexCount(), s.vertices.size());
+  for (NodeId t = 0; t < s.triangles.size(); ++t) {
+    EXPECT_EQ(h.GetNode(t).baseTriangle, t);
+    EXPECT_EQ(h.GetNode(t).v, s.triangles[t].v);
+    EXPECT_TRUE(h.GetNode(t).IsLeaf());
+  }
+  for (VertexId v = 0; v < s.vertices.size(); ++v) {
+    const SampleVertex& sv = h.GetVertex(v);
+    EXPECT_EQ(sv.position, s.vertices[v].position);
+    // Its base triangle and barycentrics point back at the vertex.
+    EXPECT_LT(glm::length(s.PointAt(sv.baseTriangle, sv.bary.x, sv.bary.y) - sv.position), 1e-6f);
+  }
+}
+
+TEST(HierarchyTest, IdsAreStableAcrossRefinement) {
+  const Scene s = GridScene(4);
+  Hierarchy h(s);
+  h.Refine(5, RefineOptions{});
+  std::vector<Node> nodesBefore;
+  std::vector<SampleVertex> verticesBefore;
+  for (NodeId i = 0; i < h.NodeCount(); ++i) nodesBefore.push_back(h.GetNode(i));
+  for (VertexId i = 0; i < h.VertexCount(); ++i) verticesBefore.push_back(h.GetVertex(i));
+  const auto leaves = Leaves(h);
+  h.Refine(leaves[leaves.size() / 2], RefineOptions{});
+  for (NodeId i = 0; i < nodesBefore.size(); ++i) {
+    EXPECT_EQ(h.GetNode(i).v, nodesBefore[i].v) << "node " << i;
+    EXPECT_EQ(h.GetNode(i).baseTriangle, nodesBefore[i].baseTriangle);
+    EXPECT_EQ(h.GetNode(i).parent, nodesBefore[i].parent);
+  }
+  for (VertexId i = 0; i < verticesBefore.size(); ++i) EXPECT_EQ(h.GetVertex(i).position, verticesBefore[i].position);
+}
+
+TEST(HierarchyTest, SplitMidpointIsSharedAcrossBaseTriangles) {
+  const Scene s = GridScene(1);  // one quad: two base triangles sharing the diagonal
+  ASSERT_EQ(s.triangles.size(), 2u);
+  Hierarchy h(s);
+  const RefineResult r = h.Refine(0, RefineOptions{});
+  // The neighbour had to be split too (T-vertex on the diagonal otherwise).
+  EXPECT_FALSE(h.GetNode(1).IsLeaf());
+  EXPECT_EQ(CountTVertices(h), 0u);
+  // 3 midpoints for triangle 0; the neighbour adds only what is not shared.
+  std::set<VertexId> fromZero(h.GetNode(0).mid.begin(), h.GetNode(0).mid.end());
+  std::set<VertexId> fromOne;
+  for (VertexId v : h.GetNode(1).mid)
+    if (v != kNoVertex) fromOne.insert(v);
+  std::vector<VertexId> shared;
+  std::set_intersection(fromZero.begin(), fromZero.end(), fromOne.begin(), fromOne.end(), std::back_inserter(shared));
+  ASSERT_EQ(shared.size(), 1u);
+  EXPECT_EQ(r.newVertices.size(), fromZero.size() + fromOne.size() - 1);
+  // The shared midpoint lies halfway along the diagonal.
+  const Vec3 p = h.GetVertex(shared[0]).position;
+  EXPECT_NEAR(p.x, 0.5f, 1e-6f);
+  EXPECT_NEAR(p.z, 0.5f, 1e-6f);
+}
+
+TEST(HierarchyTest, RandomRefinementPreservesAreaAndConformity) {
+  const Scene s = GridScene(4);
+  Hierarchy h(s);
+  std::mt19937 rng(7);
+  for (int step = 0; step < 60; ++step) {
+    const auto leaves = Leaves(h);
+    h.Refine(leaves[rng() % leaves.size()], RefineOptions{});
+    ASSERT_EQ(CountTVertices(h), 0u) << "after step " << step;
+  }
+  for (NodeId root = 0; root < s.triangles.size(); ++root) {
+    double area = 0.0;
+    h.ForEachLeaf(root, [&](NodeId id) { area += h.Area(id); });
+    EXPECT_NEAR(area, s.Area(root), 1e-5) << "base triangle " << root;
+  }
+  // Mixed splits happened: some 1 -> 2 and some 1 -> 4.
+  int twos = 0, fours = 0;
+  for (NodeId i = 0; i < h.NodeCount(); ++i) {
+    twos += h.GetNode(i).childCount == 2;
+    fours += h.GetNode(i).childCount == 4;
+  }
+  EXPECT_GT(twos, 0);
+  EXPECT_GT(fours, 0);
+}
+
+TEST(HierarchyTest, LocateFindsTheLeafContainingThePoint) {
+  const Scene s = GridScene(2);
+  Hierarchy h(s);
+  std::mt19937 rng(3);
+  for (int step = 0; step < 30; ++step) {
+    const auto leaves = Leaves(h);
+    h.Refine(leaves[rng() % leaves.size()], RefineOptions{});
+  }
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  for (int i = 0; i < 2000; ++i) {
+    const uint32_t t = uint32_t(rng() % s.triangles.size());
+    float b1 = u(rng), b2 = u(rng);
+    if (b1 + b2 > 1.0f) {
+      b1 = 1.0f - b1;
+      b2 = 1.0f - b2;
+    }
+    const NodeId leaf = h.Locate(t, b1, b2, [](const Node&) { return true; });
+    ASSERT_TRUE(h.GetNode(leaf).IsLeaf());
+    EXPECT_EQ(h.GetNode(leaf).baseTriangle, t);
+    EXPECT_TRUE(PointInNode(h, leaf, s.PointAt(t, b1, b2))) << "b=(" << b1 << "," << b2 << ")";
+  }
+}
+
+TEST(HierarchyTest, LocateStopsWhereThePredicateSaysSo) {
+  const Scene s = GridScene(1);
+  Hierarchy h(s);
+  h.Refine(0, RefineOptions{});
+  // Refuse to descend: the root comes back.
+  EXPECT_EQ(h.Locate(0, 0.2f, 0.2f, [](const Node&) { return false; }), 0u);
+  // Descend one level only.
+  const NodeId child = h.Locate(0, 0.1f, 0.1f, [](const Node& n) { return n.depth == 0; });
+  EXPECT_EQ(h.GetNode(child).depth, 1);
+  EXPECT_EQ(h.GetNode(child).parent, 0u);
+}
+
+TEST(HierarchyTest, CreaseNeighboursSplitWithTheirOwnMidpoints) {
+  const Scene s = CubeScene();
+  Hierarchy h(s);
+  h.Refine(0, RefineOptions{});
+  EXPECT_EQ(CountTVertices(h), 0u);
+  // Midpoints on a cube edge exist once per face (each with its face's
+  // normal) at the same position.
+  std::map<std::tuple<float, float, float>, std::set<VertexId>> byPosition;
+  for (VertexId v = VertexId(s.vertices.size()); v < h.VertexCount(); ++v) {
+    const Vec3 p = h.GetVertex(v).position;
+    byPosition[{p.x, p.y, p.z}].insert(v);
+  }
+  bool sawCreaseMidpoint = false;
+  for (const auto& [pos, ids] : byPosition) {
+    if (ids.size() < 2) continue;
+    sawCreaseMidpoint = true;
+    std::set<uint32_t> points;
+    for (VertexId v : ids) points.insert(h.GetVertex(v).point);
+    EXPECT_EQ(points.size(), 1u);  // one point identity
+    const Vec3 n0 = h.GetVertex(*ids.begin()).normal;
+    const Vec3 n1 = h.GetVertex(*ids.rbegin()).normal;
+    EXPECT_LT(glm::dot(n0, n1), 0.5f);  // different faces' normals
+  }
+  EXPECT_TRUE(sawCreaseMidpoint);
+}
+
+TEST(HierarchyTest, SlimNeighbourSplitsInTwoAndStopsPropagation) {
+  SceneBuilder b;
+  Material m;
+  const uint32_t mat = b.AddMaterial(m);
+  // Triangle 0 is fat; triangle 1 shares its long edge and is slim over it;
+  // triangle 2 lies beyond triangle 1's other edge.
+  b.AddTriangle({Vec3(0, 0, 0), Vec3(4, 0, 0), Vec3(2, 0, -3)}, mat);
+  b.AddTriangle({Vec3(4, 0, 0), Vec3(0, 0, 0), Vec3(2, 0, 0.5f)}, mat);
+  b.AddTriangle({Vec3(0, 0, 0), Vec3(-1, 0, 2), Vec3(2, 0, 0.5f)}, mat);
+  Scene s;
+  ASSERT_TRUE(b.BuildInto(s).ok());
+  Hierarchy h(s);
+  h.Refine(0, RefineOptions{});
+  EXPECT_EQ(h.GetNode(0).childCount, 4);
+  EXPECT_EQ(h.GetNode(1).childCount, 2);
+  EXPECT_TRUE(h.GetNode(2).IsLeaf());
+  EXPECT_EQ(CountTVertices(h), 0u);
+}
+
+TEST(HierarchyTest, TallNeighbourSplitsInFourAndPassesItOn) {
+  SceneBuilder b;
+  Material m;
+  const uint32_t mat = b.AddMaterial(m);
+  // Triangle 1 is tall over the edge it shares with triangle 0.
+  b.AddTriangle({Vec3(0, 0, 0), Vec3(1, 0, 0), Vec3(0.5f, 0, -1)}, mat);
+  b.AddTriangle({Vec3(1, 0, 0), Vec3(0, 0, 0), Vec3(0.5f, 0, 3)}, mat);
+  b.AddTriangle({Vec3(0, 0, 0), Vec3(-2, 0, 2), Vec3(0.5f, 0, 3)}, mat);
+  Scene s;
+  ASSERT_TRUE(b.BuildInto(s).ok());
+  Hierarchy h(s);
+  h.Refine(0, RefineOptions{});
+  EXPECT_EQ(h.GetNode(1).childCount, 4);
+  EXPECT_FALSE(h.GetNode(2).IsLeaf());  // reached through triangle 1
+  EXPECT_EQ(CountTVertices(h), 0u);
+}
+
+TEST(HierarchyTest, NonManifoldEdgeSplitsEveryLeafOnIt) {
+  SceneBuilder b;
+  Material m;
+  const uint32_t mat = b.AddMaterial(m);
+  // Three fins around the edge (0,0,0)-(0,1,0), 120 degrees apart.
+  for (int i = 0; i < 3; ++i) {
+    const float a = float(i) * 2.0f * kPi / 3.0f;
+    b.AddTriangle({Vec3(0, 0, 0), Vec3(std::cos(a), 0.5f, std::sin(a)), Vec3(0, 1, 0)}, mat);
+  }
+  Scene s;
+  ASSERT_TRUE(b.BuildInto(s).ok());
+  Hierarchy h(s);
+  h.Refine(0, RefineOptions{});
+  EXPECT_FALSE(h.GetNode(1).IsLeaf());
+  EXPECT_FALSE(h.GetNode(2).IsLeaf());
+  EXPECT_EQ(CountTVertices(h), 0u);
+}
+
+TEST(HierarchyTest, SplitBudgetBoundsPropagationAndKeepsConformity) {
+  // Long thin strip: each triangle is tall over the edge it shares with the
+  // previous one, so the wave would run the whole strip.
+  SceneBuilder b;
+  Material m;
+  const uint32_t mat = b.AddMaterial(m);
+  for (int i = 0; i < 40; ++i) {
+    const float x = float(i) * 0.1f;
+    b.AddTriangle({Vec3(x, 0, 0), Vec3(x + 0.1f, 0, 0), Vec3(x, 0, -1)}, mat);
+    b.AddTriangle({Vec3(x + 0.1f, 0, 0), Vec3(x + 0.1f, 0, -1), Vec3(x, 0, -1)}, mat);
+  }
+  Scene s;
+  ASSERT_TRUE(b.BuildInto(s).ok());
+  Hierarchy h(s);
+  RefineOptions options;
+  options.aspectThreshold = 0.5f;
+  options.maxSplits4 = 5;
+  h.Refine(0, options);
+  int fours = 0;
+  for (NodeId i = 0; i < h.NodeCount(); ++i) fours += h.GetNode(i).childCount == 4;
+  EXPECT_LE(fours, 5);
+  EXPECT_EQ(CountTVertices(h), 0u);
+}
+
+TEST(HierarchyTest, MidpointVerticesCanBeShadedOnTheirBaseTriangle) {
+  const Scene s = GridScene(2);
+  Hierarchy h(s);
+  std::mt19937 rng(11);
+  for (int step = 0; step < 20; ++step) {
+    const auto leaves = Leaves(h);
+    h.Refine(leaves[rng() % leaves.size()], RefineOptions{});
+  }
+  for (VertexId v = 0; v < h.VertexCount(); ++v) {
+    const SampleVertex& sv = h.GetVertex(v);
+    EXPECT_LT(glm::length(s.PointAt(sv.baseTriangle, sv.bary.x, sv.bary.y) - sv.position), 1e-5f) << v;
+    EXPECT_NEAR(glm::length(sv.normal), 1.0f, 1e-5f);
+    EXPECT_GE(sv.bary.x, -1e-6f);
+    EXPECT_GE(sv.bary.y, -1e-6f);
+    EXPECT_LE(sv.bary.x + sv.bary.y, 1.0f + 1e-6f);
+  }
+}
+
+}  // namespace
+}  // namespace penumbra::sma
