@@ -2,10 +2,18 @@
 // RayScene: the scene's triangles committed to Embree once, then queried
 // read-only by any number of threads. This header and ray_scene.cpp are the
 // only places in the renderer that touch Embree.
+//
+// Rays do not move their own origins: a caller leaving a surface offsets the
+// origin off it (see shading.cpp) and passes tMin = 0. Triangle hits are
+// robust along shared edges (Embree's robust mode), so a ray through an edge
+// of a closed mesh does not slip between its two triangles.
 
+#include <cstddef>
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <optional>
+#include <span>
 
 #include "penumbra/common/expected.h"
 #include "penumbra/common/math.h"
@@ -21,10 +29,20 @@ struct RayHit {
   float b2 = 0.0f;
 };
 
+/// A ray for batch queries: origin + t*direction, t in [0, tMax).
+struct Ray {
+  Vec3 origin;
+  Vec3 direction;  // unit
+  float tMax = std::numeric_limits<float>::infinity();
+};
+
+enum class RayQuery { kClosestHit, kOcclusion };
+
 class RayScene {
  public:
-  /// Builds the acceleration structure (the scene must outlive nothing here:
-  /// vertex data is copied). Errors from Embree become an Error.
+  /// Builds the acceleration structure over every triangle of `scene` (vertex
+  /// data is copied; the scene need not outlive the RayScene). Errors from
+  /// Embree become an Error.
   static Expected<std::unique_ptr<RayScene>> Build(const Scene& scene);
   ~RayScene();
   RayScene(const RayScene&) = delete;
@@ -36,6 +54,11 @@ class RayScene {
   /// Whether anything blocks origin + t*direction for t in (tMin, tMax).
   /// Thread-safe.
   bool Occluded(const Vec3& origin, const Vec3& direction, float tMin, float tMax) const;
+
+  /// The benchmark baseline: traces `rays` back to back with plain
+  /// rtcIntersect1 or rtcOccluded1 and does nothing else with the results.
+  /// Returns how many rays hit something. Thread-safe; for measurement only.
+  size_t TraceRaw(std::span<const Ray> rays, RayQuery query) const;
 
   struct Impl;
 

@@ -22,6 +22,21 @@
 //    max depth, with Russian roulette from `russianRouletteDepth` on.
 // Every surface reflects on both sides with its material's albedo.
 //
+// Geometry. Directions that n admits but that point below the plane of the
+// sample's own triangle (n is a smoothed vertex normal and may lean away from
+// the face) are blocked by that surface and bring nothing. Path vertices
+// after the sample are shaded with their triangle's geometric normal, turned
+// toward the side the path arrived from. Rays leave a surface from an origin
+// moved off it along that normal, and, for the sample itself, slightly into
+// its triangle: samples sit on vertices and edges, where a neighbouring
+// triangle (a wall meeting a floor) passes through the exact point.
+//
+// Path length. Segment 0 leaves the sample; a path has at most `maxDepth`
+// segments, each followed by a light sample at its start. From segment
+// `russianRouletteDepth` on, a path continues with probability equal to the
+// largest channel of the albedo it has just met and is reweighted by the
+// inverse of that probability, which keeps the estimate unbiased.
+//
 // Determinism: sample `sampleId` uses its own random stream, derived from
 // (settings.seed, sampleId) only, so the same input gives the same output on
 // any thread, in any batch, on any renderer process.
@@ -35,12 +50,13 @@
 
 namespace penumbra {
 
+class Pcg32;
 class RayScene;
 
 struct ShadingSettings {
   int pathsPerSample = 64;       // --spp: paths averaged per sample
   int maxDepth = 5;              // --max-depth: path segments from the sample; 1 = direct light only
-  int russianRouletteDepth = 3;  // first segment index at which paths may be terminated
+  int russianRouletteDepth = 3;  // first segment index (from 0) at which paths may be terminated
   uint64_t seed = 0;             // global seed mixed into every sample's stream
 };
 
@@ -61,34 +77,67 @@ struct ShadeOutput {
 /// Work done, for statistics and benchmarks.
 struct ShadeCounters {
   uint64_t paths = 0;
-  uint64_t rays = 0;  // closest-hit and shadow rays together
+  uint64_t rays = 0;        // closest-hit and shadow rays together
+  uint64_t shadowRays = 0;  // of which shadow (occlusion) rays
+
+  ShadeCounters& operator+=(const ShadeCounters& other) {
+    paths += other.paths;
+    rays += other.rays;
+    shadowRays += other.shadowRays;
+    return *this;
+  }
 };
 
 /// Checks one input against the scene: finite fields, unit normal (within
 /// 1e-2), triangle in range, barycentrics in the triangle (within 1e-3), and
-/// the position within a small distance of the triangle's point at those
-/// barycentrics. The message names the field and its value.
+/// the position within 1e-4 times the scene's bounding-box diagonal of the
+/// triangle's point at those barycentrics. The message names the field and
+/// its value.
 Status ValidateShadeInput(const Scene& scene, const ShadeInput& input);
 
 class Shader {
  public:
-  /// `scene` and `rays` must outlive the shader.
+  /// `scene` and `rays` must outlive the shader. Precomputes per-triangle
+  /// normals and the light-selection distribution.
   Shader(const Scene& scene, const RayScene& rays, ShadingSettings settings);
 
   /// Shades one sample with `paths` paths (the settings' count when 0).
-  /// Input must have passed ValidateShadeInput. Thread-safe; deterministic.
+  /// Input must have passed ValidateShadeInput. Adds the work done to
+  /// `counters` when it is not null. Thread-safe; deterministic.
   ShadeOutput Shade(const ShadeInput& input, int paths, ShadeCounters* counters) const;
 
   const ShadingSettings& Settings() const { return settings_; }
   const Scene& GetScene() const { return scene_; }
 
  private:
+  struct PathVertex;  // shading.cpp
+
+  // Irradiance estimate of one path from the sample at `start`.
+  Rgb TracePath(const PathVertex& start, Pcg32& rng, ShadeCounters& counters) const;
+  // Next-event estimates at `v` (throughput not applied), each with one
+  // shadow ray.
+  Rgb SampleAreaLight(const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const;
+  Rgb SampleSun(const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const;
+
+  // Per base triangle, what the path loop needs at every hit.
+  struct TriangleInfo {
+    Vec3 normal;               // unit geometric normal of the front face
+    float lightPdfArea = 0.0f;  // P(pick this light) / area; 0 for non-emitters
+  };
+
   const Scene& scene_;
   const RayScene& rays_;
   ShadingSettings settings_;
-  // Light selection: cumulative power of emissive triangles.
+  std::vector<TriangleInfo> triangles_;
+  // Light selection: emissive triangles and their cumulative power,
+  // normalised so that lightCdf_.back() == 1.
+  std::vector<uint32_t> lights_;
   std::vector<float> lightCdf_;
-  float totalLightPower_ = 0.0f;
+  // The sun's cone, when the scene has a sun.
+  Frame sunFrame_{};  // z toward the sun's centre
+  float sunCosHalfAngle_ = 1.0f;
+  float sunSolidAngle_ = 0.0f;
+  float offset_ = 0.0f;  // how far ray origins are moved off the surface they leave
 };
 
 }  // namespace penumbra
