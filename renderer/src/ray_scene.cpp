@@ -147,7 +147,8 @@ std::optional<RayHit> RayScene::Intersect(const Vec3& origin, const Vec3& direct
   RTCRayHit rayHit = MakeRayHit(origin, direction, tMin, tMax);
   rtcIntersect1(impl_->scene, &context, &rayHit);
   if (rayHit.hit.geomID == RTC_INVALID_GEOMETRY_ID) return std::nullopt;
-  return RayHit{rayHit.hit.primID, rayHit.ray.tfar, rayHit.hit.u, rayHit.hit.v};
+  return RayHit{rayHit.hit.primID, rayHit.ray.tfar, rayHit.hit.u, rayHit.hit.v,
+                Vec3(rayHit.hit.Ng_x, rayHit.hit.Ng_y, rayHit.hit.Ng_z)};
 }
 
 bool RayScene::Occluded(const Vec3& origin, const Vec3& direction, float tMin, float tMax) const {

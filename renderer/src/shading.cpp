@@ -6,6 +6,13 @@
 // a cosine-sampled bounce contributes L_in * pi (cos / pdf), and the next
 // vertex's integral enters through albedo / pi, so each bounce multiplies the
 // throughput by the albedo it meets.
+//
+// Speed. A path is a loop of single Embree queries; what surrounds them reads
+// compact tables built once -- 4 bytes per triangle (its material; Embree
+// returns the normal), and the lights with their geometry and an alias table
+// -- so a bounce costs one small fetch besides the ray (plus the texel, for
+// a textured surface), and a light sample touches nothing outside the
+// (usually cache-resident) light table.
 
 #include "penumbra/renderer/shading.h"
 
@@ -13,6 +20,7 @@
 #include <cmath>
 #include <limits>
 #include <optional>
+#include <vector>
 
 #include <fmt/format.h>
 
@@ -39,16 +47,24 @@ float LargestCoordinate(const Bounds3& b) {
   return std::max({m.x, m.y, m.z});
 }
 
-}  // namespace
+// An emissive triangle, with what sampling it needs.
+struct Light {
+  Vec3 p0, edge1, edge2;  // p = p0 + b1 edge1 + b2 edge2
+  Vec3 normal;            // unit, the emitting (front) side
+  Rgb emission;
+  float pdfArea = 0.0f;  // P(choose this light) / area
+};
 
-/// A point paths leave from: the ray origin (already off the surface), the
-/// frame of the normal that weights incident light (z), and the geometric
-/// normal of its triangle on the same side (below which nothing arrives).
-struct Shader::PathVertex {
+// A point paths leave from: the ray origin (already off the surface), the
+// frame of the normal that weights incident light (z), and the geometric
+// normal of its triangle on the same side (below which nothing arrives).
+struct PathVertex {
   Vec3 origin;
   Frame frame;
   Vec3 geometricNormal;
 };
+
+}  // namespace
 
 // --- Validation -------------------------------------------------------------
 
@@ -78,43 +94,166 @@ Status ValidateShadeInput(const Scene& scene, const ShadeInput& in) {
   return Status::Ok();
 }
 
+// --- The path tracer ----------------------------------------------------------
+
+struct Shader::Impl {
+  Impl(const Scene& s, const RayScene& r, ShadingSettings ss);
+
+  // Irradiance estimate of one path from `start`.
+  Rgb TracePath(const PathVertex& start, Pcg32& rng, ShadeCounters& counters) const;
+  // Next-event estimates at `v` (throughput not applied), one shadow ray each.
+  Rgb SampleAreaLight(const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const;
+  Rgb SampleSun(const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const;
+
+  const Scene& scene;
+  const RayScene& rays;
+  const ShadingSettings settings;
+  std::vector<uint32_t> materialOf;  // per triangle: a denser copy of Triangle::material
+  // Lights are chosen in proportion to their power, Luminance(Le) * area, so
+  // the density of a point on light i is Luminance(Le_i) / totalPower.
+  std::vector<Light> lights;
+  sampling::AliasTable lightSelection;
+  float inverseTotalPower = 0.0f;
+  // The sun's cone, when the scene has a sun.
+  Frame sunFrame{};  // z toward the sun's centre
+  float sunCosHalfAngle = 1.0f;
+  float sunSolidAngle = 0.0f;
+  float offset = 0.0f;  // how far ray origins are moved off the surface they leave
+};
+
+Shader::Impl::Impl(const Scene& s, const RayScene& r, ShadingSettings ss)
+    : scene(s), rays(r), settings(ss), materialOf(s.triangles.size()) {
+  for (uint32_t t = 0; t < s.triangles.size(); ++t) materialOf[t] = s.triangles[t].material;
+
+  std::vector<double> power;
+  for (uint32_t t : s.emissiveTriangles) {
+    const Material& m = s.MaterialOf(t);
+    const double p = double(Luminance(m.emission)) * double(s.Area(t));
+    if (!(p > 0.0)) continue;  // no area: never hit, never worth sampling
+    const Vec3& p0 = s.Position(t, 0);
+    lights.push_back(Light{p0, s.Position(t, 1) - p0, s.Position(t, 2) - p0, s.GeometricNormal(t), m.emission, 0.0f});
+    power.push_back(p);
+  }
+  if (!lights.empty()) {
+    double totalPower = 0.0;
+    for (double p : power) totalPower += p;
+    inverseTotalPower = float(1.0 / totalPower);
+    for (Light& light : lights) light.pdfArea = Luminance(light.emission) * inverseTotalPower;
+    lightSelection = sampling::AliasTable(power);
+  }
+
+  if (s.sun) {
+    sunFrame = Frame::FromNormal(s.sun->directionToSun);
+    sunCosHalfAngle = s.sun->CosHalfAngle();
+    sunSolidAngle = s.sun->SolidAngle();
+  }
+  offset = kRelativeOffset * LargestCoordinate(s.bounds);
+}
+
+Rgb Shader::Impl::TracePath(const PathVertex& start, Pcg32& rng, ShadeCounters& counters) const {
+  PathVertex v = start;
+  Rgb throughput(1.0f);
+  Rgb irradiance(0.0f);
+  for (int depth = 0; depth < settings.maxDepth; ++depth) {
+    if (!lights.empty()) irradiance += throughput * SampleAreaLight(v, rng, counters);
+    if (scene.sun) irradiance += throughput * SampleSun(v, rng, counters);
+
+    const Vec3 local = sampling::CosineHemisphere(rng.NextFloat(), rng.NextFloat());
+    const Vec3 direction = v.frame.ToWorld(local);
+    if (glm::dot(direction, v.geometricNormal) <= 0.0f) break;  // into the surface itself
+    ++counters.rays;
+    const std::optional<RayHit> hit = rays.Intersect(v.origin, direction, 0.0f, kInfinity);
+    // Cosine-weighted incident radiance over the cosine pdf: a factor pi.
+    if (!hit) {
+      if (scene.sky) irradiance += throughput * kPi * scene.sky->Radiance(direction);
+      break;
+    }
+    const Vec3 hitNormal = glm::normalize(hit->normal);
+    const Material& material = scene.materials[materialOf[hit->triangle]];
+    const float cosAtHit = glm::dot(hitNormal, direction);  // < 0: the front face was hit
+    if (cosAtHit < 0.0f && material.IsEmissive()) {
+      // The light sample at `v` could have produced this point too.
+      const float pdfLight = Luminance(material.emission) * inverseTotalPower * hit->t * hit->t / -cosAtHit;
+      const float weight = sampling::PowerHeuristic(sampling::CosineHemispherePdf(local.z), pdfLight);
+      irradiance += throughput * kPi * weight * material.emission;
+    }
+    if (depth + 1 == settings.maxDepth) break;
+
+    // Only a textured albedo needs the hit's texture coordinates.
+    const Rgb albedo =
+        material.albedoTexture < 0 ? material.albedo : scene.AlbedoAt(hit->triangle, hit->b1, hit->b2);
+    throughput *= albedo;
+    if (depth + 1 >= settings.russianRouletteDepth) {
+      // Survival in proportion to the albedo: in a uniform scene the
+      // throughput then stays constant instead of decaying.
+      const float survival = std::min(1.0f, MaxComponent(albedo));
+      if (rng.NextFloat() >= survival) break;
+      throughput /= survival;
+    }
+    if (MaxComponent(throughput) <= 0.0f) break;
+
+    // Both sides reflect: shade the side the path arrived from. The hit
+    // point comes from the ray rather than the barycentrics: no vertex
+    // fetches, and its rounding error (ulps of the coordinates) is far below
+    // the offset.
+    v.geometricNormal = cosAtHit < 0.0f ? hitNormal : -hitNormal;
+    v.frame = Frame::FromNormal(v.geometricNormal);
+    v.origin = v.origin + hit->t * direction + offset * v.geometricNormal;
+  }
+  return irradiance;
+}
+
+Rgb Shader::Impl::SampleAreaLight(const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const {
+  const float u1 = rng.NextFloat(), u2 = rng.NextFloat();
+  const Light& light = lights[lightSelection.Sample(u1, u2)];
+  const Vec2 b = sampling::UniformTriangle(rng.NextFloat(), rng.NextFloat());
+  const Vec3 onLight = light.p0 + b.x * light.edge1 + b.y * light.edge2;
+
+  const Vec3 toLight = onLight - v.origin;
+  const float distance2 = glm::dot(toLight, toLight);
+  const float distance = std::sqrt(distance2);
+  const Vec3 direction = toLight / distance;
+  const float cosAtVertex = glm::dot(direction, v.frame.n);
+  const float cosAtLight = -glm::dot(direction, light.normal);  // emitters emit from the front only
+  if (cosAtVertex <= 0.0f || cosAtLight <= 0.0f || glm::dot(direction, v.geometricNormal) <= 0.0f)
+    return Rgb(0.0f);
+
+  ++counters.rays;
+  ++counters.shadowRays;
+  // Stop short of the light so that its own surface does not occlude it.
+  if (rays.Occluded(v.origin, direction, 0.0f, distance - offset)) return Rgb(0.0f);
+  const float pdfLight = light.pdfArea * distance2 / cosAtLight;
+  const float weight = sampling::PowerHeuristic(pdfLight, sampling::CosineHemispherePdf(cosAtVertex));
+  return light.emission * (weight * cosAtVertex / pdfLight);
+}
+
+Rgb Shader::Impl::SampleSun(const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const {
+  const Vec3 direction =
+      sunFrame.ToWorld(sampling::UniformCone(rng.NextFloat(), rng.NextFloat(), sunCosHalfAngle));
+  const float cosAtVertex = glm::dot(direction, v.frame.n);
+  if (cosAtVertex <= 0.0f || glm::dot(direction, v.geometricNormal) <= 0.0f) return Rgb(0.0f);
+  ++counters.rays;
+  ++counters.shadowRays;
+  if (rays.Occluded(v.origin, direction, 0.0f, kInfinity)) return Rgb(0.0f);
+  // Uniform over the cone: radiance * cos / (1 / solid angle).
+  return scene.sun->radiance * (cosAtVertex * sunSolidAngle);
+}
+
 // --- Shader -----------------------------------------------------------------
 
 Shader::Shader(const Scene& scene, const RayScene& rays, ShadingSettings settings)
-    : scene_(scene), rays_(rays), settings_(settings), triangles_(scene.triangles.size()) {
-  for (uint32_t t = 0; t < scene.triangles.size(); ++t) triangles_[t].normal = scene.GeometricNormal(t);
+    : impl_(std::make_unique<const Impl>(scene, rays, settings)) {}
+Shader::~Shader() = default;
+Shader::Shader(Shader&&) noexcept = default;
 
-  // Power of an emitter is proportional to its emitted radiance times its
-  // area (the pi of a Lambertian emitter is common to all).
-  std::vector<double> power;
-  double totalPower = 0.0;
-  for (uint32_t t : scene.emissiveTriangles) {
-    const double p = double(Luminance(scene.MaterialOf(t).emission)) * double(scene.Area(t));
-    if (!(p > 0.0)) continue;
-    lights_.push_back(t);
-    power.push_back(p);
-    totalPower += p;
-  }
-  double cumulative = 0.0;
-  for (size_t i = 0; i < lights_.size(); ++i) {
-    triangles_[lights_[i]].lightPdfArea = float(power[i] / totalPower / double(scene.Area(lights_[i])));
-    cumulative += power[i];
-    lightCdf_.push_back(float(cumulative / totalPower));
-  }
-  if (!lightCdf_.empty()) lightCdf_.back() = 1.0f;
-
-  if (scene.sun) {
-    sunFrame_ = Frame::FromNormal(scene.sun->directionToSun);
-    sunCosHalfAngle_ = scene.sun->CosHalfAngle();
-    sunSolidAngle_ = scene.sun->SolidAngle();
-  }
-  offset_ = kRelativeOffset * LargestCoordinate(scene.bounds);
-}
+const ShadingSettings& Shader::Settings() const { return impl_->settings; }
+const Scene& Shader::GetScene() const { return impl_->scene; }
 
 ShadeOutput Shader::Shade(const ShadeInput& in, int paths, ShadeCounters* counters) const {
-  const int pathCount = paths > 0 ? paths : settings_.pathsPerSample;
+  const Impl& s = *impl_;
+  const int pathCount = paths > 0 ? paths : s.settings.pathsPerSample;
   const Vec3 normal = glm::normalize(in.normal);
-  const Vec3& faceNormal = triangles_[in.triangle].normal;
+  const Vec3 faceNormal = s.scene.GeometricNormal(in.triangle);
   const bool frontSide = glm::dot(normal, faceNormal) >= 0.0f;
 
   PathVertex start;
@@ -124,112 +263,25 @@ ShadeOutput Shader::Shade(const ShadeInput& in, int paths, ShadeCounters* counte
   // centroid (no further than halfway), so that a neighbour meeting this
   // vertex or edge at an angle -- a wall at the edge of a floor -- lies
   // clearly on one side of the origin.
-  const Vec3 centroid = scene_.PointAt(in.triangle, 1.0f / 3.0f, 1.0f / 3.0f);
+  const Vec3 centroid = s.scene.PointAt(in.triangle, 1.0f / 3.0f, 1.0f / 3.0f);
   const Vec3 toCentroid = centroid - in.position;
   const float toCentroidLength = glm::length(toCentroid);
-  start.origin = in.position + offset_ * start.geometricNormal;
+  start.origin = in.position + s.offset * start.geometricNormal;
   if (toCentroidLength > 0.0f)
-    start.origin += toCentroid * (std::min(offset_, 0.5f * toCentroidLength) / toCentroidLength);
+    start.origin += toCentroid * (std::min(s.offset, 0.5f * toCentroidLength) / toCentroidLength);
 
-  Pcg32 rng = Pcg32::ForSample(settings_.seed, in.sampleId);
+  Pcg32 rng = Pcg32::ForSample(s.settings.seed, in.sampleId);
   ShadeCounters work;
   Rgb sum(0.0f);
-  for (int p = 0; p < pathCount; ++p) sum += TracePath(start, rng, work);
+  for (int p = 0; p < pathCount; ++p) sum += s.TracePath(start, rng, work);
   work.paths = uint64_t(pathCount);
   if (counters) *counters += work;
 
   ShadeOutput out;
   out.irradiance = sum / float(pathCount);
-  const Rgb emitted = frontSide ? scene_.MaterialOf(in.triangle).emission : Rgb(0.0f);
-  out.radiance = emitted + scene_.AlbedoAt(in.triangle, in.b1, in.b2) * kInvPi * out.irradiance;
+  const Rgb emitted = frontSide ? s.scene.MaterialOf(in.triangle).emission : Rgb(0.0f);
+  out.radiance = emitted + s.scene.AlbedoAt(in.triangle, in.b1, in.b2) * kInvPi * out.irradiance;
   return out;
-}
-
-Rgb Shader::TracePath(const PathVertex& start, Pcg32& rng, ShadeCounters& counters) const {
-  PathVertex v = start;
-  Rgb throughput(1.0f);
-  Rgb irradiance(0.0f);
-  for (int depth = 0; depth < settings_.maxDepth; ++depth) {
-    if (!lights_.empty()) irradiance += throughput * SampleAreaLight(v, rng, counters);
-    if (scene_.sun) irradiance += throughput * SampleSun(v, rng, counters);
-
-    const Vec3 local = sampling::CosineHemisphere(rng.NextFloat(), rng.NextFloat());
-    const Vec3 direction = v.frame.ToWorld(local);
-    if (glm::dot(direction, v.geometricNormal) <= 0.0f) break;  // into the surface itself
-    ++counters.rays;
-    const std::optional<RayHit> hit = rays_.Intersect(v.origin, direction, 0.0f, kInfinity);
-    // Cosine-weighted incident radiance over the cosine pdf: a factor pi.
-    if (!hit) {
-      if (scene_.sky) irradiance += throughput * kPi * scene_.sky->Radiance(direction);
-      break;
-    }
-    const TriangleInfo& info = triangles_[hit->triangle];
-    const float cosAtHit = glm::dot(info.normal, direction);  // < 0: the front face was hit
-    const Material& material = scene_.MaterialOf(hit->triangle);
-    if (cosAtHit < 0.0f && material.IsEmissive()) {
-      // The light sample at `v` could have produced this point too.
-      const float pdfLight = info.lightPdfArea * hit->t * hit->t / -cosAtHit;
-      const float weight = sampling::PowerHeuristic(sampling::CosineHemispherePdf(local.z), pdfLight);
-      irradiance += throughput * kPi * weight * material.emission;
-    }
-    if (depth + 1 == settings_.maxDepth) break;
-
-    const Rgb albedo = scene_.AlbedoAt(hit->triangle, hit->b1, hit->b2);
-    throughput *= albedo;
-    if (depth + 1 >= settings_.russianRouletteDepth) {
-      // Survival in proportion to the albedo: in a uniform scene the
-      // throughput then stays constant instead of decaying.
-      const float survival = std::min(1.0f, MaxComponent(albedo));
-      if (rng.NextFloat() >= survival) break;
-      throughput /= survival;
-    }
-    if (MaxComponent(throughput) <= 0.0f) break;
-
-    // Both sides reflect: shade the side the path arrived from.
-    v.geometricNormal = cosAtHit < 0.0f ? info.normal : -info.normal;
-    v.frame = Frame::FromNormal(v.geometricNormal);
-    v.origin = scene_.PointAt(hit->triangle, hit->b1, hit->b2) + offset_ * v.geometricNormal;
-  }
-  return irradiance;
-}
-
-Rgb Shader::SampleAreaLight(const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const {
-  const float u = rng.NextFloat();
-  const size_t index = std::min(size_t(std::upper_bound(lightCdf_.begin(), lightCdf_.end(), u) - lightCdf_.begin()),
-                                lights_.size() - 1);
-  const uint32_t light = lights_[index];
-  const Vec2 b = sampling::UniformTriangle(rng.NextFloat(), rng.NextFloat());
-  const Vec3 onLight = scene_.PointAt(light, b.x, b.y);
-
-  const Vec3 toLight = onLight - v.origin;
-  const float distance2 = glm::dot(toLight, toLight);
-  const float distance = std::sqrt(distance2);
-  const Vec3 direction = toLight / distance;
-  const float cosAtVertex = glm::dot(direction, v.frame.n);
-  const TriangleInfo& info = triangles_[light];
-  const float cosAtLight = -glm::dot(direction, info.normal);  // emitters emit from the front only
-  if (cosAtVertex <= 0.0f || cosAtLight <= 0.0f || glm::dot(direction, v.geometricNormal) <= 0.0f)
-    return Rgb(0.0f);
-
-  ++counters.rays;
-  ++counters.shadowRays;
-  // Stop short of the light so that its own surface does not occlude it.
-  if (rays_.Occluded(v.origin, direction, 0.0f, distance - offset_)) return Rgb(0.0f);
-  const float pdfLight = info.lightPdfArea * distance2 / cosAtLight;
-  const float weight = sampling::PowerHeuristic(pdfLight, sampling::CosineHemispherePdf(cosAtVertex));
-  return scene_.MaterialOf(light).emission * (weight * cosAtVertex / pdfLight);
-}
-
-Rgb Shader::SampleSun(const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const {
-  const Vec3 direction =
-      sunFrame_.ToWorld(sampling::UniformCone(rng.NextFloat(), rng.NextFloat(), sunCosHalfAngle_));
-  const float cosAtVertex = glm::dot(direction, v.frame.n);
-  if (cosAtVertex <= 0.0f || glm::dot(direction, v.geometricNormal) <= 0.0f) return Rgb(0.0f);
-  ++counters.rays;
-  ++counters.shadowRays;
-  if (rays_.Occluded(v.origin, direction, 0.0f, kInfinity)) return Rgb(0.0f);
-  // Uniform over the cone: radiance * cos / (1 / solid angle).
-  return scene_.sun->radiance * (cosAtVertex * sunSolidAngle_);
 }
 
 }  // namespace penumbra

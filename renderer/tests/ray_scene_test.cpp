@@ -33,6 +33,11 @@ TEST(RaySceneTest, ClosestHitReportsTriangleDistanceAndBarycentrics) {
   EXPECT_NEAR(hit->t, 1.0f, 1e-6f);
   const Vec3 p = t.scene.PointAt(hit->triangle, hit->b1, hit->b2);
   EXPECT_NEAR(glm::length(p - Vec3(0.25f, 1.0f, 0.6f)), 0.0f, 1e-6f);
+  // The normal is the triangle's front side, whichever side was hit.
+  EXPECT_NEAR(glm::dot(glm::normalize(hit->normal), t.scene.GeometricNormal(hit->triangle)), 1.0f, 1e-6f);
+  const auto fromBelow = t.rays->Intersect(Vec3(0.25f, -1.0f, 0.6f), Vec3(0.0f, 1.0f, 0.0f), 0.0f, 100.0f);
+  ASSERT_TRUE(fromBelow.has_value());
+  EXPECT_NEAR(glm::dot(glm::normalize(fromBelow->normal), t.scene.GeometricNormal(fromBelow->triangle)), 1.0f, 1e-6f);
 }
 
 TEST(RaySceneTest, BackFacesAreHitAndTheIntervalIsRespected) {

@@ -6,6 +6,8 @@
 
 #include <gtest/gtest.h>
 
+#include <vector>
+
 #include "penumbra/common/rng.h"
 
 namespace penumbra::sampling {
@@ -55,6 +57,22 @@ TEST(SamplingTest, UniformTriangleStaysInsideWithCentroidMean) {
   const double tolerance = 5.0 * std::sqrt(1.0 / 18.0 / kN);
   EXPECT_NEAR(sum.x / kN, 1.0 / 3.0, tolerance);
   EXPECT_NEAR(sum.y / kN, 1.0 / 3.0, tolerance);
+}
+
+// Each index's frequency is binomial: within 5 standard deviations of N p.
+TEST(SamplingTest, AliasTableDrawsInProportionToWeights) {
+  const std::vector<double> weights = {1.0, 0.0, 3.0, 0.5, 10.0, 2.5, 0.0, 7.0};
+  double sum = 0.0;
+  for (double w : weights) sum += w;
+  const AliasTable table(weights);
+  ASSERT_EQ(table.size(), weights.size());
+  Pcg32 rng(7, 8);
+  std::vector<int> counts(weights.size(), 0);
+  for (int i = 0; i < kN; ++i) ++counts[table.Sample(rng.NextFloat(), rng.NextFloat())];
+  for (size_t i = 0; i < weights.size(); ++i) {
+    const double p = weights[i] / sum;
+    EXPECT_NEAR(counts[i], kN * p, 5.0 * std::sqrt(kN * p * (1.0 - p)) + 0.5) << "index " << i;
+  }
 }
 
 TEST(SamplingTest, PowerHeuristicWeightsSumToOne) {

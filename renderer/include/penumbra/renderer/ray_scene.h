@@ -27,6 +27,7 @@ struct RayHit {
   float t = 0.0f;         // distance along the (unit) direction
   float b1 = 0.0f;        // barycentrics: p = (1-b1-b2) v0 + b1 v1 + b2 v2
   float b2 = 0.0f;
+  Vec3 normal{0.0f};      // geometric normal, not unit: cross(v1 - v0, v2 - v0)
 };
 
 /// A ray for batch queries: origin + t*direction, t in [0, tMax).

@@ -42,7 +42,7 @@
 // any thread, in any batch, on any renderer process.
 
 #include <cstdint>
-#include <vector>
+#include <memory>
 
 #include "penumbra/common/expected.h"
 #include "penumbra/common/math.h"
@@ -50,7 +50,6 @@
 
 namespace penumbra {
 
-class Pcg32;
 class RayScene;
 
 struct ShadingSettings {
@@ -98,46 +97,24 @@ Status ValidateShadeInput(const Scene& scene, const ShadeInput& input);
 class Shader {
  public:
   /// `scene` and `rays` must outlive the shader. Precomputes per-triangle
-  /// normals and the light-selection distribution.
+  /// data and the light-selection distribution.
   Shader(const Scene& scene, const RayScene& rays, ShadingSettings settings);
+  ~Shader();
+  Shader(Shader&&) noexcept;
+  Shader(const Shader&) = delete;
+  Shader& operator=(const Shader&) = delete;
 
   /// Shades one sample with `paths` paths (the settings' count when 0).
   /// Input must have passed ValidateShadeInput. Adds the work done to
   /// `counters` when it is not null. Thread-safe; deterministic.
   ShadeOutput Shade(const ShadeInput& input, int paths, ShadeCounters* counters) const;
 
-  const ShadingSettings& Settings() const { return settings_; }
-  const Scene& GetScene() const { return scene_; }
+  const ShadingSettings& Settings() const;
+  const Scene& GetScene() const;
 
  private:
-  struct PathVertex;  // shading.cpp
-
-  // Irradiance estimate of one path from the sample at `start`.
-  Rgb TracePath(const PathVertex& start, Pcg32& rng, ShadeCounters& counters) const;
-  // Next-event estimates at `v` (throughput not applied), each with one
-  // shadow ray.
-  Rgb SampleAreaLight(const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const;
-  Rgb SampleSun(const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const;
-
-  // Per base triangle, what the path loop needs at every hit.
-  struct TriangleInfo {
-    Vec3 normal;               // unit geometric normal of the front face
-    float lightPdfArea = 0.0f;  // P(pick this light) / area; 0 for non-emitters
-  };
-
-  const Scene& scene_;
-  const RayScene& rays_;
-  ShadingSettings settings_;
-  std::vector<TriangleInfo> triangles_;
-  // Light selection: emissive triangles and their cumulative power,
-  // normalised so that lightCdf_.back() == 1.
-  std::vector<uint32_t> lights_;
-  std::vector<float> lightCdf_;
-  // The sun's cone, when the scene has a sun.
-  Frame sunFrame_{};  // z toward the sun's centre
-  float sunCosHalfAngle_ = 1.0f;
-  float sunSolidAngle_ = 0.0f;
-  float offset_ = 0.0f;  // how far ray origins are moved off the surface they leave
+  struct Impl;  // the path tracer and its tables (shading.cpp)
+  std::unique_ptr<const Impl> impl_;
 };
 
 }  // namespace penumbra
