@@ -140,12 +140,14 @@ Status Scene::Finalize() {
   const std::string where = sourcePath.empty() ? name : sourcePath.string();
   if (triangles.empty()) return Fail(fmt::format("{}: the scene has no triangles", where));
   if (materials.empty()) return Fail(fmt::format("{}: the scene has no materials", where));
-  for (size_t i = 0; i < vertices.size(); ++i) {
+  // Positions first: a non-finite coordinate also spoils its neighbours'
+  // normals, and the coordinate is the problem to report.
+  for (size_t i = 0; i < vertices.size(); ++i)
     if (!IsFinite(vertices[i].position))
       return Fail(fmt::format("{}: vertex {} has a non-finite coordinate", where, i));
+  for (size_t i = 0; i < vertices.size(); ++i)
     if (!IsFinite(vertices[i].normal))
       return Fail(fmt::format("{}: vertex {} has a non-finite normal", where, i));
-  }
   for (size_t i = 0; i < triangles.size(); ++i) {
     for (uint32_t v : triangles[i].v)
       if (v >= vertices.size())

@@ -16,6 +16,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <optional>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -137,6 +138,9 @@ class SceneBuilder {
   /// Two triangles: corner, corner+edge1, corner+edge1+edge2, corner+edge2;
   /// front face is on the side of cross(edge1, edge2).
   void AddQuad(const Vec3& corner, const Vec3& edge1, const Vec3& edge2, uint32_t material);
+  /// The materials added so far, for loaders that adjust them (a scene
+  /// file's overrides) before BuildInto.
+  std::span<Material> Materials() { return materials_; }
   size_t DegenerateTriangles() const { return degenerate_; }
   size_t TriangleCount() const { return corners_.size() / 3; }
 
@@ -158,7 +162,7 @@ class SceneBuilder {
 };
 
 struct SceneLoadOptions {
-  float creaseAngleDeg = kDefaultCreaseAngleDeg;
+  float creaseAngleDeg = kDefaultCreaseAngleDeg;  // a scene file's crease_angle_deg wins
 };
 
 /// Loads a scene from either a scene description (.json, docs/scenes.md) or
@@ -166,7 +170,8 @@ struct SceneLoadOptions {
 /// reads; lights then come from the mesh's emissive materials only).
 /// Any problem -- missing file, malformed mesh, missing texture, non-finite
 /// coordinate, empty mesh -- is an Error whose message names the file and
-/// the problem. Never throws.
+/// the problem. Never throws. Safe to call from several threads at once;
+/// logs one summary line per load to the "scene" logger.
 Expected<Scene> LoadScene(const std::filesystem::path& path, const SceneLoadOptions& options = {});
 
 }  // namespace penumbra

@@ -1,0 +1,249 @@
+#include "mesh_import.h"
+
+#include <algorithm>
+#include <fstream>
+#include <iterator>
+#include <optional>
+#include <span>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include <assimp/DefaultIOSystem.h>
+#include <assimp/Importer.hpp>
+#include <assimp/material.h>
+#include <assimp/postprocess.h>
+#include <assimp/scene.h>
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include "io_util.h"
+#include "penumbra/common/image_io.h"
+
+namespace penumbra {
+namespace {
+
+namespace fs = std::filesystem;
+
+// Assimp silently carries on when a file the mesh refers to (an OBJ's
+// mtllib) cannot be opened; remembering failed opens lets us report it.
+class RecordingIOSystem : public Assimp::DefaultIOSystem {
+ public:
+  Assimp::IOStream* Open(const char* file, const char* mode) override {
+    Assimp::IOStream* stream = DefaultIOSystem::Open(file, mode);
+    if (!stream && failedOpen_.empty()) failedOpen_ = file;
+    return stream;
+  }
+  const std::string& FirstFailedOpen() const { return failedOpen_; }
+
+ private:
+  std::string failedOpen_;
+};
+
+// 8- and 16-bit texture files hold sRGB-encoded values, float files linear ones.
+Texture TextureFromImage(Image image, std::string name) {
+  Texture texture;
+  texture.path = std::move(name);
+  texture.width = image.width;
+  texture.height = image.height;
+  texture.texels.resize(size_t(image.width) * size_t(image.height));
+  for (size_t i = 0; i < texture.texels.size(); ++i) {
+    const Rgb stored(image.rgb[3 * i], image.rgb[3 * i + 1], image.rgb[3 * i + 2]);
+    texture.texels[i] = image.storedAsFloat
+                            ? stored
+                            : Rgb(SrgbToLinear(stored.r), SrgbToLinear(stored.g), SrgbToLinear(stored.b));
+  }
+  return texture;
+}
+
+// Decodes each texture once and hands out its SceneBuilder index.
+class TextureCache {
+ public:
+  TextureCache(const aiScene& scene, const fs::path& meshPath, SceneBuilder& builder)
+      : scene_(scene), meshPath_(meshPath), builder_(builder) {}
+
+  /// `reference` is a material's texture string: a file path relative to the
+  /// mesh file, or "*N" / a name for an image embedded in the mesh file.
+  Expected<int32_t> IndexOf(const std::string& reference) {
+    if (const aiTexture* embedded = scene_.GetEmbeddedTexture(reference.c_str()))
+      return Cached("embedded:" + reference, [&] { return DecodeEmbedded(*embedded, reference); });
+    std::string portable = reference;
+    std::replace(portable.begin(), portable.end(), '\\', '/');  // paths written on Windows
+    const fs::path file = meshPath_.parent_path() / fs::path(portable);
+    std::error_code ec;
+    const fs::path canonical = fs::weakly_canonical(file, ec);
+    return Cached(ec ? file.string() : canonical.string(), [&]() -> Expected<Image> {
+      if (auto ok = io::CheckRegularFile(file); !ok)
+        return Fail(fmt::format("texture '{}': {}", reference, ok.error().message));
+      return ReadImage(file);
+    });
+  }
+
+ private:
+  template <class Decoder>
+  Expected<int32_t> Cached(const std::string& key, Decoder decode) {
+    if (auto it = indexOf_.find(key); it != indexOf_.end()) return it->second;
+    Expected<Image> image = decode();
+    if (!image) return image.error();
+    const int32_t index = builder_.AddTexture(TextureFromImage(std::move(*image), key));
+    indexOf_.emplace(key, index);
+    return index;
+  }
+
+  Expected<Image> DecodeEmbedded(const aiTexture& texture, const std::string& reference) const {
+    const std::string name = fmt::format("{}: embedded texture '{}'", meshPath_.string(), reference);
+    if (texture.mHeight == 0) {  // compressed file bytes; mWidth is their count
+      const auto* bytes = reinterpret_cast<const std::byte*>(texture.pcData);
+      return ReadImageFromMemory(std::span(bytes, texture.mWidth), texture.achFormatHint, name);
+    }
+    // Uncompressed 8-bit BGRA texels.
+    Image image;
+    image.width = int(texture.mWidth);
+    image.height = int(texture.mHeight);
+    image.rgb.reserve(size_t(texture.mWidth) * texture.mHeight * 3);
+    for (size_t i = 0; i < size_t(texture.mWidth) * texture.mHeight; ++i) {
+      const aiTexel& t = texture.pcData[i];
+      image.rgb.insert(image.rgb.end(), {t.r / 255.0f, t.g / 255.0f, t.b / 255.0f});
+    }
+    return image;
+  }
+
+  const aiScene& scene_;
+  const fs::path& meshPath_;
+  SceneBuilder& builder_;
+  std::unordered_map<std::string, int32_t> indexOf_;
+};
+
+Rgb ToRgb(const aiColor3D& c) { return Rgb(c.r, c.g, c.b); }
+
+struct ConvertedMaterial {
+  Material material;
+  unsigned uvChannel = 0;  // the UV set the albedo texture uses
+};
+
+Expected<ConvertedMaterial> ConvertMaterial(const aiMaterial& source, TextureCache& textures) {
+  ConvertedMaterial out;
+  Material& m = out.material;
+  m.name = source.GetName().C_Str();
+
+  // glTF's base colour wins over the diffuse colour assimp derives from it.
+  aiColor3D colour;
+  if (source.Get(AI_MATKEY_BASE_COLOR, colour) == aiReturn_SUCCESS ||
+      source.Get(AI_MATKEY_COLOR_DIFFUSE, colour) == aiReturn_SUCCESS)
+    m.albedo = ToRgb(colour);
+
+  for (aiTextureType type : {aiTextureType_BASE_COLOR, aiTextureType_DIFFUSE}) {
+    aiString reference;
+    if (source.GetTexture(type, 0, &reference) != aiReturn_SUCCESS) continue;
+    auto index = textures.IndexOf(reference.C_Str());
+    if (!index) return Fail(fmt::format("material '{}': {}", m.name, index.error().message));
+    m.albedoTexture = *index;
+    source.Get(AI_MATKEY_UVWSRC(type, 0), out.uvChannel);
+    break;
+  }
+
+  if (source.Get(AI_MATKEY_COLOR_EMISSIVE, colour) == aiReturn_SUCCESS) m.emission = ToRgb(colour);
+  return out;
+}
+
+// Assimp 5.2 drops KHR_materials_emissive_strength, which exporters (Blender)
+// write for any emission brighter than 1, so it is read from the glTF JSON
+// here. Indexed like the file's materials, which assimp imports in order.
+// Best effort: assimp has already read the file, and a layout this cannot
+// follow leaves the strengths at 1 (an empty result).
+std::vector<float> GltfEmissiveStrengths(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::string text;
+  if (io::LowerExtension(path) == ".glb") {
+    // 12-byte header (magic, version, length), then the JSON chunk's length
+    // and type; little-endian, like every host this builds for.
+    uint32_t header[5];
+    if (!in.read(reinterpret_cast<char*>(header), sizeof header) || header[4] != 0x4E4F534Au /* "JSON" */ ||
+        header[3] > header[2])
+      return {};
+    text.resize(header[3]);
+    if (!in.read(text.data(), std::streamsize(text.size()))) return {};
+  } else {
+    text.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+  }
+  try {
+    const auto doc = nlohmann::json::parse(text);
+    const nlohmann::json::json_pointer strengthKey("/extensions/KHR_materials_emissive_strength/emissiveStrength");
+    std::vector<float> strengths;
+    for (const auto& material : doc.at("materials")) {
+      const bool given = material.contains(strengthKey) && material.at(strengthKey).is_number();
+      strengths.push_back(given ? material.at(strengthKey).get<float>() : 1.0f);
+    }
+    return strengths;
+  } catch (const nlohmann::json::exception&) {
+    return {};
+  }
+}
+
+Vec3 ToVec3(const aiVector3D& v) { return Vec3(v.x, v.y, v.z); }
+
+}  // namespace
+
+Status ImportMesh(const fs::path& meshPath, SceneBuilder& builder) {
+  const std::string where = meshPath.string();
+  if (auto ok = io::CheckRegularFile(meshPath); !ok) return ok;
+
+  Assimp::Importer importer;
+  auto* io = new RecordingIOSystem;  // the importer owns it
+  importer.SetIOHandler(io);
+  // No vertex joining or normal generation: SceneBuilder welds by position and
+  // splits at creases itself, identically for every format.
+  const aiScene* scene = importer.ReadFile(
+      where, aiProcess_Triangulate | aiProcess_PreTransformVertices);
+  if (!scene) return Fail(fmt::format("{}: {}", where, io::OneLine(importer.GetErrorString())));
+  if (!io->FirstFailedOpen().empty())
+    return Fail(fmt::format("{}: cannot open '{}', which it refers to", where, io->FirstFailedOpen()));
+  if (scene->mFlags & AI_SCENE_FLAGS_INCOMPLETE)
+    return Fail(fmt::format("{}: the file is incomplete (assimp could not read all of it)", where));
+
+  struct UsedMaterial {
+    uint32_t builderIndex;
+    unsigned uvChannel;
+  };
+  const std::string ext = io::LowerExtension(meshPath);
+  const std::vector<float> emissiveStrengths =
+      ext == ".gltf" || ext == ".glb" ? GltfEmissiveStrengths(meshPath) : std::vector<float>{};
+  TextureCache textures(*scene, meshPath, builder);
+  std::vector<std::optional<UsedMaterial>> used(scene->mNumMaterials);
+  for (unsigned meshIndex = 0; meshIndex < scene->mNumMeshes; ++meshIndex) {
+    const aiMesh& mesh = *scene->mMeshes[meshIndex];
+    if (mesh.mMaterialIndex >= scene->mNumMaterials)
+      return Fail(fmt::format("{}: mesh '{}' refers to material {} of {}", where, mesh.mName.C_Str(),
+                              mesh.mMaterialIndex, scene->mNumMaterials));
+    // Materials are converted when first used, so unused ones (assimp's
+    // DefaultMaterial for OBJ files) neither load textures nor count.
+    auto& material = used[mesh.mMaterialIndex];
+    if (!material) {
+      auto result = ConvertMaterial(*scene->mMaterials[mesh.mMaterialIndex], textures);
+      if (!result) return Fail(fmt::format("{}: {}", where, result.error().message));
+      if (mesh.mMaterialIndex < emissiveStrengths.size())
+        result->material.emission *= emissiveStrengths[mesh.mMaterialIndex];
+      material = UsedMaterial{builder.AddMaterial(std::move(result->material)), result->uvChannel};
+    }
+    const aiVector3D* uvs =
+        mesh.HasTextureCoords(material->uvChannel) ? mesh.mTextureCoords[material->uvChannel] : nullptr;
+    for (unsigned f = 0; f < mesh.mNumFaces; ++f) {
+      const aiFace& face = mesh.mFaces[f];
+      if (face.mNumIndices != 3) continue;  // points and lines carry no surface
+      std::array<Vec3, 3> positions;
+      std::array<Vec2, 3> uv{};
+      for (int c = 0; c < 3; ++c) {
+        const unsigned v = face.mIndices[c];
+        if (v >= mesh.mNumVertices)
+          return Fail(fmt::format("{}: mesh '{}' face {} refers to vertex {} of {}", where, mesh.mName.C_Str(), f,
+                                  v, mesh.mNumVertices));
+        positions[c] = ToVec3(mesh.mVertices[v]);
+        if (uvs) uv[c] = Vec2(uvs[v].x, uvs[v].y);
+      }
+      builder.AddTriangle(positions, material->builderIndex, uv);
+    }
+  }
+  return Status::Ok();
+}
+
+}  // namespace penumbra

@@ -1,0 +1,61 @@
+#pragma once
+// Scene description files (.json, documented in docs/scenes.md): which mesh
+// to load and what to add to it. Private to penumbra_scene_io; LoadScene is
+// the public entry.
+
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "penumbra/common/camera.h"
+#include "penumbra/common/expected.h"
+#include "penumbra/common/scene.h"
+
+namespace penumbra {
+
+/// Replaces parts of a mesh material, found by name.
+struct MaterialOverride {
+  std::string name;
+  std::optional<Rgb> albedo;
+  std::optional<Rgb> emission;
+};
+
+/// A one-sided emitting parallelogram, added to the scene as two triangles:
+/// corner, corner + edge1, corner + edge1 + edge2, corner + edge2, emitting
+/// toward cross(edge1, edge2).
+struct QuadLight {
+  std::string name;  // also the name of its material
+  Vec3 corner{0.0f};
+  Vec3 edge1{0.0f};
+  Vec3 edge2{0.0f};
+  Rgb radiance{0.0f};
+};
+
+/// A parsed and validated scene file. Paths are resolved against the folder
+/// of the scene file; camera paths given as files are already read.
+struct SceneDescription {
+  std::filesystem::path sourcePath;  // the scene file
+  std::string name;                  // "name", or the file's stem
+  std::filesystem::path meshPath;
+  std::optional<float> creaseAngleDeg;
+  float emissionScale = 1.0f;  // multiplies the mesh's own emission
+  std::vector<MaterialOverride> materialOverrides;
+  std::vector<QuadLight> quadLights;
+  std::optional<SunLight> sun;
+  std::optional<SkyLight> sky;
+  std::vector<CameraPreset> cameras;  // in file order
+  std::vector<CameraPath> paths;      // in file order
+};
+
+/// Reads and validates a scene file. Every error names the file and, where
+/// there is one, the offending key ("scenes/x.json: sun: unknown key
+/// \"irradience\"").
+Expected<SceneDescription> ParseSceneFile(const std::filesystem::path& path);
+
+/// Applies the description's emission scale and material overrides to the
+/// mesh materials already in `builder`, then adds its quad lights. An
+/// override that names no material of the mesh is an error.
+Status ApplyToBuilder(const SceneDescription& description, SceneBuilder& builder);
+
+}  // namespace penumbra
