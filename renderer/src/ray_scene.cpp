@@ -133,7 +133,7 @@ Expected<std::unique_ptr<RayScene>> RayScene::Build(const Scene& scene) {
   rtcCommitScene(impl->scene);
   if (auto error = impl->Check("building the BVH")) return *error;
   Logger("renderer.embree")
-      ->info("BVH over {} triangles ({} vertices) built", scene.triangles.size(), scene.vertices.size());
+      ->debug("BVH over {} triangles ({} vertices) built", scene.triangles.size(), scene.vertices.size());
   return std::unique_ptr<RayScene>(new RayScene(std::move(impl)));
 }
 
