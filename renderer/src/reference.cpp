@@ -1,0 +1,83 @@
+// Reference images; the contract is in reference.h.
+
+#include "penumbra/renderer/reference.h"
+
+#include <algorithm>
+#include <atomic>
+#include <limits>
+#include <thread>
+#include <vector>
+
+#include "penumbra/renderer/ray_scene.h"
+
+namespace penumbra {
+
+namespace {
+
+// The sample for a camera ray's hit: on the side facing the camera, with the
+// smooth normal the SMA's vertex samples would interpolate to.
+ShadeInput SampleAtHit(const Scene& scene, const RayHit& hit, const Vec3& direction, uint64_t sampleId) {
+  const Vec3 faceNormal = glm::normalize(hit.normal);
+  const Vec3 towardCamera = glm::dot(faceNormal, direction) < 0.0f ? faceNormal : -faceNormal;
+  const Triangle& tri = scene.triangles[hit.triangle];
+  const Vec3 interpolated = (1.0f - hit.b1 - hit.b2) * scene.vertices[tri.v[0]].normal +
+                            hit.b1 * scene.vertices[tri.v[1]].normal + hit.b2 * scene.vertices[tri.v[2]].normal;
+  const float length = glm::length(interpolated);
+  Vec3 normal = length > 0.0f ? interpolated / length : towardCamera;
+  if (glm::dot(normal, towardCamera) < 0.0f) normal = -normal;
+
+  ShadeInput in;
+  in.sampleId = sampleId;
+  in.position = scene.PointAt(hit.triangle, hit.b1, hit.b2);
+  in.normal = normal;
+  in.triangle = hit.triangle;
+  in.b1 = hit.b1;
+  in.b2 = hit.b2;
+  return in;
+}
+
+}  // namespace
+
+Image RenderReference(const Shader& shader, const RayScene& rays, const CameraView& view, int threads,
+                      ShadeCounters* counters) {
+  const Scene& scene = shader.GetScene();
+  const PinholeCamera camera(view);
+  Image image;
+  image.width = view.width;
+  image.height = view.height;
+  image.rgb.assign(size_t(view.width) * size_t(view.height) * 3, 0.0f);
+  image.storedAsFloat = true;
+
+  // Rows go to whichever worker is free; every pixel depends only on its
+  // own sample id, so the assignment does not show in the image.
+  std::atomic<int> nextRow{0};
+  const int workerCount = std::max(1, threads);
+  std::vector<ShadeCounters> work(static_cast<size_t>(workerCount));
+  std::vector<std::thread> workers;
+  for (int w = 0; w < workerCount; ++w) {
+    workers.emplace_back([&, w] {
+      EnableFlushToZero();
+      for (int y; (y = nextRow.fetch_add(1)) < view.height;) {
+        for (int x = 0; x < view.width; ++x) {
+          const Vec3 direction = camera.DirectionThrough(float(x) + 0.5f, float(y) + 0.5f);
+          const uint64_t pixel = uint64_t(y) * uint64_t(view.width) + uint64_t(x);
+          Rgb radiance(0.0f);
+          if (const auto hit = rays.Intersect(camera.Origin(), direction, 0.0f, std::numeric_limits<float>::infinity()))
+            radiance = shader.Shade(SampleAtHit(scene, *hit, direction, pixel), 0, &work[size_t(w)]).radiance;
+          else if (scene.sky)
+            radiance = scene.sky->Radiance(direction);
+          float* out = image.rgb.data() + 3 * pixel;
+          out[0] = radiance.r;
+          out[1] = radiance.g;
+          out[2] = radiance.b;
+        }
+      }
+    });
+  }
+  for (std::thread& t : workers) t.join();
+  if (counters)
+    for (const ShadeCounters& c : work) *counters += c;
+  return image;
+}
+
+}  // namespace penumbra

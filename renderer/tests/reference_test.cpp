@@ -1,0 +1,87 @@
+#include "penumbra/renderer/reference.h"
+
+#include <gtest/gtest.h>
+
+#include <cstring>
+
+#include "penumbra/renderer/ray_scene.h"
+#include "test_scenes.h"
+
+namespace penumbra {
+namespace {
+
+using testing::AddHorizontalSquare;
+using testing::Finish;
+using testing::MakeMaterial;
+using testing::TestScene;
+
+// A grey plane (albedo 0.5, side 10) under a uniform sky L, seen from above
+// at a slant: pixels on the plane read 0.5 L exactly (every cosine ray
+// escapes: E = pi L), pixels past its far edge read L.
+class ReferenceTest : public ::testing::Test {
+ protected:
+  ReferenceTest() {
+    SceneBuilder b;
+    AddHorizontalSquare(b, Vec3(0.0f), 10.0f, b.AddMaterial(MakeMaterial(Rgb(0.5f))), true);
+    Scene scene;
+    SkyLight sky;
+    sky.zenith = sky.horizon = sky.ground = kSky;
+    scene.sky = sky;
+    t_ = Finish(b, std::move(scene));
+    view_.pose.eye = Vec3(0.0f, 1.0f, 3.0f);
+    view_.pose.target = Vec3(0.0f);
+    view_.fovYDeg = 45.0f;
+    view_.width = 24;
+    view_.height = 16;
+  }
+  static constexpr Rgb kSky{0.2f, 0.4f, 0.8f};
+  TestScene t_;
+  CameraView view_;
+};
+
+Rgb Pixel(const Image& image, int x, int y) {
+  const float* p = image.rgb.data() + 3 * (size_t(y) * size_t(image.width) + size_t(x));
+  return Rgb(p[0], p[1], p[2]);
+}
+
+bool Near(const Rgb& a, const Rgb& b) { return glm::length(a - b) <= 1e-5f * glm::length(b); }
+
+TEST_F(ReferenceTest, PixelsReadTheLitPlaneOrTheSky) {
+  ShadingSettings settings;
+  settings.pathsPerSample = 4;
+  const Shader shader(t_.scene, *t_.rays, settings);
+  ShadeCounters work;
+  const Image image = RenderReference(shader, *t_.rays, view_, 2, &work);
+  ASSERT_EQ(image.width, view_.width);
+  ASSERT_EQ(image.height, view_.height);
+  ASSERT_EQ(image.rgb.size(), size_t(view_.width * view_.height * 3));
+
+  EXPECT_TRUE(Near(Pixel(image, 12, 0), kSky));                 // above the far edge
+  EXPECT_TRUE(Near(Pixel(image, 12, 15), 0.5f * kSky));         // the plane below the camera
+  int planePixels = 0;
+  for (int y = 0; y < image.height; ++y)
+    for (int x = 0; x < image.width; ++x) {
+      const Rgb p = Pixel(image, x, y);
+      EXPECT_TRUE(Near(p, kSky) || Near(p, 0.5f * kSky)) << "pixel " << x << ", " << y;
+      planePixels += Near(p, 0.5f * kSky);
+    }
+  EXPECT_EQ(work.paths, uint64_t(planePixels) * 4u);
+}
+
+TEST_F(ReferenceTest, ImageDoesNotDependOnTheThreadCount) {
+  // A box so that paths bounce and differ from pixel to pixel.
+  SceneBuilder b;
+  testing::AddBox(b, Vec3(-2.0f, -1.0f, -2.0f), Vec3(2.0f, 2.0f, 4.0f), b.AddMaterial(MakeMaterial(Rgb(0.6f))), true);
+  AddHorizontalSquare(b, Vec3(0.0f, 1.99f, 0.0f), 1.0f, b.AddMaterial(MakeMaterial(Rgb(0.0f), Rgb(10.0f))), false);
+  const TestScene box = Finish(b);
+  ShadingSettings settings;
+  settings.pathsPerSample = 2;
+  const Shader shader(box.scene, *box.rays, settings);
+  const Image one = RenderReference(shader, *box.rays, view_, 1);
+  const Image three = RenderReference(shader, *box.rays, view_, 3);
+  ASSERT_EQ(one.rgb.size(), three.rgb.size());
+  EXPECT_EQ(std::memcmp(one.rgb.data(), three.rgb.data(), one.rgb.size() * sizeof(float)), 0);
+}
+
+}  // namespace
+}  // namespace penumbra
