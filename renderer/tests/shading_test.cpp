@@ -118,6 +118,20 @@ TEST(ShadingTest, UnoccludedPlaneUnderUniformSkyReceivesPiL) {
   }
 }
 
+// A smoothed vertex normal tilted by alpha from its face: the part of its
+// hemisphere below the face is blocked by the surface itself (no light
+// leaks through it), leaving the sky-view factor (1 + cos alpha) / 2.
+TEST(ShadingTest, TiltedNormalSeesOnlyTheSkyAboveItsFace) {
+  const Rgb sky(0.2f, 0.5f, 1.0f);
+  const TestScene t = PlaneUnderSky(UniformSky(sky));
+  const Shader shader(t.scene, *t.rays, ShadingSettings{});
+  const float alpha = 30.0f * kPi / 180.0f;
+  ShadeInput in = SampleAt(t.scene, Vec3(1.0f, 0.0f, 1.0f), kUp);
+  in.normal = Vec3(std::sin(alpha), std::cos(alpha), 0.0f);
+  EXPECT_TRUE(Agrees(EstimateOutput(shader, in, 32, 64, &ShadeOutput::irradiance),
+                     kPi * sky * (0.5f * (1.0f + std::cos(alpha))), 0.01f));
+}
+
 // With L(c) = h + (z - h) c for c = cos(theta) > 0, E = 2 pi (h/2 + (z - h)/3).
 TEST(ShadingTest, PlaneUnderGradientSkyMatchesItsCosineIntegral) {
   SkyLight sky;

@@ -84,6 +84,11 @@ int main(int argc, char** argv) {
   }
   if (auto ok = ValidateCameraView(view); !ok) return Exit(ok.error().message);
 
+  // Fail now rather than after a long render if the output cannot be
+  // written (unknown extension, missing folder); the render overwrites it.
+  const float probe[3] = {0.0f, 0.0f, 0.0f};
+  if (auto ok = WriteImage(outPath, 1, 1, probe); !ok) return Exit(ok.error().message);
+
   auto rays = RayScene::Build(*scene);
   if (!rays) return Exit(rays.error().message);
   const Shader shader(*scene, **rays, shading);
