@@ -32,14 +32,17 @@
 // triangle (a wall meeting a floor) passes through the exact point.
 //
 // Path length. Segment 0 leaves the sample; a path has at most `maxDepth`
-// segments, each followed by a light sample at its start. From segment
-// `russianRouletteDepth` on, a path continues with probability equal to the
-// largest channel of the albedo it has just met and is reweighted by the
-// inverse of that probability, which keeps the estimate unbiased.
+// segments. The lights are sampled from the start of every segment, a light
+// sample counting as that segment, so maxDepth = 1 is direct light only.
+// From segment `russianRouletteDepth` on, a path continues with probability
+// equal to the largest channel of the albedo it has just met and is
+// reweighted by the inverse of that probability, which keeps the estimate
+// unbiased.
 //
 // Determinism: sample `sampleId` uses its own random stream, derived from
 // (settings.seed, sampleId) only, so the same input gives the same output on
-// any thread, in any batch, on any renderer process.
+// any thread (with flush-to-zero set, see EnableFlushToZero), in any batch,
+// on any renderer process.
 
 #include <cstdint>
 #include <memory>
@@ -53,8 +56,8 @@ namespace penumbra {
 class RayScene;
 
 struct ShadingSettings {
-  int pathsPerSample = 64;       // --spp: paths averaged per sample
-  int maxDepth = 5;              // --max-depth: path segments from the sample; 1 = direct light only
+  int pathsPerSample = 64;       // --spp: paths averaged per sample, >= 1
+  int maxDepth = 5;              // --max-depth: path segments from the sample, >= 1; 1 = direct light only
   int russianRouletteDepth = 3;  // first segment index (from 0) at which paths may be terminated
   uint64_t seed = 0;             // global seed mixed into every sample's stream
 };
