@@ -43,7 +43,7 @@ Connection::Connection(tcp::socket socket, ConnectionOptions options, std::strin
 Connection::~Connection() = default;
 
 void Connection::Start(MessageHandler onMessage, CloseHandler onClose) {
-  asio::dispatch(strand_, [self = shared_from_this(), onMessage = std::move(onMessage),
+  asio::post(strand_, [self = shared_from_this(), onMessage = std::move(onMessage),
                            onClose = std::move(onClose)]() mutable {
     self->onMessage_ = std::move(onMessage);
     self->onClose_ = std::move(onClose);
@@ -83,7 +83,7 @@ bool Connection::SendFrame(std::shared_ptr<const std::string> frame) {
 
 void Connection::FailAndClose(const wire::Envelope& error, std::string reason) {
   auto frame = std::make_shared<const std::string>(EncodeEnvelopeFrame(error));
-  asio::dispatch(strand_, [self = shared_from_this(), frame = std::move(frame), reason = std::move(reason)]() mutable {
+  asio::post(strand_, [self = shared_from_this(), frame = std::move(frame), reason = std::move(reason)]() mutable {
     if (self->closed_ || self->draining_) return;
     // The error goes out even over the queue limit: it is the last frame.
     self->queuedBytes_.fetch_add(frame->size());
@@ -93,18 +93,18 @@ void Connection::FailAndClose(const wire::Envelope& error, std::string reason) {
 }
 
 void Connection::CloseAfterFlush(std::string reason) {
-  asio::dispatch(strand_, [self = shared_from_this(), reason = std::move(reason)]() mutable {
+  asio::post(strand_, [self = shared_from_this(), reason = std::move(reason)]() mutable {
     if (self->closed_ || self->draining_) return;
     self->BeginDrain(std::move(reason));
   });
 }
 
 void Connection::Close(std::string reason) {
-  asio::dispatch(strand_, [self = shared_from_this(), reason = std::move(reason)] { self->DoClose(reason); });
+  asio::post(strand_, [self = shared_from_this(), reason = std::move(reason)] { self->DoClose(reason); });
 }
 
 void Connection::SetReadPaused(bool paused) {
-  asio::dispatch(strand_, [self = shared_from_this(), paused] {
+  asio::post(strand_, [self = shared_from_this(), paused] {
     if (self->readPaused_ == paused) return;
     self->readPaused_ = paused;
     if (!paused && !self->closed_) {

@@ -1,6 +1,7 @@
 #include "penumbra/common/endpoint.h"
 
 #include <charconv>
+#include <fstream>
 
 #include <fmt/format.h>
 
@@ -38,6 +39,20 @@ Expected<HostPort> ParseHostPort(std::string_view text, bool allowPortZero) {
     return Fail(fmt::format("'{}': port 0 is not allowed here", text));
   out.port = uint16_t(value);
   return out;
+}
+
+Status WritePortFile(const std::filesystem::path& path, uint16_t port) {
+  std::filesystem::path tmp = path;
+  tmp += ".tmp";
+  {
+    std::ofstream out(tmp);
+    out << port << "\n";
+    if (!out) return Fail(fmt::format("cannot write port file {}", tmp.string()));
+  }
+  std::error_code ec;
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) return Fail(fmt::format("cannot write port file {}: {}", path.string(), ec.message()));
+  return Status::Ok();
 }
 
 }  // namespace penumbra

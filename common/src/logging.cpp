@@ -1,5 +1,7 @@
 #include "penumbra/common/logging.h"
 
+#include "penumbra/common/check.h"
+
 #include <mutex>
 
 #include <spdlog/sinks/stdout_color_sinks.h>
@@ -41,3 +43,13 @@ std::shared_ptr<spdlog::logger> Logger(const std::string& name) {
 }
 
 }  // namespace penumbra
+
+namespace penumbra::detail {
+
+void CheckFailed(const char* file, int line, const char* condition, std::string_view message) {
+  Logger("check")->critical("{}:{}: CHECK({}) failed: {}", file, line, condition, message);
+  spdlog::shutdown();
+  std::abort();
+}
+
+}  // namespace penumbra::detail

@@ -5,9 +5,11 @@
 // idle. Protocol logic (handshake, requests) belongs to the owner, which
 // receives decoded envelopes through a handler.
 //
-// Threads: Send, Close and FailAndClose may be called from any thread. The
-// handlers run on the connection's strand, never concurrently with each other.
-// The owner must not block in a handler.
+// Threads: Send, Close, FailAndClose, CloseAfterFlush and SetReadPaused may be
+// called from any thread, including from inside a handler and while the
+// caller holds its own locks: they never run a handler before returning
+// (they post to the strand). The handlers run on the connection's strand,
+// never concurrently with each other. The owner must not block in a handler.
 
 #include <atomic>
 #include <chrono>

@@ -2,6 +2,7 @@
 // HOST:PORT parsing for --listen / --renderer / --connect flags.
 
 #include <cstdint>
+#include <filesystem>
 #include <string>
 #include <string_view>
 
@@ -19,5 +20,9 @@ struct HostPort {
 /// Parses "host:port", "[v6]:port" or ":port" (host then "0.0.0.0").
 /// Port 0 is accepted only when `allowPortZero` (listen on any free port).
 Expected<HostPort> ParseHostPort(std::string_view text, bool allowPortZero = false);
+
+/// Writes `port` to `path` atomically (write then rename), so that a script
+/// or test waiting for the file never reads a partial number.
+Status WritePortFile(const std::filesystem::path& path, uint16_t port);
 
 }  // namespace penumbra
