@@ -1,0 +1,64 @@
+#pragma once
+// RendererServer: accepts SMA connections and shades their ShadeRequests on a
+// ShadingPool. Protocol: docs/protocol.md ("Renderer protocol").
+//
+// Threads and ownership:
+//  * Run() runs the I/O loop (acceptor, every connection's strand, signal
+//    handling, the stats timer) on the calling thread.
+//  * The ShadingPool's workers shade; they hand finished parts to the
+//    connection (Connection::Send is thread-safe) and post bookkeeping to the
+//    session's strand.
+//  * A session owns its connection and the ids of its batches in flight; the
+//    server owns the sessions (by id), the listener and the pool.
+// Shutdown (SIGTERM, SIGINT or Shutdown()): stop accepting, answer new
+// batches with SHUTTING_DOWN, finish and send the batches in flight, close
+// every connection, return from Run().
+
+#include <chrono>
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include "penumbra/common/connection.h"
+#include "penumbra/common/endpoint.h"
+#include "penumbra/common/expected.h"
+#include "penumbra/renderer/shade_batch.h"
+#include "penumbra/renderer/shading.h"
+
+namespace penumbra {
+
+struct RendererServerOptions {
+  HostPort listen{"127.0.0.1", 0};
+  std::string name = "penumbra-renderer";
+  int workerThreads = 0;  // 0: one per hardware thread
+  ShadeLimits limits;
+  uint32_t maxBatchesInFlight = 64;  // per connection; more gets OVERLOADED
+  net::ConnectionOptions connection;
+  std::chrono::milliseconds statsInterval{10000};  // periodic counters in the log
+  std::chrono::milliseconds drainTimeout{30000};   // longest graceful shutdown
+};
+
+class RendererServer {
+ public:
+  /// `shader` (and the scene behind it) must outlive the server.
+  RendererServer(const Shader& shader, RendererServerOptions options);
+  ~RendererServer();
+  RendererServer(const RendererServer&) = delete;
+  RendererServer& operator=(const RendererServer&) = delete;
+
+  /// Binds the listening socket; returns the bound address (port 0 picks a
+  /// free one). Call before Run().
+  Expected<tcp::endpoint> Listen();
+
+  /// Serves until SIGINT/SIGTERM or Shutdown(), then drains and returns.
+  void Run();
+
+  /// Begins the graceful shutdown. Thread-safe.
+  void Shutdown();
+
+ private:
+  class Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace penumbra

@@ -1,0 +1,96 @@
+#pragma once
+// ShadingPool: the renderer's worker threads. Batches (ShadeJobs) are split
+// into chunks; workers take chunks round-robin across sources (one source per
+// connection), so one connection's huge batch cannot starve another's.
+// Results leave in parts, as chunks finish, through the job's callback.
+//
+// Threads: Submit/Cancel/AddSource are thread-safe. Callbacks run on worker
+// threads; the pool serialises the callbacks of one job, in the order their
+// `remaining` counts decrease, so the part with remaining == 0 is the last.
+
+#include <atomic>
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+#include "penumbra/renderer/shading.h"
+
+namespace penumbra {
+
+struct ShadeJob {
+  /// outputs[begin, end) are ready; `remaining` samples of the job are still
+  /// to come (0: this is the last part).
+  using PartCallback = std::function<void(const ShadeJob& job, size_t begin, size_t end,
+                                          const ShadeCounters& counters, size_t remaining)>;
+
+  uint64_t batchId = 0;
+  int paths = 0;  // 0: the shader's default
+  std::vector<ShadeInput> inputs;
+  std::vector<ShadeOutput> outputs;  // filled by the pool; sized like inputs
+  PartCallback onPart;
+
+ private:
+  friend class ShadingPool;
+  std::mutex partMutex_;
+  size_t remaining_ = 0;
+};
+
+class ShadingPool {
+ public:
+  class Source;
+
+  /// Starts `threads` workers (each sets flush-to-zero). `shader` must
+  /// outlive the pool.
+  ShadingPool(const Shader& shader, int threads);
+  /// Stops the workers; queued chunks are dropped, running ones finish.
+  ~ShadingPool();
+  ShadingPool(const ShadingPool&) = delete;
+  ShadingPool& operator=(const ShadingPool&) = delete;
+
+  std::shared_ptr<Source> AddSource();
+  /// Queues a job from `source`. The job's outputs are sized here.
+  void Submit(const std::shared_ptr<Source>& source, std::shared_ptr<ShadeJob> job);
+  /// Drops every queued chunk of `source` (its connection closed) and stops
+  /// delivering its parts. Returns the number of samples dropped.
+  size_t Cancel(const std::shared_ptr<Source>& source);
+
+  int Threads() const { return int(workers_.size()); }
+
+  struct Totals {
+    uint64_t samplesShaded = 0;
+    uint64_t samplesCancelled = 0;
+    uint64_t paths = 0;
+    uint64_t rays = 0;
+    uint64_t samplesQueued = 0;  // waiting or being shaded now
+  };
+  Totals GetTotals() const;
+
+ private:
+  struct Chunk {
+    std::shared_ptr<ShadeJob> job;
+    size_t begin = 0;
+    size_t end = 0;
+  };
+  void WorkerLoop();
+  void RunChunk(Source& source, const Chunk& chunk);
+
+  const Shader& shader_;
+  mutable std::mutex mutex_;
+  std::condition_variable wake_;
+  std::deque<std::shared_ptr<Source>> ready_;  // sources with queued chunks, in turn order
+  bool stopping_ = false;
+  std::vector<std::thread> workers_;
+
+  std::atomic<uint64_t> samplesShaded_{0};
+  std::atomic<uint64_t> samplesCancelled_{0};
+  std::atomic<uint64_t> paths_{0};
+  std::atomic<uint64_t> rays_{0};
+  std::atomic<uint64_t> samplesQueued_{0};
+};
+
+}  // namespace penumbra

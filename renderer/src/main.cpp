@@ -1,0 +1,105 @@
+// penumbra-renderer: loads a scene, commits it to Embree, and answers
+// ShadeRequests from any number of SMAs until SIGTERM. See renderer/README.md.
+
+#include <cstdio>
+#include <thread>
+
+#include <CLI/CLI.hpp>
+
+#include "penumbra/common/endpoint.h"
+#include "penumbra/common/logging.h"
+#include "penumbra/common/scene.h"
+#include "penumbra/renderer/ray_scene.h"
+#include "penumbra/renderer/server.h"
+#include "penumbra/renderer/shading.h"
+
+int main(int argc, char** argv) {
+  using namespace penumbra;
+  CLI::App app{"penumbra-renderer: a path-tracing shading service for Penumbra SMAs"};
+  std::string scenePath;
+  std::string listen = "127.0.0.1:7100";
+  std::string portFile;
+  std::string logLevel = "info";
+  std::string name = "penumbra-renderer";
+  RendererServerOptions options;
+  ShadingSettings shading;
+  int threads = 0;
+  uint32_t maxFrameBytes = options.connection.maxFrameBytes;
+  int heartbeatMs = int(options.connection.heartbeatInterval.count());
+  int readTimeoutMs = int(options.connection.readTimeout.count());
+  int statsSeconds = 10;
+
+  app.add_option("--scene", scenePath, "Scene description (.json) or mesh file (.obj, .gltf, .glb, ...)")->required();
+  app.add_option("--listen", listen, "Address to listen on, HOST:PORT (port 0: any free port)")->capture_default_str();
+  app.add_option("--threads", threads, "Shading worker threads (0: one per hardware thread)")
+      ->check(CLI::Range(0, 1024))->capture_default_str();
+  app.add_option("--spp", shading.pathsPerSample, "Paths per sample unless a request says otherwise")
+      ->check(CLI::Range(1, 1 << 20))->capture_default_str();
+  app.add_option("--max-depth", shading.maxDepth, "Path segments per path; 1 = direct light only")
+      ->check(CLI::Range(1, 1024))->capture_default_str();
+  app.add_option("--seed", shading.seed, "Seed mixed into every sample's random stream")->capture_default_str();
+  app.add_option("--max-batch", options.limits.maxBatchSamples, "Largest batch accepted, in samples")
+      ->check(CLI::Range(1u, 1u << 22))->capture_default_str();
+  app.add_option("--max-in-flight", options.maxBatchesInFlight, "Batches queued per connection before OVERLOADED")
+      ->check(CLI::Range(1u, 1u << 16))->capture_default_str();
+  app.add_option("--max-frame-bytes", maxFrameBytes, "Largest frame accepted; larger frames close the connection")
+      ->check(CLI::Range(1024u, 1u << 30))->capture_default_str();
+  app.add_option("--heartbeat-ms", heartbeatMs, "Idle interval after which a heartbeat is sent")
+      ->check(CLI::Range(10, 3600000))->capture_default_str();
+  app.add_option("--read-timeout-ms", readTimeoutMs, "Silence after which a peer is dropped")
+      ->check(CLI::Range(10, 3600000))->capture_default_str();
+  app.add_option("--stats-interval", statsSeconds, "Seconds between counter lines in the log")
+      ->check(CLI::Range(1, 86400))->capture_default_str();
+  app.add_option("--name", name, "Name reported in the handshake and logs")->capture_default_str();
+  app.add_option("--port-file", portFile, "Write the bound port to this file once listening (for scripts/tests)");
+  app.add_option("--log-level", logLevel, "trace, debug, info, warn, error, critical or off")->capture_default_str();
+  CLI11_PARSE(app, argc, argv);
+
+  if (!SetupLogging(logLevel)) {
+    std::fprintf(stderr, "penumbra-renderer: unknown --log-level '%s'\n", logLevel.c_str());
+    return 2;
+  }
+  auto log = Logger("renderer");
+  auto where = ParseHostPort(listen, /*allowPortZero=*/true);
+  if (!where) {
+    std::fprintf(stderr, "penumbra-renderer: --listen: %s\n", where.error().message.c_str());
+    return 2;
+  }
+
+  auto scene = LoadScene(scenePath);
+  if (!scene) {
+    std::fprintf(stderr, "penumbra-renderer: %s\n", scene.error().message.c_str());
+    return 1;
+  }
+  auto rays = RayScene::Build(*scene);
+  if (!rays) {
+    std::fprintf(stderr, "penumbra-renderer: %s\n", rays.error().message.c_str());
+    return 1;
+  }
+  Shader shader(*scene, **rays, shading);
+
+  options.listen = *where;
+  options.name = name;
+  options.workerThreads = threads > 0 ? threads : int(std::max(1u, std::thread::hardware_concurrency()));
+  options.connection.maxFrameBytes = maxFrameBytes;
+  options.connection.heartbeatInterval = std::chrono::milliseconds(heartbeatMs);
+  options.connection.readTimeout = std::chrono::milliseconds(readTimeoutMs);
+  options.statsInterval = std::chrono::seconds(statsSeconds);
+
+  RendererServer server(shader, options);
+  auto bound = server.Listen();
+  if (!bound) {
+    std::fprintf(stderr, "penumbra-renderer: %s\n", bound.error().message.c_str());
+    return 1;
+  }
+  log->info("scene '{}' (identity {:016x}), {} worker thread(s), {} paths/sample, max depth {}", scene->name,
+            scene->identity, options.workerThreads, shading.pathsPerSample, shading.maxDepth);
+  if (!portFile.empty()) {
+    if (auto written = WritePortFile(portFile, bound->port()); !written) {
+      std::fprintf(stderr, "penumbra-renderer: %s\n", written.error().message.c_str());
+      return 1;
+    }
+  }
+  server.Run();
+  return 0;
+}

@@ -1,0 +1,338 @@
+#include "penumbra/renderer/server.h"
+
+#include <csignal>
+#include <mutex>
+#include <thread>
+#include <unordered_map>
+#include <unordered_set>
+
+#include <fmt/format.h>
+
+#include "penumbra/common/logging.h"
+#include "penumbra/common/messages.h"
+#include "penumbra/renderer/shading_pool.h"
+
+namespace penumbra {
+
+namespace {
+using Clock = std::chrono::steady_clock;
+
+void AddCounter(wire::StatsReply* reply, const char* name, double value) {
+  auto* c = reply->add_counters();
+  c->set_name(name);
+  c->set_value(value);
+}
+}  // namespace
+
+class RendererServer::Impl {
+ public:
+  Impl(const Shader& shader, RendererServerOptions options)
+      : shader_(shader),
+        options_(std::move(options)),
+        pool_(shader, options_.workerThreads > 0 ? options_.workerThreads
+                                                 : int(std::max(1u, std::thread::hardware_concurrency()))),
+        log_(Logger("renderer")),
+        signals_(io_, SIGINT, SIGTERM),
+        statsTimer_(io_),
+        drainTimer_(io_) {}
+
+  class Session;
+
+  Expected<tcp::endpoint> Listen() {
+    listener_ = net::Listener::Create(io_, [this](tcp::socket socket) { Accept(std::move(socket)); });
+    auto bound = listener_->Listen(options_.listen);
+    if (bound) log_->info("{}: listening on {}:{}", options_.name, bound->address().to_string(), bound->port());
+    return bound;
+  }
+
+  void Run() {
+    signals_.async_wait([this](const boost::system::error_code& ec, int signal) {
+      if (ec) return;
+      log_->info("signal {} received: draining", signal);
+      Shutdown();
+    });
+    if (listener_) listener_->Start();
+    started_ = Clock::now();
+    ArmStats();
+    io_.run();
+    log_->info("{}: stopped", options_.name);
+  }
+
+  void Shutdown() {
+    asio::post(io_, [this] {
+      if (draining_.exchange(true)) return;
+      if (listener_) listener_->Stop();
+      signals_.cancel();
+      drainDeadline_ = Clock::now() + options_.drainTimeout;
+      log_->info("draining: {} connection(s), {} sample(s) queued", SessionCount(), pool_.GetTotals().samplesQueued);
+      PollDrain();
+    });
+  }
+
+  bool Draining() const { return draining_.load(); }
+  const Shader& GetShader() const { return shader_; }
+  const RendererServerOptions& Options() const { return options_; }
+  ShadingPool& Pool() { return pool_; }
+  Clock::time_point Started() const { return started_; }
+  size_t SessionCount() const {
+    std::lock_guard lock(sessionsMutex_);
+    return sessions_.size();
+  }
+  void RemoveSession(uint64_t id) {
+    std::lock_guard lock(sessionsMutex_);
+    sessions_.erase(id);
+  }
+
+ private:
+  void Accept(tcp::socket socket);
+  void PollDrain();
+
+  void ArmStats() {
+    statsTimer_.expires_after(options_.statsInterval);
+    statsTimer_.async_wait([this](const boost::system::error_code& ec) {
+      if (ec) return;
+      const auto totals = pool_.GetTotals();
+      const double seconds = std::chrono::duration<double>(options_.statsInterval).count();
+      log_->info("stats: {} connection(s), {:.0f} samples/s, {:.2f} Mrays/s, {} queued, {} shaded, {} cancelled",
+                 SessionCount(), double(totals.samplesShaded - lastTotals_.samplesShaded) / seconds,
+                 double(totals.rays - lastTotals_.rays) / seconds * 1e-6, totals.samplesQueued,
+                 totals.samplesShaded, totals.samplesCancelled);
+      lastTotals_ = totals;
+      ArmStats();
+    });
+  }
+
+  const Shader& shader_;
+  RendererServerOptions options_;
+  asio::io_context io_;
+  ShadingPool pool_;
+  std::shared_ptr<spdlog::logger> log_;
+  std::shared_ptr<net::Listener> listener_;
+  asio::signal_set signals_;
+  asio::steady_timer statsTimer_;
+  asio::steady_timer drainTimer_;
+  std::atomic<bool> draining_{false};
+  Clock::time_point drainDeadline_;
+  Clock::time_point started_ = Clock::now();
+  ShadingPool::Totals lastTotals_;
+
+  mutable std::mutex sessionsMutex_;
+  std::unordered_map<uint64_t, std::shared_ptr<Session>> sessions_;
+  uint64_t nextSessionId_ = 1;
+};
+
+// One SMA connection. All members are touched on the connection's strand
+// only, except inFlightCount_ (read by the drain poll).
+class RendererServer::Impl::Session : public std::enable_shared_from_this<Session> {
+ public:
+  Session(Impl& server, std::shared_ptr<net::Connection> connection, uint64_t id)
+      : server_(server),
+        connection_(std::move(connection)),
+        id_(id),
+        source_(server.Pool().AddSource()),
+        log_(Logger("renderer")) {}
+
+  void Start() {
+    auto self = shared_from_this();
+    connection_->Start([self](wire::Envelope&& e) { self->OnMessage(std::move(e)); },
+                       [self](const std::string& reason) { self->OnClosed(reason); });
+  }
+
+  size_t InFlight() const { return inFlightCount_.load(); }
+  net::Connection& Connection() { return *connection_; }
+
+ private:
+  void OnMessage(wire::Envelope&& envelope) {
+    if (envelope.has_hello()) return OnHello(envelope.hello());
+    if (!handshook_) {
+      return Fatal(wire::ERROR_CODE_HANDSHAKE_REQUIRED,
+                   fmt::format("expected hello as the first message, got {}", BodyName(envelope)));
+    }
+    switch (envelope.body_case()) {
+      case wire::Envelope::kShadeRequest:
+        return OnShadeRequest(*envelope.mutable_shade_request());
+      case wire::Envelope::kStatsRequest:
+        return OnStatsRequest(envelope.stats_request());
+      case wire::Envelope::kError:
+        log_->warn("{}: peer reports error {}: {}", connection_->Id(), wire::ErrorCode_Name(envelope.error().code()),
+                   envelope.error().message());
+        return;
+      default:
+        Reject(0, wire::ERROR_CODE_UNEXPECTED_MESSAGE,
+               fmt::format("a renderer does not take {} messages", BodyName(envelope)));
+    }
+  }
+
+  void OnHello(const wire::Hello& hello) {
+    if (handshook_) {
+      return Reject(0, wire::ERROR_CODE_UNEXPECTED_MESSAGE, "hello after the handshake is ignored");
+    }
+    const Scene& scene = server_.GetShader().GetScene();
+    wire::ErrorCode code = wire::ERROR_CODE_UNSPECIFIED;
+    if (auto ok = ValidateHello(hello, wire::ROLE_SMA, scene.identity, &code); !ok) {
+      return Fatal(code, ok.error().message);
+    }
+    handshook_ = true;
+    const auto& options = server_.Options();
+    wire::Envelope envelope;
+    auto* w = envelope.mutable_welcome();
+    w->set_protocol_version(kProtocolVersion);
+    w->set_role(wire::ROLE_RENDERER);
+    w->set_server_name(options.name);
+    w->set_scene_hash(scene.identity);
+    w->set_max_frame_bytes(options.connection.maxFrameBytes);
+    w->set_max_batch_samples(options.limits.maxBatchSamples);
+    w->set_worker_threads(uint32_t(server_.Pool().Threads()));
+    w->set_paths_per_sample(uint32_t(server_.GetShader().Settings().pathsPerSample));
+    w->set_max_batches_in_flight(options.maxBatchesInFlight);
+    connection_->Send(envelope);
+    log_->info("{}: handshake with '{}' done", connection_->Id(), hello.peer_name());
+  }
+
+  void OnShadeRequest(wire::ShadeRequest& request) {
+    const uint64_t batchId = request.batch_id();
+    if (server_.Draining()) return Reject(batchId, wire::ERROR_CODE_SHUTTING_DOWN, "renderer is shutting down");
+    if (inFlight_.size() >= server_.Options().maxBatchesInFlight) {
+      return Reject(batchId, wire::ERROR_CODE_OVERLOADED,
+                    fmt::format("batch {}: {} batches already in flight (limit {})", batchId, inFlight_.size(),
+                                server_.Options().maxBatchesInFlight));
+    }
+    if (inFlight_.contains(batchId)) {
+      return Reject(batchId, wire::ERROR_CODE_INVALID_REQUEST,
+                    fmt::format("batch {}: a batch with this id is already in flight", batchId));
+    }
+    auto inputs = DecodeShadeRequest(request, server_.GetShader().GetScene(), server_.Options().limits);
+    if (!inputs) return Reject(batchId, wire::ERROR_CODE_INVALID_REQUEST, inputs.error().message);
+
+    auto job = std::make_shared<ShadeJob>();
+    job->batchId = batchId;
+    job->paths = int(request.paths_per_sample());
+    job->inputs = std::move(*inputs);
+    std::weak_ptr<Session> weak = weak_from_this();
+    job->onPart = [weak, connection = connection_](const ShadeJob& j, size_t begin, size_t end,
+                                                     const ShadeCounters& counters, size_t remaining) {
+      wire::Envelope reply;
+      FillShadeReply(j.batchId, std::span(j.inputs).subspan(begin, end - begin),
+                     std::span(j.outputs).subspan(begin, end - begin), uint32_t(remaining), counters,
+                     reply.mutable_shade_reply());
+      if (!connection->Send(reply) && connection->IsOpen()) {
+        // Never drop a result silently: closing makes the SMA re-send the batch elsewhere.
+        connection->Close(fmt::format("send queue full while answering batch {}", j.batchId));
+      }
+      if (remaining == 0) {
+        asio::post(connection->Strand(), [weak, id = j.batchId] {
+          if (auto self = weak.lock()) self->Finished(id);
+        });
+      }
+    };
+    inFlight_.insert(batchId);
+    inFlightCount_ = inFlight_.size();
+    ++batchesReceived_;
+    samplesReceived_ += job->inputs.size();
+    server_.Pool().Submit(source_, std::move(job));
+  }
+
+  void Finished(uint64_t batchId) {
+    inFlight_.erase(batchId);
+    inFlightCount_ = inFlight_.size();
+  }
+
+  void OnStatsRequest(const wire::StatsRequest& request) {
+    const auto totals = server_.Pool().GetTotals();
+    wire::Envelope envelope;
+    auto* reply = envelope.mutable_stats_reply();
+    reply->set_request_id(request.request_id());
+    AddCounter(reply, "samples_shaded", double(totals.samplesShaded));
+    AddCounter(reply, "samples_cancelled", double(totals.samplesCancelled));
+    AddCounter(reply, "samples_queued", double(totals.samplesQueued));
+    AddCounter(reply, "paths_traced", double(totals.paths));
+    AddCounter(reply, "rays_traced", double(totals.rays));
+    AddCounter(reply, "worker_threads", double(server_.Pool().Threads()));
+    AddCounter(reply, "connections", double(server_.SessionCount()));
+    AddCounter(reply, "uptime_seconds", std::chrono::duration<double>(Clock::now() - server_.Started()).count());
+    AddCounter(reply, "connection_batches_in_flight", double(inFlight_.size()));
+    AddCounter(reply, "connection_batches_received", double(batchesReceived_));
+    AddCounter(reply, "connection_samples_received", double(samplesReceived_));
+    AddCounter(reply, "connection_bytes_received", double(connection_->BytesReceived()));
+    AddCounter(reply, "connection_bytes_sent", double(connection_->BytesSent()));
+    connection_->Send(envelope);
+  }
+
+  void Reject(uint64_t requestId, wire::ErrorCode code, const std::string& message) {
+    log_->warn("{}: {}", connection_->Id(), message);
+    connection_->Send(MakeError(requestId, code, message, /*fatal=*/false));
+  }
+
+  void Fatal(wire::ErrorCode code, const std::string& message) {
+    log_->warn("{}: {} (closing)", connection_->Id(), message);
+    connection_->FailAndClose(MakeError(0, code, message, /*fatal=*/true), message);
+  }
+
+  void OnClosed(const std::string& reason) {
+    const size_t dropped = server_.Pool().Cancel(source_);
+    inFlight_.clear();
+    inFlightCount_ = 0;
+    log_->info("{}: closed ({}); {} queued sample(s) cancelled", connection_->Id(), reason, dropped);
+    server_.RemoveSession(id_);
+  }
+
+  Impl& server_;
+  std::shared_ptr<net::Connection> connection_;
+  uint64_t id_;
+  std::shared_ptr<ShadingPool::Source> source_;
+  std::shared_ptr<spdlog::logger> log_;
+  bool handshook_ = false;
+  std::unordered_set<uint64_t> inFlight_;
+  std::atomic<size_t> inFlightCount_{0};
+  uint64_t batchesReceived_ = 0;
+  uint64_t samplesReceived_ = 0;
+};
+
+void RendererServer::Impl::Accept(tcp::socket socket) {
+  if (draining_) return;  // the socket closes as it goes out of scope
+  const std::string peer = net::PeerAddress(socket);
+  std::shared_ptr<Session> session;
+  {
+    std::lock_guard lock(sessionsMutex_);
+    const uint64_t id = nextSessionId_++;
+    auto connection =
+        net::Connection::Create(std::move(socket), options_.connection, fmt::format("sma#{} {}", id, peer));
+    log_->info("{}: connected", connection->Id());
+    session = std::make_shared<Session>(*this, std::move(connection), id);
+    sessions_.emplace(id, session);
+  }
+  session->Start();
+}
+
+void RendererServer::Impl::PollDrain() {
+  std::vector<std::shared_ptr<Session>> sessions;
+  {
+    std::lock_guard lock(sessionsMutex_);
+    for (auto& [id, s] : sessions_) sessions.push_back(s);
+  }
+  const bool timedOut = Clock::now() >= drainDeadline_;
+  bool busy = false;
+  for (auto& s : sessions) busy |= s->InFlight() > 0;
+  if (sessions.empty()) {
+    statsTimer_.cancel();
+    io_.stop();
+    return;
+  }
+  if (!busy || timedOut) {
+    if (timedOut) log_->warn("drain timed out; closing {} connection(s) with work in flight", sessions.size());
+    for (auto& s : sessions) s->Connection().CloseAfterFlush("renderer shutting down");
+  }
+  drainTimer_.expires_after(std::chrono::milliseconds(20));
+  drainTimer_.async_wait([this](const boost::system::error_code& ec) {
+    if (!ec) PollDrain();
+  });
+}
+
+RendererServer::RendererServer(const Shader& shader, RendererServerOptions options)
+    : impl_(std::make_unique<Impl>(shader, std::move(options))) {}
+RendererServer::~RendererServer() = default;
+Expected<tcp::endpoint> RendererServer::Listen() { return impl_->Listen(); }
+void RendererServer::Run() { impl_->Run(); }
+void RendererServer::Shutdown() { impl_->Shutdown(); }
+
+}  // namespace penumbra

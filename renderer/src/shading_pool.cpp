@@ -1,0 +1,128 @@
+#include "penumbra/renderer/shading_pool.h"
+
+#include <algorithm>
+
+#include "penumbra/renderer/ray_scene.h"
+
+namespace penumbra {
+
+// Guarded by ShadingPool::mutex_.
+class ShadingPool::Source {
+ public:
+  std::deque<Chunk> chunks;
+  bool inReadyList = false;
+  std::atomic<bool> cancelled{false};
+};
+
+ShadingPool::ShadingPool(const Shader& shader, int threads) : shader_(shader) {
+  const int n = std::max(1, threads);
+  workers_.reserve(size_t(n));
+  for (int i = 0; i < n; ++i) workers_.emplace_back([this] { WorkerLoop(); });
+}
+
+ShadingPool::~ShadingPool() {
+  {
+    std::lock_guard lock(mutex_);
+    stopping_ = true;
+  }
+  wake_.notify_all();
+  for (auto& w : workers_) w.join();
+}
+
+std::shared_ptr<ShadingPool::Source> ShadingPool::AddSource() { return std::make_shared<Source>(); }
+
+void ShadingPool::Submit(const std::shared_ptr<Source>& source, std::shared_ptr<ShadeJob> job) {
+  const size_t n = job->inputs.size();
+  job->outputs.assign(n, ShadeOutput{});
+  job->remaining_ = n;
+  if (n == 0) return;
+  // Enough chunks to keep every worker busy and answer in several parts, but
+  // not so small that per-part overhead shows.
+  const size_t chunk = std::clamp<size_t>(n / (4 * workers_.size()), 1, 64);
+  samplesQueued_ += n;
+  {
+    std::lock_guard lock(mutex_);
+    for (size_t begin = 0; begin < n; begin += chunk) source->chunks.push_back(Chunk{job, begin, std::min(n, begin + chunk)});
+    if (!source->inReadyList) {
+      source->inReadyList = true;
+      ready_.push_back(source);
+    }
+  }
+  wake_.notify_all();
+}
+
+size_t ShadingPool::Cancel(const std::shared_ptr<Source>& source) {
+  size_t dropped = 0;
+  {
+    std::lock_guard lock(mutex_);
+    source->cancelled = true;
+    for (const Chunk& c : source->chunks) dropped += c.end - c.begin;
+    source->chunks.clear();
+  }
+  samplesQueued_ -= dropped;
+  samplesCancelled_ += dropped;
+  return dropped;
+}
+
+ShadingPool::Totals ShadingPool::GetTotals() const {
+  Totals t;
+  t.samplesShaded = samplesShaded_.load();
+  t.samplesCancelled = samplesCancelled_.load();
+  t.paths = paths_.load();
+  t.rays = rays_.load();
+  t.samplesQueued = samplesQueued_.load();
+  return t;
+}
+
+void ShadingPool::WorkerLoop() {
+  EnableFlushToZero();
+  while (true) {
+    std::shared_ptr<Source> source;
+    Chunk chunk;
+    {
+      std::unique_lock lock(mutex_);
+      wake_.wait(lock, [&] { return stopping_ || !ready_.empty(); });
+      if (stopping_) return;
+      source = std::move(ready_.front());
+      ready_.pop_front();
+      if (source->chunks.empty()) {  // cancelled while waiting its turn
+        source->inReadyList = false;
+        continue;
+      }
+      chunk = std::move(source->chunks.front());
+      source->chunks.pop_front();
+      // Back of the line: the next chunk goes to the next source.
+      if (source->chunks.empty())
+        source->inReadyList = false;
+      else
+        ready_.push_back(source);
+    }
+    RunChunk(*source, chunk);
+  }
+}
+
+void ShadingPool::RunChunk(Source& source, const Chunk& chunk) {
+  ShadeJob& job = *chunk.job;
+  ShadeCounters counters;
+  size_t done = chunk.begin;
+  for (; done < chunk.end; ++done) {
+    // A closed connection stops its work between samples, not after the chunk.
+    if (source.cancelled.load(std::memory_order_relaxed)) break;
+    job.outputs[done] = shader_.Shade(job.inputs[done], job.paths, &counters);
+  }
+  const size_t shaded = done - chunk.begin;
+  samplesShaded_ += shaded;
+  samplesQueued_ -= chunk.end - chunk.begin;
+  samplesCancelled_ += chunk.end - done;
+  paths_ += counters.paths;
+  rays_ += counters.rays;
+  if (shaded < chunk.end - chunk.begin) return;
+
+  // Decrement and deliver under the job's lock, so parts leave in the order
+  // of their `remaining` counts.
+  std::lock_guard lock(job.partMutex_);
+  job.remaining_ -= shaded;
+  if (job.onPart && !source.cancelled) job.onPart(job, chunk.begin, chunk.end, counters, job.remaining_);
+}
+
+}  // namespace penumbra
