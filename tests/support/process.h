@@ -18,6 +18,8 @@ namespace penumbra::testing {
 class ChildProcess {
  public:
   /// Starts `exe` with `args`; stdout and stderr go to `logPath`.
+  /// No process (Running() is false).
+  ChildProcess() = default;
   static Expected<ChildProcess> Spawn(const std::string& exe, const std::vector<std::string>& args,
                                       const std::string& logPath);
   ChildProcess(ChildProcess&& other) noexcept;

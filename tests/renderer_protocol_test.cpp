@@ -1,0 +1,444 @@
+// Protocol-level tests of penumbra-renderer: the real executable on a free
+// port, driven over TCP by an independent client. Each case checks the
+// answer and that the server keeps serving afterwards.
+
+#include <signal.h>
+
+#include <cmath>
+#include <map>
+#include <set>
+#include <thread>
+
+#include <gtest/gtest.h>
+
+#include "penumbra/common/framing.h"
+#include "penumbra/common/messages.h"
+#include "penumbra/common/scene.h"
+#include "support/process.h"
+#include "support/service.h"
+#include "support/wire_client.h"
+
+namespace penumbra::testing {
+namespace {
+
+using namespace std::chrono_literals;
+
+const std::string kSceneFile = std::string(PENUMBRA_SOURCE_DIR) + "/scenes/cornell-box.json";
+
+using Renderer = Service;
+
+Renderer StartRenderer(const std::vector<std::string>& extraArgs, const std::string& tag) {
+  std::vector<std::string> args = {"--scene", kSceneFile, "--threads", "2", "--spp", "8", "--max-depth", "3"};
+  args.insert(args.end(), extraArgs.begin(), extraArgs.end());
+  auto service = StartService(PENUMBRA_RENDERER_EXE, args, "renderer-" + tag);
+  if (!service) ADD_FAILURE() << service.error().message;
+  return service ? std::move(*service) : Renderer{};
+}
+
+// One sample per corner of every triangle: vertex positions with their normals.
+wire::Envelope MakeBatch(const Scene& scene, uint64_t batchId, size_t maxSamples, uint32_t paths = 0) {
+  wire::Envelope envelope;
+  auto* r = envelope.mutable_shade_request();
+  r->set_batch_id(batchId);
+  r->set_paths_per_sample(paths);
+  std::set<uint32_t> seen;
+  for (uint32_t t = 0; t < scene.triangles.size() && size_t(r->sample_ids_size()) < maxSamples; ++t) {
+    for (int c = 0; c < 3 && size_t(r->sample_ids_size()) < maxSamples; ++c) {
+      const uint32_t v = scene.triangles[t].v[c];
+      if (!seen.insert(v).second) continue;
+      const Vertex& vertex = scene.vertices[v];
+      r->add_sample_ids(v);
+      for (int k = 0; k < 3; ++k) r->add_positions(vertex.position[k]);
+      for (int k = 0; k < 3; ++k) r->add_normals(vertex.normal[k]);
+      r->add_triangle_ids(t);
+      r->add_barycentrics(c == 1 ? 1.0f : 0.0f);
+      r->add_barycentrics(c == 2 ? 1.0f : 0.0f);
+    }
+  }
+  return envelope;
+}
+
+struct SampleResult {
+  float radiance[3];
+  float irradiance[3];
+};
+
+// Collects every part of `batchId` until the part with remaining == 0.
+Expected<std::map<uint64_t, SampleResult>> CollectBatch(WireClient& client, uint64_t batchId,
+                                                        std::chrono::milliseconds timeout = 60s) {
+  std::map<uint64_t, SampleResult> results;
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (std::chrono::steady_clock::now() < deadline) {
+    auto e = client.Receive(std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now()));
+    if (!e) return e.error();
+    if (e->has_error()) return Fail("error reply: " + e->error().message());
+    if (!e->has_shade_reply() || e->shade_reply().batch_id() != batchId) continue;
+    const auto& part = e->shade_reply();
+    if (part.radiance_size() != 3 * part.sample_ids_size() || part.irradiance_size() != 3 * part.sample_ids_size())
+      return Fail("reply arrays disagree in length");
+    for (int i = 0; i < part.sample_ids_size(); ++i) {
+      SampleResult s;
+      for (int c = 0; c < 3; ++c) {
+        s.radiance[c] = part.radiance(3 * i + c);
+        s.irradiance[c] = part.irradiance(3 * i + c);
+      }
+      if (!results.emplace(part.sample_ids(i), s).second) return Fail("sample answered twice");
+    }
+    if (part.remaining() == 0) return results;
+  }
+  return Fail("timeout waiting for batch");
+}
+
+class RendererProtocolTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    auto scene = LoadScene(kSceneFile);
+    ASSERT_TRUE(scene.ok()) << scene.error().message;
+    scene_ = new Scene(std::move(*scene));
+    renderer_ = new Renderer(StartRenderer({"--max-batch", "4096", "--max-frame-bytes", "1048576",
+                                            "--max-in-flight", "16"},
+                                           "shared"));
+  }
+  static void TearDownTestSuite() {
+    delete renderer_;
+    delete scene_;
+  }
+  void TearDown() override {
+    // Whatever a case did, the server must still be up.
+    ASSERT_TRUE(renderer_->process.Running()) << renderer_->process.LogTail();
+  }
+
+  static WireClient Connected() {
+    auto c = WireClient::Connect("127.0.0.1", renderer_->port);
+    EXPECT_TRUE(c.ok()) << c.error().message;
+    auto welcome = c->Handshake(wire::ROLE_SMA, scene_->identity);
+    EXPECT_TRUE(welcome.ok()) << welcome.error().message;
+    return std::move(*c);
+  }
+
+  // The server still answers a fresh connection with a valid batch.
+  static void ExpectStillServes() {
+    WireClient c = Connected();
+    ASSERT_TRUE(c.Send(MakeBatch(*scene_, 99, 4)));
+    auto results = CollectBatch(c, 99);
+    ASSERT_TRUE(results.ok()) << results.error().message;
+    EXPECT_EQ(results->size(), 4u);
+  }
+
+  static Scene* scene_;
+  static Renderer* renderer_;
+};
+Scene* RendererProtocolTest::scene_ = nullptr;
+Renderer* RendererProtocolTest::renderer_ = nullptr;
+
+TEST_F(RendererProtocolTest, HandshakeReportsSceneIdentityAndLimits) {
+  auto c = WireClient::Connect("127.0.0.1", renderer_->port);
+  ASSERT_TRUE(c.ok());
+  auto welcome = c->Handshake(wire::ROLE_SMA, 0);
+  ASSERT_TRUE(welcome.ok()) << welcome.error().message;
+  EXPECT_EQ(welcome->protocol_version(), kProtocolVersion);
+  EXPECT_EQ(welcome->role(), wire::ROLE_RENDERER);
+  EXPECT_EQ(welcome->scene_hash(), scene_->identity);
+  EXPECT_EQ(welcome->max_batch_samples(), 4096u);
+  EXPECT_EQ(welcome->max_frame_bytes(), 1048576u);
+  EXPECT_EQ(welcome->worker_threads(), 2u);
+  EXPECT_EQ(welcome->paths_per_sample(), 8u);
+}
+
+TEST_F(RendererProtocolTest, ShadesEverySampleOnceWithPlausibleRadiance) {
+  WireClient c = Connected();
+  ASSERT_TRUE(c.Send(MakeBatch(*scene_, 1, 1000)));
+  auto results = CollectBatch(c, 1);
+  ASSERT_TRUE(results.ok()) << results.error().message;
+  std::set<uint64_t> expected;
+  for (uint32_t t = 0; t < scene_->triangles.size(); ++t)
+    for (uint32_t v : scene_->triangles[t].v) expected.insert(v);
+  EXPECT_EQ(results->size(), std::min<size_t>(expected.size(), 1000));
+  size_t lit = 0;
+  for (const auto& [id, s] : *results) {
+    for (int c3 = 0; c3 < 3; ++c3) {
+      EXPECT_TRUE(std::isfinite(s.radiance[c3]) && s.radiance[c3] >= 0.0f) << "sample " << id;
+      EXPECT_TRUE(std::isfinite(s.irradiance[c3]) && s.irradiance[c3] >= 0.0f) << "sample " << id;
+    }
+    if (s.irradiance[0] + s.irradiance[1] + s.irradiance[2] > 0.0f) ++lit;
+  }
+  // Almost every vertex of a closed, lit box receives some light.
+  EXPECT_GT(lit, results->size() / 2);
+  // Samples on the light's front face report its emission (Ke 17 12 4) at least.
+  for (uint32_t t : scene_->emissiveTriangles) {
+    const uint32_t v = scene_->triangles[t].v[0];
+    auto it = results->find(v);
+    ASSERT_NE(it, results->end());
+    EXPECT_GE(it->second.radiance[0], 17.0f);
+    EXPECT_GE(it->second.radiance[1], 12.0f);
+    EXPECT_GE(it->second.radiance[2], 4.0f);
+  }
+}
+
+TEST_F(RendererProtocolTest, SameRequestGivesSameAnswerOnAnotherConnection) {
+  WireClient a = Connected();
+  WireClient b = Connected();
+  ASSERT_TRUE(a.Send(MakeBatch(*scene_, 7, 50)));
+  ASSERT_TRUE(b.Send(MakeBatch(*scene_, 8, 50)));
+  auto ra = CollectBatch(a, 7);
+  auto rb = CollectBatch(b, 8);
+  ASSERT_TRUE(ra.ok() && rb.ok());
+  ASSERT_EQ(ra->size(), rb->size());
+  for (const auto& [id, s] : *ra) {
+    const auto& t = rb->at(id);
+    for (int c = 0; c < 3; ++c) {
+      EXPECT_EQ(s.radiance[c], t.radiance[c]);
+      EXPECT_EQ(s.irradiance[c], t.irradiance[c]);
+    }
+  }
+}
+
+TEST_F(RendererProtocolTest, ManyBatchesInFlightAreAllAnswered) {
+  WireClient c = Connected();
+  for (uint64_t id = 100; id < 110; ++id) ASSERT_TRUE(c.Send(MakeBatch(*scene_, id, 20)));
+  std::map<uint64_t, size_t> answered;
+  std::set<uint64_t> complete;
+  while (complete.size() < 10) {
+    auto e = c.Receive(60s);
+    ASSERT_TRUE(e.ok()) << e.error().message;
+    ASSERT_TRUE(e->has_shade_reply()) << BodyName(*e);
+    answered[e->shade_reply().batch_id()] += size_t(e->shade_reply().sample_ids_size());
+    if (e->shade_reply().remaining() == 0) complete.insert(e->shade_reply().batch_id());
+  }
+  for (uint64_t id = 100; id < 110; ++id) EXPECT_EQ(answered[id], 20u) << "batch " << id;
+}
+
+TEST_F(RendererProtocolTest, InvalidFieldsGetAnErrorForThatBatchOnly) {
+  WireClient c = Connected();
+  auto expectRejected = [&](wire::Envelope batch, const std::string& mention) {
+    const uint64_t id = batch.shade_request().batch_id();
+    ASSERT_TRUE(c.Send(batch));
+    auto e = c.Receive();
+    ASSERT_TRUE(e.ok()) << e.error().message;
+    ASSERT_TRUE(e->has_error()) << BodyName(*e);
+    EXPECT_EQ(e->error().code(), wire::ERROR_CODE_INVALID_REQUEST);
+    EXPECT_EQ(e->error().request_id(), id);
+    EXPECT_FALSE(e->error().fatal());
+    EXPECT_NE(e->error().message().find(mention), std::string::npos) << e->error().message();
+  };
+  {
+    auto b = MakeBatch(*scene_, 201, 3);
+    b.mutable_shade_request()->set_positions(4, std::nanf(""));
+    expectRejected(b, "sample 1");
+  }
+  {
+    auto b = MakeBatch(*scene_, 202, 3);
+    b.mutable_shade_request()->set_triangle_ids(2, 1000000);
+    expectRejected(b, "sample 2");
+  }
+  {
+    auto b = MakeBatch(*scene_, 203, 3);
+    b.mutable_shade_request()->add_normals(0.0f);
+    expectRejected(b, "normals");
+  }
+  {
+    auto b = MakeBatch(*scene_, 204, 3);
+    b.mutable_shade_request()->set_normals(0, 5.0f);
+    expectRejected(b, "sample 0");
+  }
+  {
+    wire::Envelope empty;
+    empty.mutable_shade_request()->set_batch_id(205);
+    expectRejected(empty, "no samples");
+  }
+  {
+    auto b = MakeBatch(*scene_, 206, 3, /*paths=*/1u << 30);
+    expectRejected(b, "paths_per_sample");
+  }
+  // The same connection still shades.
+  ASSERT_TRUE(c.Send(MakeBatch(*scene_, 207, 5)));
+  auto ok = CollectBatch(c, 207);
+  ASSERT_TRUE(ok.ok()) << ok.error().message;
+  EXPECT_EQ(ok->size(), 5u);
+}
+
+TEST_F(RendererProtocolTest, BatchOverTheLimitIsRejected) {
+  WireClient c = Connected();
+  // 4097 samples: over --max-batch 4096 but within the frame limit.
+  wire::Envelope b = MakeBatch(*scene_, 300, 1);
+  auto* r = b.mutable_shade_request();
+  while (r->sample_ids_size() < 4097) {
+    r->add_sample_ids(r->sample_ids(0));
+    for (int k = 0; k < 3; ++k) r->add_positions(r->positions(k));
+    for (int k = 0; k < 3; ++k) r->add_normals(r->normals(k));
+    r->add_triangle_ids(r->triangle_ids(0));
+    r->add_barycentrics(r->barycentrics(0));
+    r->add_barycentrics(r->barycentrics(1));
+  }
+  ASSERT_TRUE(c.Send(b));
+  auto e = c.Receive();
+  ASSERT_TRUE(e.ok() && e->has_error());
+  EXPECT_EQ(e->error().code(), wire::ERROR_CODE_INVALID_REQUEST);
+  EXPECT_NE(e->error().message().find("4097"), std::string::npos);
+  ASSERT_TRUE(c.Send(MakeBatch(*scene_, 301, 2)));
+  EXPECT_TRUE(CollectBatch(c, 301).ok());
+}
+
+TEST_F(RendererProtocolTest, UnexpectedMessageIsAnErrorNotADisconnect) {
+  WireClient c = Connected();
+  wire::Envelope e;
+  e.mutable_shade_reply()->set_batch_id(1);
+  ASSERT_TRUE(c.Send(e));
+  auto reply = c.Receive();
+  ASSERT_TRUE(reply.ok() && reply->has_error());
+  EXPECT_EQ(reply->error().code(), wire::ERROR_CODE_UNEXPECTED_MESSAGE);
+  EXPECT_FALSE(reply->error().fatal());
+  ASSERT_TRUE(c.Send(MakeBatch(*scene_, 400, 2)));
+  EXPECT_TRUE(CollectBatch(c, 400).ok());
+}
+
+TEST_F(RendererProtocolTest, WrongProtocolVersionIsRefusedAndClosed) {
+  auto c = WireClient::Connect("127.0.0.1", renderer_->port);
+  ASSERT_TRUE(c.ok());
+  auto welcome = c->Handshake(wire::ROLE_SMA, 0, kProtocolVersion + 7);
+  ASSERT_FALSE(welcome.ok());
+  EXPECT_NE(welcome.error().message.find("VERSION_MISMATCH"), std::string::npos) << welcome.error().message;
+  EXPECT_TRUE(c->WaitClosed());
+  ExpectStillServes();
+}
+
+TEST_F(RendererProtocolTest, DifferentSceneIsRefused) {
+  auto c = WireClient::Connect("127.0.0.1", renderer_->port);
+  ASSERT_TRUE(c.ok());
+  auto welcome = c->Handshake(wire::ROLE_SMA, scene_->identity ^ 1);
+  ASSERT_FALSE(welcome.ok());
+  EXPECT_NE(welcome.error().message.find("SCENE_MISMATCH"), std::string::npos) << welcome.error().message;
+  EXPECT_TRUE(c->WaitClosed());
+}
+
+TEST_F(RendererProtocolTest, RequestBeforeHandshakeIsRefused) {
+  auto c = WireClient::Connect("127.0.0.1", renderer_->port);
+  ASSERT_TRUE(c.ok());
+  ASSERT_TRUE(c->Send(MakeBatch(*scene_, 1, 1)));
+  auto e = c->Receive();
+  ASSERT_TRUE(e.ok() && e->has_error());
+  EXPECT_EQ(e->error().code(), wire::ERROR_CODE_HANDSHAKE_REQUIRED);
+  EXPECT_TRUE(e->error().fatal());
+  EXPECT_TRUE(c->WaitClosed());
+}
+
+TEST_F(RendererProtocolTest, GarbageBytesCloseOnlyThatConnection) {
+  WireClient bystander = Connected();
+  auto c = WireClient::Connect("127.0.0.1", renderer_->port);
+  ASSERT_TRUE(c.ok());
+  // A plausible length prefix followed by bytes that are not an Envelope.
+  std::string garbage = EncodeFrame(std::string("\xff\xfe\xfd\xfc garbage \x01\x02\x03", 16));
+  ASSERT_TRUE(c->SendRaw(garbage));
+  auto e = c->Receive();
+  ASSERT_TRUE(e.ok() && e->has_error()) << (e.ok() ? std::string(BodyName(*e)) : e.error().message);
+  EXPECT_EQ(e->error().code(), wire::ERROR_CODE_BAD_FRAME);
+  EXPECT_TRUE(c->WaitClosed());
+  // The other connection is untouched.
+  ASSERT_TRUE(bystander.Send(MakeBatch(*scene_, 500, 3)));
+  EXPECT_TRUE(CollectBatch(bystander, 500).ok());
+}
+
+TEST_F(RendererProtocolTest, FrameOverTheLimitIsRefusedAndClosed) {
+  auto c = WireClient::Connect("127.0.0.1", renderer_->port);
+  ASSERT_TRUE(c.ok());
+  ASSERT_TRUE(c->Handshake(wire::ROLE_SMA, 0).ok());
+  // Announce 2 MiB against a 1 MiB limit; send only the header.
+  const char header[4] = {0, 0, 0x20, 0};
+  ASSERT_TRUE(c->SendRaw(std::string_view(header, 4)));
+  auto e = c->Receive();
+  ASSERT_TRUE(e.ok() && e->has_error());
+  EXPECT_EQ(e->error().code(), wire::ERROR_CODE_FRAME_TOO_LARGE);
+  EXPECT_TRUE(c->WaitClosed());
+  ExpectStillServes();
+}
+
+TEST_F(RendererProtocolTest, ClosingAConnectionCancelsItsQueuedWork) {
+  WireClient observer = Connected();
+  auto before = observer.Counter("samples_cancelled");
+  ASSERT_TRUE(before.ok()) << before.error().message;
+  {
+    WireClient c = Connected();
+    // A lot of work: every vertex, many paths; closed straight away.
+    ASSERT_TRUE(c.Send(MakeBatch(*scene_, 600, 4096, /*paths=*/4096)));
+    auto part = c.Receive(30s);  // wait until it is being worked on
+    ASSERT_TRUE(part.ok()) << part.error().message;
+  }
+  // The cancelled samples are counted and the server soon shades for others.
+  ExpectStillServes();
+  auto after = observer.Counter("samples_cancelled");
+  ASSERT_TRUE(after.ok());
+  EXPECT_GT(*after, *before);
+  // A worker finishes the sample it is on before it sees the cancellation;
+  // after that nothing of the closed connection's work remains.
+  double queued = -1.0;
+  for (int i = 0; i < 200 && queued != 0.0; ++i) {
+    auto q = observer.Counter("samples_queued");
+    ASSERT_TRUE(q.ok());
+    queued = *q;
+    if (queued != 0.0) std::this_thread::sleep_for(50ms);
+  }
+  EXPECT_EQ(queued, 0.0);
+}
+
+TEST(RendererProcessTest, SilentPeerIsDroppedAfterTheReadTimeoutAndHeartbeatsFlow) {
+  Renderer r = StartRenderer({"--read-timeout-ms", "600", "--heartbeat-ms", "100"}, "timeout");
+  auto c = WireClient::Connect("127.0.0.1", r.port);
+  ASSERT_TRUE(c.ok());
+  ASSERT_TRUE(c->Handshake(wire::ROLE_SMA, 0).ok());
+  // The server's heartbeats arrive while it has nothing else to say.
+  auto beat = c->Receive(2s, /*skipHeartbeats=*/false);
+  ASSERT_TRUE(beat.ok()) << beat.error().message;
+  EXPECT_TRUE(beat->has_heartbeat());
+  // We stay silent: a TIMEOUT error, then the close.
+  bool sawTimeout = false;
+  for (int i = 0; i < 100 && !sawTimeout; ++i) {
+    auto e = c->Receive(3s);
+    if (!e) break;
+    sawTimeout = e->has_error() && e->error().code() == wire::ERROR_CODE_TIMEOUT;
+  }
+  EXPECT_TRUE(sawTimeout);
+  EXPECT_TRUE(c->WaitClosed());
+  EXPECT_TRUE(r.process.Running());
+}
+
+TEST(RendererProcessTest, SigtermFinishesBatchesInFlightThenExitsCleanly) {
+  auto scene = LoadScene(kSceneFile);
+  ASSERT_TRUE(scene.ok());
+  Renderer r = StartRenderer({}, "sigterm");
+  auto c = WireClient::Connect("127.0.0.1", r.port);
+  ASSERT_TRUE(c.ok());
+  ASSERT_TRUE(c->Handshake(wire::ROLE_SMA, scene->identity).ok());
+  ASSERT_TRUE(c->Send(MakeBatch(*scene, 1, 64, /*paths=*/256)));
+  auto first = c->Receive(30s);  // work has started
+  ASSERT_TRUE(first.ok() && first->has_shade_reply());
+  r.process.Signal(SIGTERM);
+  // Everything already asked for is still answered.
+  size_t answered = size_t(first->shade_reply().sample_ids_size());
+  bool complete = first->shade_reply().remaining() == 0;
+  while (!complete) {
+    auto e = c->Receive(30s);
+    ASSERT_TRUE(e.ok()) << e.error().message << "\n" << r.process.LogTail();
+    ASSERT_TRUE(e->has_shade_reply()) << BodyName(*e);
+    answered += size_t(e->shade_reply().sample_ids_size());
+    complete = e->shade_reply().remaining() == 0;
+  }
+  EXPECT_EQ(answered, 64u);
+  EXPECT_TRUE(c->WaitClosed(10s));
+  auto code = r.process.WaitExit(10s);
+  ASSERT_TRUE(code.has_value()) << r.process.LogTail();
+  EXPECT_EQ(*code, 0) << r.process.LogTail();
+}
+
+TEST(RendererProcessTest, BadSceneFileIsOneClearErrorAndNonZeroExit) {
+  const std::string dir = MakeTempDir("penumbra-badscene");
+  auto p = ChildProcess::Spawn(PENUMBRA_RENDERER_EXE, {"--scene", dir + "/missing.obj", "--listen", "127.0.0.1:0"},
+                               dir + "/log");
+  ASSERT_TRUE(p.ok());
+  auto code = p->WaitExit(30s);
+  ASSERT_TRUE(code.has_value());
+  EXPECT_NE(*code, 0);
+  EXPECT_NE(p->LogTail().find("missing.obj"), std::string::npos) << p->LogTail();
+}
+
+}  // namespace
+}  // namespace penumbra::testing
