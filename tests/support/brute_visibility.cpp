@@ -1,0 +1,77 @@
+#include "support/brute_visibility.h"
+
+#include <cmath>
+#include <limits>
+#include <vector>
+
+namespace penumbra::testing {
+
+namespace {
+
+struct D3 {
+  double x, y, z;
+};
+D3 Sub(D3 a, D3 b) { return {a.x - b.x, a.y - b.y, a.z - b.z}; }
+D3 Cross(D3 a, D3 b) { return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x}; }
+double Dot(D3 a, D3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+D3 ToD3(const Vec3& v) { return {v.x, v.y, v.z}; }
+
+struct Candidate {
+  uint32_t triangle;
+  double distance;
+  double margin;  // smallest barycentric: negative just outside the triangle
+};
+
+}  // namespace
+
+BruteVisibility BruteForceVisibleTriangles(const Scene& scene, const CameraView& view, double tieBary) {
+  BruteVisibility out;
+  const PinholeCamera camera(view);
+  const D3 origin = ToD3(camera.Origin());
+  std::vector<Candidate> hits;
+  for (int y = 0; y < view.height; ++y) {
+    for (int x = 0; x < view.width; ++x) {
+      const D3 dir = ToD3(camera.DirectionThrough(float(x) + 0.5f, float(y) + 0.5f));
+      hits.clear();
+      for (uint32_t t = 0; t < scene.triangles.size(); ++t) {
+        const D3 p0 = ToD3(scene.Position(t, 0)), p1 = ToD3(scene.Position(t, 1)), p2 = ToD3(scene.Position(t, 2));
+        const D3 e1 = Sub(p1, p0), e2 = Sub(p2, p0);
+        const D3 p = Cross(dir, e2);
+        const double det = Dot(e1, p);
+        if (std::abs(det) < 1e-14) continue;
+        const D3 s = Sub(origin, p0);
+        const double u = Dot(s, p) / det;
+        const D3 q = Cross(s, e1);
+        const double v = Dot(dir, q) / det;
+        const double dist = Dot(e2, q) / det;
+        const double margin = std::min({u, v, 1.0 - u - v});
+        if (margin < -tieBary || dist <= 1e-6) continue;
+        hits.push_back(Candidate{t, dist, margin});
+      }
+      if (hits.empty()) continue;
+      const Candidate* nearest = &hits[0];
+      for (const Candidate& c : hits)
+        if (c.distance < nearest->distance) nearest = &c;
+      // Every triangle hit at (nearly) the nearest distance, and every
+      // near-edge hit in front of the nearest clear one, could win in float.
+      const Candidate* clear = nullptr;
+      for (const Candidate& c : hits)
+        if (c.margin >= tieBary && (!clear || c.distance < clear->distance)) clear = &c;
+      std::vector<uint32_t> contenders;
+      for (const Candidate& c : hits) {
+        const bool atNearest = c.distance <= nearest->distance * (1.0 + 1e-5);
+        const bool beforeClear = clear && c.distance <= clear->distance * (1.0 + 1e-5);
+        if (atNearest || beforeClear) contenders.push_back(c.triangle);
+      }
+      if (contenders.size() == 1 && nearest->margin >= tieBary) {
+        out.certain.insert(nearest->triangle);
+      } else {
+        out.ties.insert(contenders.begin(), contenders.end());
+      }
+    }
+  }
+  for (uint32_t t : out.certain) out.ties.erase(t);
+  return out;
+}
+
+}  // namespace penumbra::testing

@@ -1,0 +1,23 @@
+#pragma once
+// Visibility computed the slow, obvious way, as an independent reference:
+// every pixel centre's ray against every base triangle (Möller–Trumbore in
+// double precision), closest hit wins.
+
+#include <cstdint>
+#include <set>
+
+#include "penumbra/common/camera.h"
+#include "penumbra/common/scene.h"
+
+namespace penumbra::testing {
+
+struct BruteVisibility {
+  std::set<uint32_t> certain;  // hit by a pixel whose hit is clear of every triangle edge
+  std::set<uint32_t> ties;     // hit only where a hit lies within `tieBary` of an edge (either side may win)
+};
+
+/// `tieBary`: a hit whose smallest barycentric is below it, or whose
+/// distance is within a relative 1e-5 of another triangle's, is a tie.
+BruteVisibility BruteForceVisibleTriangles(const Scene& scene, const CameraView& view, double tieBary = 1e-4);
+
+}  // namespace penumbra::testing

@@ -1,0 +1,70 @@
+#include "support/held_mesh.h"
+
+#include <fmt/format.h>
+
+namespace penumbra::testing {
+
+std::set<uint64_t> HeldMesh::TriangleIds() const {
+  std::set<uint64_t> ids;
+  for (const auto& [id, v] : triangles_) ids.insert(id);
+  return ids;
+}
+
+Status HeldMesh::Apply(const wire::Delta& d) {
+  if (d.sequence() != sequence_ + 1)
+    return Fail(fmt::format("delta sequence {} after {}", d.sequence(), sequence_));
+  const int nv = d.vertex_ids_size();
+  const int nt = d.triangle_ids_size();
+  if (d.vertex_positions_size() != 3 * nv || d.vertex_radiance_size() != 3 * nv || d.vertex_irradiance_size() != 3 * nv)
+    return Fail("vertex arrays disagree in length");
+  if (d.triangle_vertices_size() != 3 * nt || d.triangle_materials_size() != nt)
+    return Fail("triangle arrays disagree in length");
+  if (d.triangle_uvs_size() % 6 != 0 || d.triangle_uvs_size() / 6 > nt) return Fail("triangle_uvs length");
+  sequence_ = d.sequence();
+
+  for (uint64_t id : d.removed_triangles()) {
+    auto it = triangles_.find(id);
+    if (it == triangles_.end()) return Fail(fmt::format("removal of triangle {} not held", id));
+    for (uint64_t v : it->second) {
+      auto vit = vertices_.find(v);
+      if (vit == vertices_.end()) return Fail("held triangle uses a vertex not held");
+      if (--vit->second.refs == 0) vertices_.erase(vit);
+    }
+    triangles_.erase(it);
+    ++removed[d.kind()];
+  }
+  for (int i = 0; i < nv; ++i) {
+    const uint64_t id = d.vertex_ids(i);
+    if (vertices_.contains(id)) return Fail(fmt::format("vertex {} sent while held", id));
+    Vertex v;
+    v.position = Vec3(d.vertex_positions(3 * i), d.vertex_positions(3 * i + 1), d.vertex_positions(3 * i + 2));
+    v.radiance = Rgb(d.vertex_radiance(3 * i), d.vertex_radiance(3 * i + 1), d.vertex_radiance(3 * i + 2));
+    v.irradiance = Rgb(d.vertex_irradiance(3 * i), d.vertex_irradiance(3 * i + 1), d.vertex_irradiance(3 * i + 2));
+    if (!IsFinite(v.position) || !IsFinite(v.radiance) || !IsFinite(v.irradiance))
+      return Fail(fmt::format("vertex {} is not finite", id));
+    vertices_.emplace(id, v);
+  }
+  for (int i = 0; i < nt; ++i) {
+    const uint64_t id = d.triangle_ids(i);
+    if (triangles_.contains(id)) return Fail(fmt::format("triangle {} added while held", id));
+    std::array<uint64_t, 3> corners{};
+    for (int c = 0; c < 3; ++c) {
+      corners[size_t(c)] = d.triangle_vertices(3 * i + c);
+      auto vit = vertices_.find(corners[size_t(c)]);
+      if (vit == vertices_.end())
+        return Fail(fmt::format("triangle {} uses vertex {} not held", id, corners[size_t(c)]));
+      ++vit->second.refs;
+    }
+    triangles_.emplace(id, corners);
+    ++added[d.kind()];
+  }
+  // A vertex sent but used by no triangle would leak on the client.
+  for (const auto& [id, v] : vertices_)
+    if (v.refs == 0) return Fail(fmt::format("vertex {} held by no triangle", id));
+  viewId_ = d.view_id();
+  converged_ = d.converged();
+  pending_ = d.pending_samples();
+  return Status::Ok();
+}
+
+}  // namespace penumbra::testing

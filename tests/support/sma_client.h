@@ -1,0 +1,61 @@
+#pragma once
+// A scripted Penumbra client for protocol-level tests: handshakes with an
+// SMA, sends views, and applies every delta it receives to a HeldMesh, so
+// every protocol rule is checked along the way.
+
+#include <chrono>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "penumbra/common/camera.h"
+#include "penumbra/common/expected.h"
+#include "support/held_mesh.h"
+#include "support/wire_client.h"
+
+namespace penumbra::testing {
+
+class SmaTestClient {
+ public:
+  /// Connects and handshakes (Hello -> Welcome, SceneInfo).
+  static Expected<SmaTestClient> Connect(uint16_t port, const std::string& name = "test-client");
+
+  const wire::Welcome& Welcome() const { return welcome_; }
+  const wire::SceneInfo& Info() const { return info_; }
+  HeldMesh& Mesh() { return mesh_; }
+  WireClient& Wire() { return wire_; }
+
+  /// Sends a view; ids must increase per connection.
+  bool SendView(const CameraView& view, uint64_t viewId);
+
+  /// Receives and applies deltas until one for `viewId` reports convergence.
+  Status WaitConverged(uint64_t viewId, std::chrono::milliseconds timeout = std::chrono::seconds(60));
+
+  /// Asks the SMA for a counter, applying deltas that arrive meanwhile.
+  Expected<double> Counter(const std::string& name);
+
+  /// Deltas applied so far, in order: (kind, view id, triangles added, removed).
+  struct DeltaRecord {
+    int kind;
+    uint64_t viewId;
+    int added;
+    int removed;
+  };
+  const std::vector<DeltaRecord>& Log() const { return log_; }
+
+ private:
+  explicit SmaTestClient(WireClient wire) : wire_(std::move(wire)) {}
+  Status Handle(const wire::Envelope& envelope);
+
+  WireClient wire_;
+  wire::Welcome welcome_;
+  wire::SceneInfo info_;
+  HeldMesh mesh_;
+  std::vector<DeltaRecord> log_;
+  uint64_t nextStatsId_ = 1;
+};
+
+/// A CameraView from a SceneInfo preset, at the given resolution.
+CameraView ViewFromPreset(const wire::CameraPreset& preset, int width, int height);
+
+}  // namespace penumbra::testing
