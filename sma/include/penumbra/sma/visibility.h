@@ -1,0 +1,106 @@
+#pragma once
+// Visibility from a client's camera, at the client's resolution (paper §2):
+// which leaves of the hierarchy are visible and how many pixels each covers.
+//
+// Two steps, so that refinement never touches the acceleration structure:
+//  1. VisibilityTracer::Trace casts one primary ray per pixel centre against
+//     the scene's *base* triangles (Embree, packets, all cores), recording the
+//     base triangle and barycentrics hit. This depends only on the camera and
+//     is cached per client view.
+//  2. MapHitsToNodes maps each hit to a node of the hierarchy by barycentric
+//     descent (Hierarchy::Locate), following a predicate (the SMA descends
+//     into a node's children once their vertices are shaded). Re-running
+//     step 2 alone picks up refinement for an unchanged camera.
+//
+// visibility.cpp is the only SMA file that includes Embree.
+
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "penumbra/common/camera.h"
+#include "penumbra/common/expected.h"
+#include "penumbra/common/scene.h"
+#include "penumbra/sma/hierarchy.h"
+
+namespace penumbra::sma {
+
+inline constexpr uint32_t kNoHit = ~uint32_t(0);
+
+/// What the primary ray through one pixel centre hit.
+struct PixelHit {
+  uint32_t triangle = kNoHit;  // base triangle, or kNoHit for background
+  float b1 = 0.0f;             // barycentrics on that triangle
+  float b2 = 0.0f;
+};
+
+/// Primary hits for one camera view, row-major, row 0 at the top.
+struct HitBuffer {
+  CameraView view;
+  std::vector<PixelHit> hits;  // view.width * view.height
+};
+
+/// Which plain Embree calls VisibilityTracer::TraceRaw makes.
+enum class RawTrace {
+  kSingleRays,  // one rtcIntersect1 per pixel, in scanline order
+  kPackets,     // the rtcIntersect16 packets Trace uses, in Trace's order
+};
+
+/// The scene's base triangles in an Embree BVH, and primary rays against it.
+/// Build, then query: a built tracer is read-only, and any number of threads
+/// may call Trace on it at once.
+class VisibilityTracer {
+ public:
+  /// Builds the acceleration structure over the scene's base triangles
+  /// (high-quality build: it is built once and traced many times). Vertex
+  /// data is copied; the scene need not outlive the tracer. Embree's errors
+  /// go to the "sma.visibility" logger and come back as an Error.
+  static Expected<std::unique_ptr<VisibilityTracer>> Build(const Scene& scene);
+  ~VisibilityTracer();
+  VisibilityTracer(const VisibilityTracer&) = delete;
+  VisibilityTracer& operator=(const VisibilityTracer&) = delete;
+
+  /// Casts a ray through every pixel centre of `view` (PinholeCamera
+  /// conventions) and fills `out` (resized to width * height; its storage is
+  /// reused from call to call). Rays start at the eye, with no near plane,
+  /// and hit both faces of every triangle. The view must have passed
+  /// ValidateCameraView. Thread-safe; runs on the TBB threads of the calling
+  /// thread's arena.
+  void Trace(const CameraView& view, HitBuffer& out) const;
+
+  /// For benchmarks only: Trace's rays for `view`, traced on the calling
+  /// thread by plain Embree calls that record nothing but whether they hit.
+  /// Returns the number of rays that hit. Thread-safe.
+  size_t TraceRaw(const CameraView& view, RawTrace mode) const;
+
+  struct Impl;
+
+ private:
+  explicit VisibilityTracer(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+/// The nodes seen through a camera: per pixel, and as a list with coverage.
+struct VisibleSet {
+  std::vector<NodeId> pixelNode;  // per pixel, kNoNode for background
+  /// Every visible node once, with the number of pixels it covers, in
+  /// increasing NodeId order.
+  std::vector<NodeId> nodes;
+  std::vector<uint32_t> coverage;  // parallel to `nodes`
+};
+
+/// Maps every hit to the deepest node reachable from its base triangle's
+/// root while `descend(node)` is true: the node Hierarchy::Locate returns,
+/// exactly. `descend` is asked only about nodes with children, and not
+/// necessarily once per pixel (a hit well inside the node its neighbour went
+/// to goes there too). It is called concurrently from TBB threads and must be
+/// thread-safe (read-only). The caller keeps the hierarchy unchanged
+/// meanwhile (the SMA holds its state lock shared). `hierarchy` must be built
+/// on the scene `hits` was traced in. `out`'s storage is reused from call to
+/// call.
+using DescendFunction = bool (*)(const Node& node, const void* context);
+void MapHitsToNodes(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFunction descend,
+                    const void* context, VisibleSet& out);
+
+}  // namespace penumbra::sma

@@ -1,0 +1,424 @@
+// Visibility: primary rays against the base triangles (the SMA's one contact
+// with Embree), then hits mapped to hierarchy nodes.
+//
+// Trace cuts the image into square tiles that TBB spreads over its threads;
+// a tile is traced as 4x4-pixel packets with rtcIntersect16. Sixteen rays
+// from one eye through a 4x4 block are as coherent as rays get, which is what
+// Embree's packet traversal (and the coherent context flag) is built for.
+//
+// MapHitsToNodes walks the hits row by row on TBB threads, locating each in
+// the hierarchy and counting runs of equal nodes along the row; the runs,
+// far fewer than pixels, are then sorted by node and summed into coverage.
+
+#include "penumbra/sma/visibility.h"
+
+#include <embree3/rtcore.h>
+#include <fmt/format.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <xmmintrin.h>
+
+#include <array>
+#include <bit>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <optional>
+#include <utility>
+
+#include "penumbra/common/check.h"
+#include "penumbra/common/logging.h"
+
+namespace penumbra::sma {
+
+namespace {
+
+constexpr unsigned kGeometryId = 0;
+constexpr int kPacketSide = 4;                         // rtcIntersect16: 4x4 pixels
+constexpr int kPacketSize = kPacketSide * kPacketSide;
+constexpr int kTileSide = 32;                          // pixels; ~900 tasks at 1280x720
+
+std::shared_ptr<spdlog::logger> VisibilityLog() { return Logger("sma.visibility"); }
+
+// Every device error reaches this one logger; Build() additionally turns a
+// failed step into an Error value for its caller.
+void LogDeviceError(void* /*userPtr*/, RTCError code, const char* message) {
+  VisibilityLog()->error("Embree error {}: {}", int(code), message ? message : "");
+}
+
+// Embree asks for flush-to-zero and denormals-are-zero on every thread that
+// traces. TBB's threads also run the rest of the SMA, so a task sets the two
+// MXCSR bits for its own duration and then puts the register back: two
+// register writes per tile.
+class ScopedFlushToZero {
+ public:
+  ScopedFlushToZero() : saved_(_mm_getcsr()) { _mm_setcsr(saved_ | kFlushToZero | kDenormalsAreZero); }
+  ~ScopedFlushToZero() { _mm_setcsr(saved_); }
+  ScopedFlushToZero(const ScopedFlushToZero&) = delete;
+  ScopedFlushToZero& operator=(const ScopedFlushToZero&) = delete;
+
+ private:
+  static constexpr unsigned kFlushToZero = 0x8000;      // _MM_FLUSH_ZERO_ON
+  static constexpr unsigned kDenormalsAreZero = 0x0040;  // _MM_DENORMALS_ZERO_ON
+  unsigned saved_;
+};
+
+RTCIntersectContext CoherentContext() {
+  RTCIntersectContext context;
+  rtcInitIntersectContext(&context);
+  context.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+  return context;
+}
+
+// The primary rays of a view. PinholeCamera is the one definition of the
+// camera; its directions, rescaled to a unit component along the view axis,
+// are affine in the pixel position, so three of them give every ray as
+// corner + px * perPixelX + py * perPixelY, with no normalisation per pixel
+// (Embree takes directions of any length).
+struct PrimaryRays {
+  Vec3 origin;
+  Vec3 corner, perPixelX, perPixelY;
+
+  explicit PrimaryRays(const CameraView& view) {
+    const PinholeCamera camera(view);
+    const auto onImagePlane = [&](float px, float py) {
+      const Vec3 d = camera.DirectionThrough(px, py);
+      return d / glm::dot(d, camera.Forward());
+    };
+    origin = camera.Origin();
+    corner = onImagePlane(0.0f, 0.0f);
+    perPixelX = (onImagePlane(float(view.width), 0.0f) - corner) / float(view.width);
+    perPixelY = (onImagePlane(0.0f, float(view.height)) - corner) / float(view.height);
+  }
+
+  Vec3 ThroughPixel(int x, int y) const {
+    return corner + (float(x) + 0.5f) * perPixelX + (float(y) + 0.5f) * perPixelY;
+  }
+};
+
+// The image cut into kTileSide-square tiles, row-major; edge tiles are cut
+// short.
+struct Tiling {
+  int width, height, columns, rows;
+
+  Tiling(int w, int h)
+      : width(w), height(h), columns((w + kTileSide - 1) / kTileSide), rows((h + kTileSide - 1) / kTileSide) {}
+  int Count() const { return columns * rows; }
+
+  // Calls f(x0, y0) for the top-left pixel of each packet of tile `tile`.
+  template <class F>
+  void ForEachPacket(int tile, F&& f) const {
+    const int tileX = (tile % columns) * kTileSide, tileY = (tile / columns) * kTileSide;
+    const int endX = std::min(tileX + kTileSide, width), endY = std::min(tileY + kTileSide, height);
+    for (int y0 = tileY; y0 < endY; y0 += kPacketSide)
+      for (int x0 = tileX; x0 < endX; x0 += kPacketSide) f(x0, y0);
+  }
+};
+
+constexpr int LaneX(int lane) { return lane % kPacketSide; }
+constexpr int LaneY(int lane) { return lane / kPacketSide; }
+
+// One packet of primary rays: the 4x4 pixels from (x0, y0), lanes outside the
+// image masked off.
+struct Packet {
+  alignas(64) std::array<int, kPacketSize> valid;
+  RTCRayHit16 rayHit;  // Embree declares it 64-byte aligned
+
+  void Trace(RTCScene scene, RTCIntersectContext& context, const PrimaryRays& rays, int width, int height, int x0,
+             int y0) {
+    for (int lane = 0; lane < kPacketSize; ++lane) {
+      const int x = x0 + LaneX(lane), y = y0 + LaneY(lane);
+      valid[lane] = x < width && y < height ? -1 : 0;
+      const Vec3 d = rays.ThroughPixel(x, y);
+      rayHit.ray.org_x[lane] = rays.origin.x;
+      rayHit.ray.org_y[lane] = rays.origin.y;
+      rayHit.ray.org_z[lane] = rays.origin.z;
+      rayHit.ray.tnear[lane] = 0.0f;  // from the eye: no near plane
+      rayHit.ray.dir_x[lane] = d.x;
+      rayHit.ray.dir_y[lane] = d.y;
+      rayHit.ray.dir_z[lane] = d.z;
+      rayHit.ray.time[lane] = 0.0f;
+      rayHit.ray.tfar[lane] = std::numeric_limits<float>::infinity();
+      rayHit.ray.mask[lane] = ~0u;
+      rayHit.ray.id[lane] = 0;
+      rayHit.ray.flags[lane] = 0;
+      rayHit.hit.geomID[lane] = RTC_INVALID_GEOMETRY_ID;
+      rayHit.hit.instID[0][lane] = RTC_INVALID_GEOMETRY_ID;
+    }
+    rtcIntersect16(valid.data(), scene, &context, &rayHit);
+  }
+
+  bool Hit(int lane) const { return rayHit.hit.geomID[lane] != RTC_INVALID_GEOMETRY_ID; }
+};
+
+}  // namespace
+
+struct VisibilityTracer::Impl {
+  RTCDevice device = nullptr;
+  RTCScene scene = nullptr;
+
+  Impl() = default;
+  Impl(const Impl&) = delete;
+  Impl& operator=(const Impl&) = delete;
+  ~Impl() {
+    if (scene) rtcReleaseScene(scene);
+    if (device) rtcReleaseDevice(device);
+  }
+
+  // The error left by the last device call, if any, as an Error naming
+  // `step`; the device error function has logged Embree's own message.
+  std::optional<Error> Check(const char* step) const {
+    const RTCError code = rtcGetDeviceError(device);
+    if (code == RTC_ERROR_NONE) return std::nullopt;
+    return Fail(fmt::format("Embree: {} failed (error {}; see the sma.visibility log)", step, int(code)));
+  }
+};
+
+Expected<std::unique_ptr<VisibilityTracer>> VisibilityTracer::Build(const Scene& scene) {
+  if (scene.triangles.empty()) return Fail("visibility: the scene has no triangles");
+  auto impl = std::make_unique<Impl>();
+  impl->device = rtcNewDevice(nullptr);
+  if (!impl->device)
+    return Fail(fmt::format("Embree: cannot create a device (error {})", int(rtcGetDeviceError(nullptr))));
+  rtcSetDeviceErrorFunction(impl->device, LogDeviceError, nullptr);
+
+  impl->scene = rtcNewScene(impl->device);
+  if (auto error = impl->Check("creating the scene")) return *error;
+  // Built once per scene, traced for every view of every client.
+  rtcSetSceneBuildQuality(impl->scene, RTC_BUILD_QUALITY_HIGH);
+
+  RTCGeometry geometry = rtcNewGeometry(impl->device, RTC_GEOMETRY_TYPE_TRIANGLE);
+  if (auto error = impl->Check("creating the triangle geometry")) return *error;
+  rtcSetGeometryBuildQuality(geometry, RTC_BUILD_QUALITY_HIGH);
+  auto* positions = static_cast<float*>(rtcSetNewGeometryBuffer(
+      geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), scene.vertices.size()));
+  auto* indices = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(
+      geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(uint32_t), scene.triangles.size()));
+  if (!positions || !indices) {
+    rtcReleaseGeometry(geometry);
+    return impl->Check("allocating vertex and index buffers").value_or(Fail("Embree: no buffers"));
+  }
+  for (size_t i = 0; i < scene.vertices.size(); ++i) {
+    const Vec3& p = scene.vertices[i].position;
+    positions[3 * i + 0] = p.x;
+    positions[3 * i + 1] = p.y;
+    positions[3 * i + 2] = p.z;
+  }
+  // Primitive id == base triangle index.
+  for (size_t t = 0; t < scene.triangles.size(); ++t)
+    std::memcpy(indices + 3 * t, scene.triangles[t].v.data(), 3 * sizeof(uint32_t));
+  rtcCommitGeometry(geometry);
+  rtcAttachGeometryByID(impl->scene, geometry, kGeometryId);
+  rtcReleaseGeometry(geometry);  // the scene holds it now
+  if (auto error = impl->Check("attaching the triangles")) return *error;
+
+  rtcCommitScene(impl->scene);
+  if (auto error = impl->Check("building the BVH")) return *error;
+  VisibilityLog()->info("BVH over {} base triangles built", scene.triangles.size());
+  return std::unique_ptr<VisibilityTracer>(new VisibilityTracer(std::move(impl)));
+}
+
+VisibilityTracer::VisibilityTracer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+VisibilityTracer::~VisibilityTracer() = default;
+
+void VisibilityTracer::Trace(const CameraView& view, HitBuffer& out) const {
+  const int width = view.width, height = view.height;
+  out.view = view;
+  out.hits.resize(size_t(width) * size_t(height));
+  const PrimaryRays rays(view);
+  const Tiling tiling(width, height);
+  tbb::parallel_for(tbb::blocked_range<int>(0, tiling.Count()), [&](const tbb::blocked_range<int>& tiles) {
+    const ScopedFlushToZero flushToZero;
+    RTCIntersectContext context = CoherentContext();
+    Packet packet;
+    for (int tile = tiles.begin(); tile != tiles.end(); ++tile) {
+      tiling.ForEachPacket(tile, [&](int x0, int y0) {
+        packet.Trace(impl_->scene, context, rays, width, height, x0, y0);
+        for (int lane = 0; lane < kPacketSize; ++lane) {
+          if (!packet.valid[lane]) continue;
+          PixelHit& hit = out.hits[size_t(y0 + LaneY(lane)) * size_t(width) + size_t(x0 + LaneX(lane))];
+          hit = packet.Hit(lane) ? PixelHit{packet.rayHit.hit.primID[lane], packet.rayHit.hit.u[lane],
+                                            packet.rayHit.hit.v[lane]}
+                                 : PixelHit{};
+        }
+      });
+    }
+  });
+}
+
+size_t VisibilityTracer::TraceRaw(const CameraView& view, RawTrace mode) const {
+  const ScopedFlushToZero flushToZero;
+  RTCIntersectContext context = CoherentContext();
+  const PrimaryRays rays(view);
+  size_t hits = 0;
+  if (mode == RawTrace::kSingleRays) {
+    for (int y = 0; y < view.height; ++y) {
+      for (int x = 0; x < view.width; ++x) {
+        const Vec3 d = rays.ThroughPixel(x, y);
+        RTCRayHit rayHit;
+        rayHit.ray = RTCRay{rays.origin.x, rays.origin.y, rays.origin.z, 0.0f, d.x, d.y, d.z, 0.0f,
+                            std::numeric_limits<float>::infinity(), ~0u, 0, 0};
+        rayHit.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+        rayHit.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+        rtcIntersect1(impl_->scene, &context, &rayHit);
+        hits += rayHit.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+      }
+    }
+    return hits;
+  }
+  const Tiling tiling(view.width, view.height);
+  Packet packet;
+  for (int tile = 0; tile < tiling.Count(); ++tile) {
+    tiling.ForEachPacket(tile, [&](int x0, int y0) {
+      packet.Trace(impl_->scene, context, rays, view.width, view.height, x0, y0);
+      for (int lane = 0; lane < kPacketSize; ++lane) hits += packet.valid[lane] && packet.Hit(lane);
+    });
+  }
+  return hits;
+}
+
+// --- Mapping hits to nodes ---------------------------------------------------
+
+namespace {
+
+// Hierarchy::Locate with a memory of the node it returned last. A hit on the
+// same base triangle that lies well inside that node goes to it without the
+// descent: coherent primary rays make that most pixels, and it saves the
+// descent's unpredictable branches and its predicate calls.
+//
+// "Well inside" keeps the answer exactly Locate's. Locate's barycentrics
+// start about an ulp off and every level doubles their error in the child's
+// coordinates, so its choice near a node's edges is certain only beyond
+// ~2^depth ulps of the node's own barycentrics. The margin, 2^depth * 1e-5
+// there (1e-5 of the base triangle), is two orders of magnitude beyond.
+class NodeFinder {
+ public:
+  NodeFinder(const Hierarchy& hierarchy, DescendFunction descend, const void* context)
+      : hierarchy_(hierarchy), descend_(descend), context_(context) {}
+
+  NodeId Find(const PixelHit& hit) {
+    if (hit.triangle == triangle_ && (wholeTriangle_ || WellInside(hit.b1, hit.b2))) return node_;
+    PENUMBRA_CHECK(hit.triangle < hierarchy_.BaseTriangleCount(),
+                   fmt::format("hit on base triangle {}, but the hierarchy has {}", hit.triangle,
+                               hierarchy_.BaseTriangleCount()));
+    node_ = hierarchy_.Locate(hit.triangle, hit.b1, hit.b2,
+                              [this](const Node& n) { return descend_(n, context_); });
+    triangle_ = hit.triangle;
+    const Node& n = hierarchy_.GetNode(node_);
+    wholeTriangle_ = n.depth == 0;
+    if (!wholeTriangle_) Remember(n);
+    return node_;
+  }
+
+ private:
+  static constexpr float kMarginOfBaseTriangle = 1e-5f;
+
+  // Prepares WellInside for node `n`: its barycentrics (l1, l2) are the
+  // inverse of the map l -> bary[0] + l1 (bary[1] - bary[0]) + l2 (bary[2] - bary[0]).
+  void Remember(const Node& n) {
+    const Vec2 e1 = n.bary[1] - n.bary[0], e2 = n.bary[2] - n.bary[0];
+    const float invDet = 1.0f / (e1.x * e2.y - e1.y * e2.x);
+    origin_ = n.bary[0];
+    inverse_ = {e2.y * invDet, -e2.x * invDet, -e1.y * invDet, e1.x * invDet};
+    margin_ = std::ldexp(kMarginOfBaseTriangle, n.depth);
+  }
+
+  bool WellInside(float b1, float b2) const {
+    const float dx = b1 - origin_.x, dy = b2 - origin_.y;
+    const float l1 = inverse_[0] * dx + inverse_[1] * dy;
+    const float l2 = inverse_[2] * dx + inverse_[3] * dy;
+    return l1 > margin_ && l2 > margin_ && 1.0f - l1 - l2 > margin_;
+  }
+
+  const Hierarchy& hierarchy_;
+  DescendFunction descend_;
+  const void* context_;
+  uint32_t triangle_ = kNoHit;  // the last hit's base triangle and its node
+  NodeId node_ = kNoNode;
+  bool wholeTriangle_ = false;  // node_ is the root: every hit on triangle_ goes there
+  Vec2 origin_{0.0f};
+  std::array<float, 4> inverse_{};
+  float margin_ = 0.0f;
+};
+
+// Consecutive pixels of a row that map to one node.
+struct Run {
+  NodeId node;
+  uint32_t pixels;
+};
+
+constexpr int kRowsPerChunk = 8;  // rows per unit of work (and per run list)
+
+// Sorts runs by node with a least-significant-digit radix sort over the bits
+// that ids below `nodeCount` use: linear in the number of runs, whatever the
+// size of the hierarchy.
+void SortByNode(std::vector<Run>& runs, std::vector<Run>& scratch, size_t nodeCount) {
+  constexpr int kDigitBits = 11;
+  constexpr uint32_t kDigitMask = (1u << kDigitBits) - 1;
+  const int keyBits = std::bit_width(nodeCount);
+  scratch.resize(runs.size());
+  for (int shift = 0; shift < keyBits; shift += kDigitBits) {
+    std::array<uint32_t, size_t(1) << kDigitBits> next{};
+    for (const Run& r : runs) ++next[(r.node >> shift) & kDigitMask];
+    uint32_t sum = 0;
+    for (uint32_t& n : next) sum += std::exchange(n, sum);
+    for (const Run& r : runs) scratch[next[(r.node >> shift) & kDigitMask]++] = r;
+    runs.swap(scratch);
+  }
+}
+
+}  // namespace
+
+void MapHitsToNodes(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFunction descend, const void* context,
+                    VisibleSet& out) {
+  const size_t width = size_t(hits.view.width);
+  const int height = hits.view.height;
+  PENUMBRA_CHECK(hits.hits.size() == width * size_t(height),
+                 fmt::format("{} hits for a {}x{} view", hits.hits.size(), width, height));
+  out.pixelNode.resize(hits.hits.size());
+
+  const int chunkCount = (height + kRowsPerChunk - 1) / kRowsPerChunk;
+  std::vector<std::vector<Run>> runsOfChunk(static_cast<size_t>(chunkCount));
+  tbb::parallel_for(tbb::blocked_range<int>(0, chunkCount), [&](const tbb::blocked_range<int>& chunks) {
+    NodeFinder finder(hierarchy, descend, context);
+    for (int chunk = chunks.begin(); chunk != chunks.end(); ++chunk) {
+      std::vector<Run>& runs = runsOfChunk[size_t(chunk)];
+      const int endY = std::min(height, (chunk + 1) * kRowsPerChunk);
+      for (int y = chunk * kRowsPerChunk; y < endY; ++y) {
+        const PixelHit* rowHits = hits.hits.data() + size_t(y) * width;
+        NodeId* rowNodes = out.pixelNode.data() + size_t(y) * width;
+        Run run{kNoNode, 0};
+        for (size_t x = 0; x < width; ++x) {
+          const NodeId node = rowHits[x].triangle == kNoHit ? kNoNode : finder.Find(rowHits[x]);
+          rowNodes[x] = node;
+          if (node != run.node) {
+            if (run.node != kNoNode) runs.push_back(run);
+            run = {node, 0};
+          }
+          ++run.pixels;
+        }
+        if (run.node != kNoNode) runs.push_back(run);
+      }
+    }
+  });
+
+  std::vector<Run> runs, scratch;
+  size_t runCount = 0;
+  for (const auto& r : runsOfChunk) runCount += r.size();
+  runs.reserve(runCount);
+  for (const auto& r : runsOfChunk) runs.insert(runs.end(), r.begin(), r.end());
+  SortByNode(runs, scratch, hierarchy.NodeCount());
+
+  out.nodes.clear();
+  out.coverage.clear();
+  for (const Run& r : runs) {
+    if (!out.nodes.empty() && out.nodes.back() == r.node) {
+      out.coverage.back() += r.pixels;
+    } else {
+      out.nodes.push_back(r.node);
+      out.coverage.push_back(r.pixels);
+    }
+  }
+}
+
+}  // namespace penumbra::sma
