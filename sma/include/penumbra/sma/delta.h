@@ -1,0 +1,73 @@
+#pragma once
+// What a client holds, and how to change it (paper §2, "incremental
+// communication protocol"). Plain code, no sockets: unit-tested directly.
+//
+// ClientMirror is the SMA's exact copy of the client's state: the triangles
+// (hierarchy nodes) sent and not removed, and the vertices they use, counted
+// by reference so a vertex's data crosses the network once while any held
+// triangle uses it. Clients apply each Delta as removals, then vertices,
+// then triangles -- the mirror builds deltas in that same order, so both
+// sides agree on which vertices the client holds.
+//
+// PlanView compares a visible set with the mirror and sorts the difference
+// into the paper's three lists: additions found shaded in the cache,
+// removals, and additions that wait for samples.
+
+#include <cstdint>
+#include <span>
+#include <unordered_map>
+#include <unordered_set>
+#include <vector>
+
+#include "penumbra/sma/hierarchy.h"
+#include "penumbra/sma/sample_cache.h"
+#include "penumbra/sma/visibility.h"
+#include "penumbra/wire.pb.h"
+
+namespace penumbra::sma {
+
+class ClientMirror {
+ public:
+  bool Holds(NodeId node) const { return held_.contains(node); }
+  bool HoldsVertex(VertexId v) const { return vertexRefs_.contains(v); }
+  size_t TriangleCount() const { return held_.size(); }
+  size_t VertexCount() const { return vertexRefs_.size(); }
+  const std::unordered_set<NodeId>& Held() const { return held_; }
+
+  /// Appends to `delta` the removal of `removals` (nodes not held are
+  /// skipped), then the addition of `additions` (nodes already held are
+  /// skipped) with every vertex the client lacks. Every corner of an added
+  /// node must be shaded in `cache`. Returns the number of triangles added.
+  size_t AppendChanges(std::span<const NodeId> removals, std::span<const NodeId> additions,
+                       const Hierarchy& hierarchy, const SampleCache& cache, wire::Delta& delta);
+
+  /// Forgets everything (the client reconnected or was reset).
+  void Clear();
+
+ private:
+  std::unordered_set<NodeId> held_;
+  std::unordered_map<VertexId, uint32_t> vertexRefs_;
+};
+
+struct ViewPlan {
+  std::vector<NodeId> addCached;       // (a) visible, all corners shaded, not held
+  std::vector<NodeId> removeReplaced;  // held, not visible, overlapping an addition (sent with it)
+  std::vector<NodeId> removeGone;      // (b) held, not visible, nothing replaces it now
+  std::vector<NodeId> pending;         // (c) visible, not held, some corner unshaded
+  std::vector<VertexId> missing;       // the unshaded corners of `pending`, each once
+};
+
+/// Plans the change from what `mirror` holds to `visible`. Also counts cache
+/// hits and misses (a visible node's corners) in `cache`.
+ViewPlan PlanView(const VisibleSet& visible, const ClientMirror& mirror, const Hierarchy& hierarchy,
+                  const SampleCache& cache);
+
+/// Whether the corners of `node` are all shaded.
+inline bool CornersShaded(const Node& node, const SampleCache& cache) {
+  return cache.IsShaded(node.v[0]) && cache.IsShaded(node.v[1]) && cache.IsShaded(node.v[2]);
+}
+
+/// Bytes a delta takes on the wire (its encoded frame, header included).
+size_t DeltaWireBytes(const wire::Delta& delta);
+
+}  // namespace penumbra::sma

@@ -1,0 +1,63 @@
+#pragma once
+// The object-space sample cache: one shading sample per hierarchy vertex,
+// shared by every client (paper §2). A sample is either shaded, with its
+// radiance and irradiance, or not yet; who asked for it and whether it is on
+// its way is the renderer pool's business, not the cache's.
+//
+// Threads: not synchronised; the SMA guards it with its state lock (readers
+// shared, Store() exclusive).
+
+#include <atomic>
+#include <cstdint>
+#include <span>
+#include <vector>
+
+#include "penumbra/common/math.h"
+#include "penumbra/sma/hierarchy.h"
+
+namespace penumbra::sma {
+
+struct ShadedSample {
+  VertexId vertex = kNoVertex;
+  Rgb radiance{0.0f};
+  Rgb irradiance{0.0f};
+};
+
+class SampleCache {
+ public:
+  /// Grows to cover `vertexCount` vertices (new ones unshaded).
+  void Reserve(size_t vertexCount);
+  size_t Size() const { return shaded_.size(); }
+
+  bool IsShaded(VertexId v) const { return v < shaded_.size() && shaded_[v] != 0; }
+  const Rgb& Radiance(VertexId v) const { return radiance_[v]; }
+  const Rgb& Irradiance(VertexId v) const { return irradiance_[v]; }
+  /// Luminance of the shaded radiance (0 when unshaded).
+  float Luminance(VertexId v) const { return IsShaded(v) ? penumbra::Luminance(radiance_[v]) : 0.0f; }
+
+  /// Stores results; a vertex beyond Size() grows the cache. Storing a
+  /// vertex twice keeps the first value (samples are deterministic, so a
+  /// second one can only be a duplicate). Returns how many were new.
+  size_t Store(std::span<const ShadedSample> samples);
+
+  size_t ShadedCount() const { return shadedCount_; }
+
+  /// Lookup statistics for the hit rate: a lookup of a vertex a view needed.
+  /// Thread-safe (counted by readers holding the state lock shared).
+  void CountLookups(uint64_t hits, uint64_t misses) const {
+    hits_ += hits;
+    misses_ += misses;
+  }
+  uint64_t Hits() const { return hits_; }
+  uint64_t Misses() const { return misses_; }
+
+ private:
+  std::vector<uint8_t> shaded_;
+  std::vector<Rgb> radiance_;
+  std::vector<Rgb> irradiance_;
+  size_t shadedCount_ = 0;
+  mutable std::atomic<uint64_t> hits_{0};
+  mutable std::atomic<uint64_t> misses_{0};
+};
+
+}  // namespace penumbra::sma

@@ -1,0 +1,117 @@
+#include "penumbra/sma/delta.h"
+
+#include <algorithm>
+
+#include <google/protobuf/io/coded_stream.h>
+
+#include "penumbra/common/framing.h"
+
+namespace penumbra::sma {
+
+namespace {
+
+void AddVec3(google::protobuf::RepeatedField<float>* out, const Vec3& v) {
+  out->Add(v.x);
+  out->Add(v.y);
+  out->Add(v.z);
+}
+
+}  // namespace
+
+size_t ClientMirror::AppendChanges(std::span<const NodeId> removals, std::span<const NodeId> additions,
+                                   const Hierarchy& hierarchy, const SampleCache& cache, wire::Delta& delta) {
+  for (NodeId id : removals) {
+    if (held_.erase(id) == 0) continue;
+    delta.add_removed_triangles(id);
+    for (VertexId v : hierarchy.GetNode(id).v) {
+      auto it = vertexRefs_.find(v);
+      if (it != vertexRefs_.end() && --it->second == 0) vertexRefs_.erase(it);
+    }
+  }
+  const Scene& scene = hierarchy.GetScene();
+  size_t added = 0;
+  for (NodeId id : additions) {
+    if (!held_.insert(id).second) continue;
+    ++added;
+    const Node& node = hierarchy.GetNode(id);
+    for (VertexId v : node.v) {
+      if (vertexRefs_[v]++ > 0) continue;
+      delta.add_vertex_ids(v);
+      AddVec3(delta.mutable_vertex_positions(), hierarchy.GetVertex(v).position);
+      AddVec3(delta.mutable_vertex_radiance(), cache.Radiance(v));
+      AddVec3(delta.mutable_vertex_irradiance(), cache.Irradiance(v));
+    }
+    delta.add_triangle_ids(id);
+    for (VertexId v : node.v) delta.add_triangle_vertices(v);
+    const uint32_t material = scene.triangles[node.baseTriangle].material;
+    delta.add_triangle_materials(material);
+    if (scene.materials[material].albedoTexture >= 0) {
+      for (int c = 0; c < 3; ++c) {
+        const Vec2 uv = hierarchy.CornerUv(id, c);
+        delta.add_triangle_uvs(uv.x);
+        delta.add_triangle_uvs(uv.y);
+      }
+    }
+  }
+  return added;
+}
+
+void ClientMirror::Clear() {
+  held_.clear();
+  vertexRefs_.clear();
+}
+
+ViewPlan PlanView(const VisibleSet& visible, const ClientMirror& mirror, const Hierarchy& hierarchy,
+                  const SampleCache& cache) {
+  ViewPlan plan;
+  uint64_t hits = 0, misses = 0;
+  std::unordered_set<VertexId> missing;
+  for (NodeId id : visible.nodes) {
+    const Node& node = hierarchy.GetNode(id);
+    bool shaded = true;
+    for (VertexId v : node.v) {
+      if (cache.IsShaded(v)) {
+        ++hits;
+      } else {
+        ++misses;
+        shaded = false;
+        missing.insert(v);
+      }
+    }
+    if (mirror.Holds(id)) continue;
+    (shaded ? plan.addCached : plan.pending).push_back(id);
+  }
+  cache.CountLookups(hits, misses);
+  plan.missing.assign(missing.begin(), missing.end());
+  std::sort(plan.missing.begin(), plan.missing.end());
+
+  // Held but no longer visible. Such a node is "replaced" when an addition
+  // covers part of it (its refined children, or a coarser ancestor): the
+  // client then swaps them in one delta and never shows a hole.
+  const std::unordered_set<NodeId> added(plan.addCached.begin(), plan.addCached.end());
+  std::unordered_set<NodeId> visibleSet(visible.nodes.begin(), visible.nodes.end());
+  std::unordered_set<NodeId> gone;
+  for (NodeId id : mirror.Held())
+    if (!visibleSet.contains(id)) gone.insert(id);
+  std::unordered_set<NodeId> replaced;
+  for (NodeId a : plan.addCached)
+    for (NodeId p = hierarchy.GetNode(a).parent; p != kNoNode; p = hierarchy.GetNode(p).parent)
+      if (gone.contains(p)) replaced.insert(p);
+  for (NodeId g : gone)
+    for (NodeId p = hierarchy.GetNode(g).parent; p != kNoNode && !replaced.contains(g); p = hierarchy.GetNode(p).parent)
+      if (added.contains(p)) replaced.insert(g);
+  for (NodeId g : gone) (replaced.contains(g) ? plan.removeReplaced : plan.removeGone).push_back(g);
+  std::sort(plan.removeReplaced.begin(), plan.removeReplaced.end());
+  std::sort(plan.removeGone.begin(), plan.removeGone.end());
+  return plan;
+}
+
+size_t DeltaWireBytes(const wire::Delta& delta) {
+  // The Envelope wraps the delta in its field's tag and a length varint.
+  using google::protobuf::io::CodedOutputStream;
+  const size_t body = delta.ByteSizeLong();
+  const uint32_t tag = uint32_t(wire::Envelope::kDeltaFieldNumber) << 3 | 2;  // length-delimited
+  return kFrameHeaderBytes + CodedOutputStream::VarintSize32(tag) + CodedOutputStream::VarintSize64(body) + body;
+}
+
+}  // namespace penumbra::sma

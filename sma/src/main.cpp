@@ -1,0 +1,118 @@
+// penumbra-sma: the shading management agent. Loads the scene, connects to
+// the renderers, and serves walkthrough clients until SIGTERM. See
+// sma/README.md.
+
+#include <cstdio>
+
+#include <CLI/CLI.hpp>
+
+#include "penumbra/common/endpoint.h"
+#include "penumbra/common/logging.h"
+#include "penumbra/common/scene.h"
+#include "penumbra/sma/server.h"
+
+int main(int argc, char** argv) {
+  using namespace penumbra;
+  using namespace penumbra::sma;
+  CLI::App app{"penumbra-sma: shading cache, visibility, refinement and deltas for Penumbra clients"};
+  SmaOptions options;
+  std::string scenePath;
+  std::string listen = "127.0.0.1:7200";
+  std::vector<std::string> renderers;
+  std::string portFile;
+  std::string logLevel = "info";
+  uint32_t maxFrameBytes = options.clientConnection.maxFrameBytes;
+  int heartbeatMs = int(options.clientConnection.heartbeatInterval.count());
+  int readTimeoutMs = int(options.clientConnection.readTimeout.count());
+  int statsSeconds = 10;
+  int resolveSeconds = int(options.pool.resolveInterval.count() / 1000);
+  int batchTimeoutSeconds = int(options.pool.batchTimeout.count() / 1000);
+
+  app.add_option("--scene", scenePath, "Scene description (.json) or mesh file; must match the renderers'")->required();
+  app.add_option("--listen", listen, "Address for clients, HOST:PORT (port 0: any free port)")->capture_default_str();
+  app.add_option("--renderer", renderers,
+                 "Renderer address HOST:PORT; repeat for several. A name resolving to several addresses "
+                 "connects to each, and is re-resolved periodically")
+      ->required();
+  app.add_option("--paths", options.pool.pathsPerSample, "Paths per sample asked of renderers (0: their --spp)")
+      ->capture_default_str();
+  app.add_option("--credits", options.pool.creditsPerRenderer, "Batches in flight per renderer")
+      ->check(CLI::Range(1u, 1024u))->capture_default_str();
+  app.add_option("--max-batch", options.pool.maxBatchSamples, "Largest batch sent to a renderer")
+      ->check(CLI::Range(1u, 1u << 20))->capture_default_str();
+  app.add_option("--batch-timeout", batchTimeoutSeconds, "Seconds a batch may stay unanswered before its renderer is dropped")
+      ->check(CLI::Range(1, 86400))->capture_default_str();
+  app.add_option("--resolve-interval", resolveSeconds, "Seconds between re-resolving renderer names")
+      ->check(CLI::Range(1, 86400))->capture_default_str();
+  app.add_option("--io-threads", options.ioThreads, "Network threads")->check(CLI::Range(1, 64))->capture_default_str();
+  app.add_option("--view-threads", options.viewThreads, "Visibility job threads")
+      ->check(CLI::Range(1, 64))->capture_default_str();
+  app.add_option("--max-frame-bytes", maxFrameBytes, "Largest frame accepted from a client")
+      ->check(CLI::Range(1024u, 1u << 30))->capture_default_str();
+  app.add_option("--heartbeat-ms", heartbeatMs, "Idle interval after which a heartbeat is sent")
+      ->check(CLI::Range(10, 3600000))->capture_default_str();
+  app.add_option("--read-timeout-ms", readTimeoutMs, "Silence after which a peer is dropped")
+      ->check(CLI::Range(10, 3600000))->capture_default_str();
+  app.add_option("--stats-interval", statsSeconds, "Seconds between counter lines in the log")
+      ->check(CLI::Range(1, 86400))->capture_default_str();
+  app.add_option("--exposure", options.toneMapping.exposure, "Default exposure clients apply before tone mapping")
+      ->check(CLI::PositiveNumber)->capture_default_str();
+  app.add_option("--name", options.name, "Name reported in handshakes and logs")->capture_default_str();
+  app.add_option("--port-file", portFile, "Write the bound client port to this file once listening");
+  app.add_option("--log-level", logLevel, "trace, debug, info, warn, error, critical or off")->capture_default_str();
+  CLI11_PARSE(app, argc, argv);
+
+  if (!SetupLogging(logLevel)) {
+    std::fprintf(stderr, "penumbra-sma: unknown --log-level '%s'\n", logLevel.c_str());
+    return 2;
+  }
+  auto where = ParseHostPort(listen, /*allowPortZero=*/true);
+  if (!where) {
+    std::fprintf(stderr, "penumbra-sma: --listen: %s\n", where.error().message.c_str());
+    return 2;
+  }
+  options.listen = *where;
+  for (const std::string& r : renderers) {
+    auto hp = ParseHostPort(r);
+    if (!hp) {
+      std::fprintf(stderr, "penumbra-sma: --renderer: %s\n", hp.error().message.c_str());
+      return 2;
+    }
+    options.pool.renderers.push_back(*hp);
+  }
+  options.clientConnection.maxFrameBytes = maxFrameBytes;
+  options.clientConnection.heartbeatInterval = std::chrono::milliseconds(heartbeatMs);
+  options.clientConnection.readTimeout = std::chrono::milliseconds(readTimeoutMs);
+  options.pool.connection.heartbeatInterval = std::chrono::milliseconds(heartbeatMs);
+  options.pool.connection.readTimeout = std::chrono::milliseconds(readTimeoutMs);
+  options.pool.resolveInterval = std::chrono::seconds(resolveSeconds);
+  options.pool.batchTimeout = std::chrono::seconds(batchTimeoutSeconds);
+  options.statsInterval = std::chrono::seconds(statsSeconds);
+
+  auto scene = LoadScene(scenePath);
+  if (!scene) {
+    std::fprintf(stderr, "penumbra-sma: %s\n", scene.error().message.c_str());
+    return 1;
+  }
+  auto server = SmaServer::Create(*scene, options);
+  if (!server) {
+    std::fprintf(stderr, "penumbra-sma: %s\n", server.error().message.c_str());
+    return 1;
+  }
+  auto bound = (*server)->Listen();
+  if (!bound) {
+    std::fprintf(stderr, "penumbra-sma: %s\n", bound.error().message.c_str());
+    return 1;
+  }
+  Logger("sma")->info("scene '{}' (identity {:016x}): {} triangles, {} vertices; {} renderer address(es)",
+                      scene->name, scene->identity, scene->triangles.size(), scene->vertices.size(),
+                      options.pool.renderers.size());
+  if (!portFile.empty()) {
+    if (auto written = WritePortFile(portFile, bound->port()); !written) {
+      std::fprintf(stderr, "penumbra-sma: %s\n", written.error().message.c_str());
+      return 1;
+    }
+  }
+  (*server)->Run();
+  return 0;
+}

@@ -1,0 +1,737 @@
+#include "penumbra/sma/server.h"
+
+#include <csignal>
+#include <mutex>
+#include <shared_mutex>
+#include <unordered_map>
+#include <unordered_set>
+
+#include <fmt/format.h>
+
+#include "job_queue.h"
+#include "penumbra/common/logging.h"
+#include "penumbra/common/messages.h"
+#include "penumbra/sma/delta.h"
+#include "penumbra/sma/hierarchy.h"
+#include "penumbra/sma/sample_cache.h"
+#include "penumbra/sma/visibility.h"
+
+namespace penumbra::sma {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+using boost::system::error_code;
+
+double Ms(Clock::duration d) { return std::chrono::duration<double, std::milli>(d).count(); }
+
+void AddCounter(wire::StatsReply* reply, const std::string& name, double value) {
+  auto* c = reply->add_counters();
+  c->set_name(name);
+  c->set_value(value);
+}
+
+void ToWire(const Vec3& v, wire::Vec3* out) {
+  out->set_x(v.x);
+  out->set_y(v.y);
+  out->set_z(v.z);
+}
+
+Vec3 FromWire(const wire::Vec3& v) { return Vec3(v.x(), v.y(), v.z()); }
+
+// Descend into a node's children once every vertex its split added is
+// shaded: a parent is replaced by its children only when they can be drawn.
+bool ChildrenShaded(const Node& node, const void* context) {
+  const auto& cache = *static_cast<const SampleCache*>(context);
+  for (VertexId m : node.mid)
+    if (m != kNoVertex && !cache.IsShaded(m)) return false;
+  return true;
+}
+
+}  // namespace
+
+class SmaServer::Impl {
+ public:
+  class Session;
+
+  Impl(const Scene& scene, SmaOptions options, std::unique_ptr<VisibilityTracer> tracer)
+      : scene_(scene),
+        options_(std::move(options)),
+        hierarchy_(scene),
+        tracer_(std::move(tracer)),
+        jobs_(options_.viewThreads),
+        log_(Logger("sma")),
+        signals_(io_, SIGINT, SIGTERM),
+        statsTimer_(io_),
+        shutdownTimer_(io_) {
+    cache_.Reserve(hierarchy_.VertexCount());
+    options_.pool.sceneHash = scene.identity;
+    options_.pool.name = options_.name;
+    pool_ = RendererPool::Create(io_, options_.pool,
+                                 [this](std::vector<ShadedSample>&& samples) { OnResults(std::move(samples)); });
+  }
+
+  Expected<tcp::endpoint> Listen() {
+    listener_ = net::Listener::Create(io_, [this](tcp::socket socket) { Accept(std::move(socket)); });
+    auto bound = listener_->Listen(options_.listen);
+    if (bound) log_->info("{}: listening for clients on {}:{}", options_.name, bound->address().to_string(), bound->port());
+    return bound;
+  }
+
+  void Run() {
+    signals_.async_wait([this](const error_code& ec, int signal) {
+      if (ec) return;
+      log_->info("signal {} received: shutting down", signal);
+      Shutdown();
+    });
+    pool_->Start();
+    if (listener_) listener_->Start();
+    ArmStats();
+    std::vector<std::thread> extra;
+    for (int i = 1; i < options_.ioThreads; ++i) extra.emplace_back([this] { io_.run(); });
+    io_.run();
+    for (auto& t : extra) t.join();
+    log_->info("{}: stopped", options_.name);
+  }
+
+  void Shutdown();
+
+  // Called by the renderer pool (I/O thread) with shaded samples.
+  void OnResults(std::vector<ShadedSample>&& samples) {
+    {
+      std::unique_lock lock(stateMutex_);
+      cache_.Store(samples);
+    }
+    pool_->Complete(samples);
+    auto vertices = std::make_shared<std::vector<VertexId>>();
+    vertices->reserve(samples.size());
+    for (const ShadedSample& s : samples) vertices->push_back(s.vertex);
+    for (auto& session : Sessions()) NotifyArrived(session, vertices);
+  }
+
+  std::vector<std::shared_ptr<Session>> Sessions() {
+    std::lock_guard lock(sessionsMutex_);
+    std::vector<std::shared_ptr<Session>> out;
+    out.reserve(sessions_.size());
+    for (auto& [id, s] : sessions_) out.push_back(s);
+    return out;
+  }
+  void RemoveSession(uint64_t id) {
+    std::lock_guard lock(sessionsMutex_);
+    sessions_.erase(id);
+  }
+  void NotifyArrived(const std::shared_ptr<Session>& session, std::shared_ptr<const std::vector<VertexId>> vertices);
+
+  void AddGlobalCounters(wire::StatsReply* reply);
+
+  const Scene& scene_;
+  SmaOptions options_;
+  asio::io_context io_;
+  std::shared_mutex stateMutex_;  // guards hierarchy_ and cache_
+  Hierarchy hierarchy_;
+  SampleCache cache_;
+  std::unique_ptr<VisibilityTracer> tracer_;
+  std::shared_ptr<RendererPool> pool_;
+  JobQueue jobs_;
+  std::shared_ptr<spdlog::logger> log_;
+
+ private:
+  void Accept(tcp::socket socket);
+  void ArmStats();
+  void PollShutdown();
+
+  std::shared_ptr<net::Listener> listener_;
+  asio::signal_set signals_;
+  asio::steady_timer statsTimer_;
+  asio::steady_timer shutdownTimer_;
+  std::atomic<bool> shuttingDown_{false};
+  Clock::time_point shutdownDeadline_;
+  RendererPoolStats lastStats_;
+  std::mutex sessionsMutex_;
+  std::unordered_map<uint64_t, std::shared_ptr<Session>> sessions_;
+  uint64_t nextSessionId_ = 1;
+};
+
+// One client connection. Everything here runs on the connection's strand.
+class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
+ public:
+  Session(Impl& server, std::shared_ptr<net::Connection> connection, uint64_t id)
+      : server_(server), connection_(std::move(connection)), id_(id), log_(Logger("sma.client")),
+        refreshTimer_(connection_->Strand()), unblockTimer_(connection_->Strand()) {}
+
+  void Start() {
+    auto self = shared_from_this();
+    connection_->Start([self](wire::Envelope&& e) { self->OnMessage(std::move(e)); },
+                       [self](const std::string& reason) { self->OnClosed(reason); });
+  }
+
+  net::Connection& Connection() { return *connection_; }
+
+  // Strand: samples were stored in the cache.
+  void OnSamplesArrived(const std::vector<VertexId>& vertices);
+
+ private:
+  struct JobTimings {
+    double traceMs = 0.0;
+    double mapMs = 0.0;
+  };
+
+  void OnMessage(wire::Envelope&& envelope);
+  void OnHello(const wire::Hello& hello);
+  void OnView(const wire::View& view);
+  void OnStatsRequest(const wire::StatsRequest& request);
+  void OnTextureRequest(const wire::TextureRequest& request);
+  void OnClosed(const std::string& reason);
+  void Fatal(wire::ErrorCode code, const std::string& message) {
+    log_->warn("{}: {} (closing)", connection_->Id(), message);
+    connection_->FailAndClose(MakeError(0, code, message, true), message);
+  }
+
+  void StartJob();
+  void OnJobDone(uint64_t viewId, bool newView, std::shared_ptr<HitBuffer> hits, std::shared_ptr<VisibleSet> visible,
+                 JobTimings timings, Clock::time_point started);
+  void ApplyVisibility(bool newView);
+  void ScheduleRefresh();
+  bool Blocked() const { return connection_->QueuedBytes() > server_.options_.clientSoftQueueBytes; }
+  void WaitUntilUnblocked();
+  /// Sends removals and additions in as many deltas as the size limit asks.
+  /// `last`: no other delta for this event follows, so the final one may
+  /// report convergence; `alwaysSend`: send even when nothing changed.
+  void SendChanges(wire::DeltaKind kind, std::span<const NodeId> removals, std::span<const NodeId> additions,
+                   bool alwaysSend, bool last);
+  void FillStatus(wire::Delta& delta, bool last) const {
+    delta.set_view_id(appliedViewId_);
+    delta.set_pending_samples(uint32_t(waiting_.size()));
+    delta.set_converged(last && Converged());
+  }
+  bool Converged() const {
+    return hasVisible_ && appliedViewId_ == viewId_ && !jobRunning_ && waiting_.empty() && pending_.empty();
+  }
+
+  Impl& server_;
+  std::shared_ptr<net::Connection> connection_;
+  uint64_t id_;
+  std::shared_ptr<spdlog::logger> log_;
+  asio::steady_timer refreshTimer_;
+  asio::steady_timer unblockTimer_;
+
+  bool handshook_ = false;
+  bool hasView_ = false;
+  bool hasVisible_ = false;
+  uint64_t viewId_ = 0;          // newest view received
+  uint64_t appliedViewId_ = 0;   // view whose visibility is applied
+  CameraView view_;
+  bool jobRunning_ = false;
+  bool refreshWanted_ = false;
+  bool refreshArmed_ = false;
+  bool unblockArmed_ = false;
+  Clock::time_point lastRefresh_;
+  Clock::time_point viewReceived_;
+  std::shared_ptr<HitBuffer> hits_;        // base hits of the applied view
+  std::shared_ptr<VisibleSet> visible_;    // latest mapping of hits_
+
+  ClientMirror mirror_;
+  std::unordered_set<NodeId> pending_;                           // visible, waiting for samples
+  std::unordered_map<VertexId, std::vector<NodeId>> waiting_;    // missing vertex -> pending nodes
+  std::vector<VertexId> interest_;                               // vertices we asked the pool for
+  uint64_t sequence_ = 0;
+  uint64_t deltasSent_ = 0;
+  uint64_t viewsReceived_ = 0;
+  JobTimings lastTimings_;
+  double lastFirstDeltaMs_ = 0.0;
+};
+
+void SmaServer::Impl::NotifyArrived(const std::shared_ptr<Session>& session,
+                                    std::shared_ptr<const std::vector<VertexId>> vertices) {
+  asio::post(session->Connection().Strand(),
+             [session, vertices = std::move(vertices)] { session->OnSamplesArrived(*vertices); });
+}
+
+void SmaServer::Impl::Session::OnMessage(wire::Envelope&& envelope) {
+  if (envelope.has_hello()) return OnHello(envelope.hello());
+  if (!handshook_) {
+    return Fatal(wire::ERROR_CODE_HANDSHAKE_REQUIRED,
+                 fmt::format("expected hello as the first message, got {}", BodyName(envelope)));
+  }
+  switch (envelope.body_case()) {
+    case wire::Envelope::kView:
+      return OnView(envelope.view());
+    case wire::Envelope::kStatsRequest:
+      return OnStatsRequest(envelope.stats_request());
+    case wire::Envelope::kTextureRequest:
+      return OnTextureRequest(envelope.texture_request());
+    case wire::Envelope::kError:
+      log_->warn("{}: client reports {}: {}", connection_->Id(), wire::ErrorCode_Name(envelope.error().code()),
+                 envelope.error().message());
+      return;
+    default:
+      return Fatal(wire::ERROR_CODE_UNEXPECTED_MESSAGE,
+                   fmt::format("an SMA does not take {} messages from clients", BodyName(envelope)));
+  }
+}
+
+void SmaServer::Impl::Session::OnHello(const wire::Hello& hello) {
+  if (handshook_) return Fatal(wire::ERROR_CODE_UNEXPECTED_MESSAGE, "second hello on one connection");
+  wire::ErrorCode code = wire::ERROR_CODE_UNSPECIFIED;
+  const Scene& scene = server_.scene_;
+  if (auto ok = ValidateHello(hello, wire::ROLE_CLIENT, scene.identity, &code); !ok) return Fatal(code, ok.error().message);
+  handshook_ = true;
+  wire::Envelope welcome;
+  auto* w = welcome.mutable_welcome();
+  w->set_protocol_version(kProtocolVersion);
+  w->set_role(wire::ROLE_SMA);
+  w->set_server_name(server_.options_.name);
+  w->set_scene_hash(scene.identity);
+  w->set_max_frame_bytes(server_.options_.clientConnection.maxFrameBytes);
+  connection_->Send(welcome);
+
+  wire::Envelope infoEnvelope;
+  auto* info = infoEnvelope.mutable_scene_info();
+  info->set_name(scene.name);
+  ToWire(scene.bounds.min, info->mutable_bounds_min());
+  ToWire(scene.bounds.max, info->mutable_bounds_max());
+  for (const CameraPreset& c : scene.cameras) {
+    auto* p = info->add_cameras();
+    p->set_name(c.name);
+    ToWire(c.pose.eye, p->mutable_eye());
+    ToWire(c.pose.target, p->mutable_target());
+    ToWire(c.pose.up, p->mutable_up());
+    p->set_fov_y_deg(c.fovYDeg);
+  }
+  for (const Material& m : scene.materials) {
+    auto* mi = info->add_materials();
+    ToWire(m.albedo, mi->mutable_albedo());
+    ToWire(m.emission, mi->mutable_emission());
+    mi->set_texture(m.albedoTexture);
+  }
+  const auto& tm = server_.options_.toneMapping;
+  info->mutable_tone_mapping()->set_bias(tm.bias);
+  info->mutable_tone_mapping()->set_exposure(tm.exposure);
+  info->mutable_tone_mapping()->set_max_display_luminance(tm.maxDisplayLuminance);
+  info->set_texture_count(uint32_t(scene.textures.size()));
+  connection_->Send(infoEnvelope);
+  log_->info("{}: client '{}' joined", connection_->Id(), hello.peer_name());
+}
+
+void SmaServer::Impl::Session::OnView(const wire::View& v) {
+  ++viewsReceived_;
+  CameraView view;
+  view.pose = CameraPose{FromWire(v.eye()), FromWire(v.target()), FromWire(v.up())};
+  view.fovYDeg = v.fov_y_deg();
+  view.width = int(std::min<uint32_t>(v.width(), 1u << 30));
+  view.height = int(std::min<uint32_t>(v.height(), 1u << 30));
+  if (auto ok = ValidateCameraView(view); !ok)
+    return Fatal(wire::ERROR_CODE_INVALID_REQUEST, fmt::format("view {}: {}", v.view_id(), ok.error().message));
+  if (hasView_ && v.view_id() <= viewId_) {
+    connection_->Send(MakeError(v.view_id(), wire::ERROR_CODE_INVALID_REQUEST,
+                                fmt::format("view id {} does not increase (last {}); ignored", v.view_id(), viewId_),
+                                false));
+    return;
+  }
+  hasView_ = true;
+  viewId_ = v.view_id();
+  view_ = view;
+  viewReceived_ = Clock::now();
+  // A new view supersedes whatever this client was waiting for: a running
+  // job's result is dropped when it lands, and StartJob picks this view.
+  StartJob();
+}
+
+void SmaServer::Impl::Session::StartJob() {
+  if (jobRunning_ || !hasView_ || connection_->IsOpen() == false) return;
+  const bool newView = !hits_ || appliedViewId_ != viewId_;
+  if (!newView && !refreshWanted_) return;
+  jobRunning_ = true;
+  refreshWanted_ = false;
+  lastRefresh_ = Clock::now();
+  auto self = shared_from_this();
+  const CameraView view = view_;
+  const uint64_t id = viewId_;
+  std::shared_ptr<HitBuffer> hits = newView ? nullptr : hits_;
+  const auto started = Clock::now();
+  server_.jobs_.Post([self, view, id, hits, newView, started]() mutable {
+    Impl& server = self->server_;
+    JobTimings t;
+    auto t0 = Clock::now();
+    if (!hits) {
+      hits = std::make_shared<HitBuffer>();
+      server.tracer_->Trace(view, *hits);
+    }
+    auto t1 = Clock::now();
+    auto visible = std::make_shared<VisibleSet>();
+    {
+      std::shared_lock lock(server.stateMutex_);
+      MapHitsToNodes(server.hierarchy_, *hits, &ChildrenShaded, &server.cache_, *visible);
+    }
+    auto t2 = Clock::now();
+    t.traceMs = newView ? Ms(t1 - t0) : 0.0;
+    t.mapMs = Ms(t2 - t1);
+    asio::post(self->connection_->Strand(), [self, id, newView, hits, visible, t, started] {
+      self->OnJobDone(id, newView, hits, visible, t, started);
+    });
+  });
+}
+
+void SmaServer::Impl::Session::OnJobDone(uint64_t viewId, bool newView, std::shared_ptr<HitBuffer> hits,
+                                         std::shared_ptr<VisibleSet> visible, JobTimings timings,
+                                         Clock::time_point started) {
+  jobRunning_ = false;
+  if (!connection_->IsOpen()) return;
+  if (viewId != viewId_) {  // superseded while it ran
+    StartJob();
+    return;
+  }
+  const bool firstForView = appliedViewId_ != viewId || !hasVisible_;
+  hits_ = std::move(hits);
+  visible_ = std::move(visible);
+  appliedViewId_ = viewId;
+  hasVisible_ = true;
+  lastTimings_ = timings;
+  const auto planStart = Clock::now();
+  ApplyVisibility(newView);
+  if (firstForView) {
+    lastFirstDeltaMs_ = Ms(Clock::now() - viewReceived_);
+    log_->debug("{}: view {}: trace {:.1f} ms, map {:.1f} ms, plan+send {:.1f} ms, view->first delta {:.1f} ms; "
+                "{} visible, {} held, {} pending ({} samples)",
+                connection_->Id(), viewId, timings.traceMs, timings.mapMs, Ms(Clock::now() - planStart),
+                lastFirstDeltaMs_, visible_->nodes.size(), mirror_.TriangleCount(), pending_.size(), waiting_.size());
+  }
+  (void)started;
+  if (refreshWanted_) ScheduleRefresh();
+}
+
+void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
+  Impl& server = server_;
+  std::shared_lock lock(server.stateMutex_);
+  ViewPlan plan = PlanView(*visible_, mirror_, server.hierarchy_, server.cache_);
+
+  // Ask for what is missing before letting go of the old interest, so a
+  // vertex both views need is never demoted in between. Requests are made
+  // under the state lock: see RendererPool's note on "requested once".
+  std::vector<SampleRequest> requests;
+  requests.reserve(plan.missing.size());
+  for (VertexId v : plan.missing) requests.push_back(MakeSampleRequest(server.hierarchy_, v));
+  server.pool_->Request(requests, Priority::kVisible);
+  server.pool_->ReleaseInterest(interest_);
+  interest_ = plan.missing;
+
+  pending_.clear();
+  waiting_.clear();
+  for (NodeId id : plan.pending) {
+    pending_.insert(id);
+    for (VertexId v : server.hierarchy_.GetNode(id).v)
+      if (!server.cache_.IsShaded(v)) waiting_[v].push_back(id);
+  }
+
+  if (Blocked()) {
+    // The client is behind: send nothing now; once its queue drains, one
+    // refresh sends the difference that has built up (coalescing).
+    WaitUntilUnblocked();
+    return;
+  }
+  if (newView) {
+    // The paper's order: what the cache already has, then what is gone;
+    // what must be rendered follows as it arrives.
+    const bool removalsFollow = !plan.removeGone.empty();
+    SendChanges(wire::DELTA_KIND_CACHED, plan.removeReplaced, plan.addCached, /*alwaysSend=*/true, !removalsFollow);
+    SendChanges(wire::DELTA_KIND_REMOVED, plan.removeGone, {}, /*alwaysSend=*/false, /*last=*/true);
+  } else {
+    std::vector<NodeId> removals = plan.removeReplaced;
+    removals.insert(removals.end(), plan.removeGone.begin(), plan.removeGone.end());
+    SendChanges(wire::DELTA_KIND_REFINED, removals, plan.addCached, /*alwaysSend=*/false, /*last=*/true);
+  }
+}
+
+void SmaServer::Impl::Session::SendChanges(wire::DeltaKind kind, std::span<const NodeId> removals,
+                                           std::span<const NodeId> additions, bool alwaysSend, bool last) {
+  // Caller holds the state lock (shared).
+  const size_t chunk = std::max<size_t>(1, server_.options_.maxTrianglesPerDelta);
+  size_t offset = 0;
+  bool first = true;
+  while (first || offset < additions.size()) {
+    const size_t count = std::min(chunk, additions.size() - offset);
+    wire::Envelope envelope;
+    wire::Delta& delta = *envelope.mutable_delta();
+    delta.set_kind(kind);
+    mirror_.AppendChanges(first ? removals : std::span<const NodeId>{}, additions.subspan(offset, count),
+                          server_.hierarchy_, server_.cache_, delta);
+    offset += count;
+    first = false;
+    const bool empty = delta.removed_triangles_size() == 0 && delta.triangle_ids_size() == 0;
+    if (empty && !alwaysSend) continue;
+    delta.set_sequence(++sequence_);
+    FillStatus(delta, last && offset >= additions.size());
+    if (!connection_->Send(envelope)) {
+      // Over the hard queue limit: this client is not reading at all.
+      connection_->Close("client send queue overflow");
+      return;
+    }
+    ++deltasSent_;
+  }
+}
+
+void SmaServer::Impl::Session::OnSamplesArrived(const std::vector<VertexId>& vertices) {
+  if (!hasVisible_ || !connection_->IsOpen()) return;
+  std::unordered_set<NodeId> candidates;
+  bool refinement = false;
+  const size_t baseVertices = server_.scene_.vertices.size();
+  for (VertexId v : vertices) {
+    auto it = waiting_.find(v);
+    if (it == waiting_.end()) {
+      // A midpoint this client was not waiting for may complete the children
+      // of a node it shows: re-map (throttled) to pick them up.
+      refinement |= v >= baseVertices;
+      continue;
+    }
+    candidates.insert(it->second.begin(), it->second.end());
+    waiting_.erase(it);
+  }
+  if (refinement) {
+    refreshWanted_ = true;
+    ScheduleRefresh();
+  }
+  if (candidates.empty()) return;
+  std::shared_lock lock(server_.stateMutex_);
+  std::vector<NodeId> ready;
+  for (NodeId id : candidates)
+    if (pending_.contains(id) && CornersShaded(server_.hierarchy_.GetNode(id), server_.cache_)) ready.push_back(id);
+  std::sort(ready.begin(), ready.end());
+  for (NodeId id : ready) pending_.erase(id);
+  if (Blocked()) {
+    WaitUntilUnblocked();
+    return;
+  }
+  SendChanges(wire::DELTA_KIND_SHADED, {}, ready, /*alwaysSend=*/Converged(), /*last=*/true);
+}
+
+void SmaServer::Impl::Session::ScheduleRefresh() {
+  if (refreshArmed_ || !refreshWanted_) return;
+  const auto due = lastRefresh_ + server_.options_.refreshInterval;
+  if (Clock::now() >= due && !jobRunning_) {
+    StartJob();
+    return;
+  }
+  refreshArmed_ = true;
+  refreshTimer_.expires_at(std::max(due, Clock::now() + std::chrono::milliseconds(1)));
+  refreshTimer_.async_wait([self = shared_from_this()](const error_code& ec) {
+    self->refreshArmed_ = false;
+    if (ec) return;
+    if (self->jobRunning_)
+      self->ScheduleRefresh();  // try again after the running job
+    else
+      self->StartJob();
+  });
+}
+
+void SmaServer::Impl::Session::WaitUntilUnblocked() {
+  if (unblockArmed_) return;
+  unblockArmed_ = true;
+  unblockTimer_.expires_after(std::chrono::milliseconds(10));
+  unblockTimer_.async_wait([self = shared_from_this()](const error_code& ec) {
+    self->unblockArmed_ = false;
+    if (ec || !self->connection_->IsOpen()) return;
+    if (self->Blocked()) {
+      self->WaitUntilUnblocked();
+      return;
+    }
+    self->refreshWanted_ = true;
+    self->StartJob();
+  });
+}
+
+void SmaServer::Impl::Session::OnStatsRequest(const wire::StatsRequest& request) {
+  wire::Envelope envelope;
+  auto* reply = envelope.mutable_stats_reply();
+  reply->set_request_id(request.request_id());
+  server_.AddGlobalCounters(reply);
+  AddCounter(reply, "client_view_id", double(appliedViewId_));
+  AddCounter(reply, "client_views_received", double(viewsReceived_));
+  AddCounter(reply, "client_triangles_held", double(mirror_.TriangleCount()));
+  AddCounter(reply, "client_vertices_held", double(mirror_.VertexCount()));
+  AddCounter(reply, "client_pending_triangles", double(pending_.size()));
+  AddCounter(reply, "client_pending_samples", double(waiting_.size()));
+  AddCounter(reply, "client_converged", Converged() ? 1.0 : 0.0);
+  AddCounter(reply, "client_deltas_sent", double(deltasSent_));
+  AddCounter(reply, "client_bytes_sent", double(connection_->BytesSent()));
+  AddCounter(reply, "client_bytes_received", double(connection_->BytesReceived()));
+  AddCounter(reply, "client_last_trace_ms", lastTimings_.traceMs);
+  AddCounter(reply, "client_last_map_ms", lastTimings_.mapMs);
+  AddCounter(reply, "client_last_view_to_first_delta_ms", lastFirstDeltaMs_);
+  connection_->Send(envelope);
+}
+
+void SmaServer::Impl::Session::OnTextureRequest(const wire::TextureRequest& request) {
+  const Scene& scene = server_.scene_;
+  if (request.texture() >= scene.textures.size()) {
+    connection_->Send(MakeError(request.texture(), wire::ERROR_CODE_INVALID_REQUEST,
+                                fmt::format("texture {} does not exist ({} textures)", request.texture(),
+                                            scene.textures.size()),
+                                false));
+    return;
+  }
+  const Texture& t = scene.textures[request.texture()];
+  // Halve until the texels fit in a frame with room to spare.
+  const size_t budget = server_.options_.clientConnection.maxFrameBytes / 2;
+  int step = 1;
+  while (size_t(t.width / step) * size_t(t.height / step) * 3 > budget && step < 1 << 12) step *= 2;
+  const int w = std::max(1, t.width / step), h = std::max(1, t.height / step);
+  std::string rgb(size_t(w) * size_t(h) * 3, '\0');
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      // Box-filter the step x step block in linear space.
+      Rgb sum(0.0f);
+      for (int dy = 0; dy < step; ++dy)
+        for (int dx = 0; dx < step; ++dx)
+          sum += t.texels[size_t(std::min(t.height - 1, y * step + dy)) * size_t(t.width) +
+                          size_t(std::min(t.width - 1, x * step + dx))];
+      sum /= float(step * step);
+      for (int c = 0; c < 3; ++c)
+        rgb[(size_t(y) * size_t(w) + size_t(x)) * 3 + size_t(c)] = char(std::lround(LinearToSrgb(sum[c]) * 255.0f));
+    }
+  wire::Envelope envelope;
+  auto* data = envelope.mutable_texture_data();
+  data->set_texture(request.texture());
+  data->set_width(uint32_t(w));
+  data->set_height(uint32_t(h));
+  data->set_rgb8(std::move(rgb));
+  connection_->Send(envelope);
+}
+
+void SmaServer::Impl::Session::OnClosed(const std::string& reason) {
+  refreshTimer_.cancel();
+  unblockTimer_.cancel();
+  server_.pool_->ReleaseInterest(interest_);
+  interest_.clear();
+  log_->info("{}: closed ({}); sent {} deltas, {} bytes", connection_->Id(), reason, deltasSent_,
+             connection_->BytesSent());
+  server_.RemoveSession(id_);
+}
+
+// --- Server -----------------------------------------------------------------
+
+void SmaServer::Impl::Accept(tcp::socket socket) {
+  if (shuttingDown_) return;
+  const std::string peer = net::PeerAddress(socket);
+  std::shared_ptr<Session> session;
+  {
+    std::lock_guard lock(sessionsMutex_);
+    const uint64_t id = nextSessionId_++;
+    auto connection =
+        net::Connection::Create(std::move(socket), options_.clientConnection, fmt::format("client#{} {}", id, peer));
+    log_->info("{}: connected", connection->Id());
+    session = std::make_shared<Session>(*this, std::move(connection), id);
+    sessions_.emplace(id, session);
+  }
+  session->Start();
+}
+
+void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
+  size_t nodes, vertices, shaded;
+  uint64_t hits, misses;
+  {
+    std::shared_lock lock(stateMutex_);
+    nodes = hierarchy_.NodeCount();
+    vertices = hierarchy_.VertexCount();
+    shaded = cache_.ShadedCount();
+    hits = cache_.Hits();
+    misses = cache_.Misses();
+  }
+  const RendererPoolStats pool = pool_->Stats();
+  AddCounter(reply, "clients", double(Sessions().size()));
+  AddCounter(reply, "hierarchy_nodes", double(nodes));
+  AddCounter(reply, "hierarchy_vertices", double(vertices));
+  AddCounter(reply, "cache_shaded", double(shaded));
+  AddCounter(reply, "cache_hits", double(hits));
+  AddCounter(reply, "cache_misses", double(misses));
+  AddCounter(reply, "cache_hit_rate", hits + misses > 0 ? double(hits) / double(hits + misses) : 0.0);
+  AddCounter(reply, "samples_requested", double(pool.requested));
+  AddCounter(reply, "samples_shaded", double(pool.shaded));
+  AddCounter(reply, "samples_requeued", double(pool.requeued));
+  AddCounter(reply, "samples_failed", double(pool.failed));
+  AddCounter(reply, "samples_queued_visible", double(pool.queuedVisible));
+  AddCounter(reply, "samples_queued_background", double(pool.queuedBackground));
+  AddCounter(reply, "samples_in_flight", double(pool.inFlight));
+  size_t connected = 0;
+  for (const RendererStatus& r : pool.renderers) {
+    connected += r.connected;
+    AddCounter(reply, "renderer." + r.endpoint + ".connected", r.connected ? 1.0 : 0.0);
+    AddCounter(reply, "renderer." + r.endpoint + ".samples_in_flight", double(r.samplesInFlight));
+    AddCounter(reply, "renderer." + r.endpoint + ".samples_shaded", double(r.samplesShaded));
+    AddCounter(reply, "renderer." + r.endpoint + ".samples_per_second", r.samplesPerSecond);
+    AddCounter(reply, "renderer." + r.endpoint + ".failures", double(r.failures));
+  }
+  AddCounter(reply, "renderers", double(pool.renderers.size()));
+  AddCounter(reply, "renderers_connected", double(connected));
+}
+
+void SmaServer::Impl::ArmStats() {
+  statsTimer_.expires_after(options_.statsInterval);
+  statsTimer_.async_wait([this](const error_code& ec) {
+    if (ec) return;
+    const RendererPoolStats now = pool_->Stats();
+    const double seconds = std::chrono::duration<double>(options_.statsInterval).count();
+    size_t shaded;
+    uint64_t hits, misses;
+    {
+      std::shared_lock lock(stateMutex_);
+      shaded = cache_.ShadedCount();
+      hits = cache_.Hits();
+      misses = cache_.Misses();
+    }
+    std::string renderers;
+    for (const RendererStatus& r : now.renderers)
+      renderers += fmt::format(" {}{}:{} in flight", r.endpoint, r.connected ? "" : "(down)", r.samplesInFlight);
+    std::string clients;
+    for (auto& s : Sessions()) clients += fmt::format(" {}:{}B", s->Connection().Id(), s->Connection().BytesSent());
+    log_->info("stats: cache {} shaded, hit rate {:.1f}%; {:.0f} requested/s, {:.0f} shaded/s, {} queued; "
+               "renderers:{}; clients:{}",
+               shaded, hits + misses > 0 ? 100.0 * double(hits) / double(hits + misses) : 0.0,
+               double(now.requested - lastStats_.requested) / seconds, double(now.shaded - lastStats_.shaded) / seconds,
+               now.queuedVisible + now.queuedBackground, renderers.empty() ? " none" : renderers,
+               clients.empty() ? " none" : clients);
+    lastStats_ = now;
+    ArmStats();
+  });
+}
+
+void SmaServer::Impl::Shutdown() {
+  asio::post(io_, [this] {
+    if (shuttingDown_.exchange(true)) return;
+    if (listener_) listener_->Stop();
+    signals_.cancel();
+    statsTimer_.cancel();
+    pool_->Stop();
+    for (auto& s : Sessions()) s->Connection().CloseAfterFlush("SMA shutting down");
+    // Sessions flush and close within the connection's drain grace; stop
+    // when they are all gone, or after a few seconds whatever happens.
+    shutdownDeadline_ = Clock::now() + std::chrono::seconds(3);
+    PollShutdown();
+  });
+}
+
+void SmaServer::Impl::PollShutdown() {
+  if (Sessions().empty() || Clock::now() >= shutdownDeadline_) {
+    io_.stop();
+    return;
+  }
+  shutdownTimer_.expires_after(std::chrono::milliseconds(20));
+  shutdownTimer_.async_wait([this](const error_code& ec) {
+    if (!ec) PollShutdown();
+  });
+}
+
+// --- Public wrapper ---------------------------------------------------------
+
+Expected<std::unique_ptr<SmaServer>> SmaServer::Create(const Scene& scene, SmaOptions options) {
+  auto tracer = VisibilityTracer::Build(scene);
+  if (!tracer) return tracer.error();
+  return std::unique_ptr<SmaServer>(new SmaServer(std::make_unique<Impl>(scene, std::move(options), std::move(*tracer))));
+}
+
+SmaServer::SmaServer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+SmaServer::~SmaServer() = default;
+Expected<tcp::endpoint> SmaServer::Listen() { return impl_->Listen(); }
+void SmaServer::Run() { impl_->Run(); }
+void SmaServer::Shutdown() { impl_->Shutdown(); }
+
+}  // namespace penumbra::sma

@@ -1,0 +1,180 @@
+#include "penumbra/sma/delta.h"
+
+#include <algorithm>
+
+#include <gtest/gtest.h>
+
+namespace penumbra::sma {
+namespace {
+
+// Two base triangles forming a unit quad; material 1 is textured.
+Scene QuadScene() {
+  SceneBuilder b;
+  Material plain;
+  const uint32_t m0 = b.AddMaterial(plain);
+  Material textured;
+  Texture t;
+  t.width = t.height = 1;
+  t.texels = {Rgb(1.0f)};
+  textured.albedoTexture = b.AddTexture(t);
+  b.AddMaterial(textured);
+  b.AddQuad(Vec3(0), Vec3(1, 0, 0), Vec3(0, 0, -1), m0);
+  Scene s;
+  EXPECT_TRUE(b.BuildInto(s).ok());
+  return s;
+}
+
+void ShadeAll(const Hierarchy& h, SampleCache& cache) {
+  std::vector<ShadedSample> samples;
+  for (VertexId v = 0; v < h.VertexCount(); ++v) samples.push_back(ShadedSample{v, Rgb(float(v)), Rgb(1.0f)});
+  cache.Store(samples);
+}
+
+VisibleSet Visible(std::vector<NodeId> nodes) {
+  VisibleSet v;
+  std::sort(nodes.begin(), nodes.end());
+  v.nodes = nodes;
+  v.coverage.assign(nodes.size(), 10);
+  return v;
+}
+
+TEST(SampleCacheTest, StoresOnceAndGrows) {
+  SampleCache cache;
+  cache.Reserve(4);
+  EXPECT_FALSE(cache.IsShaded(2));
+  EXPECT_FALSE(cache.IsShaded(100));  // beyond the size: simply not shaded
+  const ShadedSample a{2, Rgb(1, 2, 3), Rgb(4, 5, 6)};
+  EXPECT_EQ(cache.Store(std::span(&a, 1)), 1u);
+  EXPECT_TRUE(cache.IsShaded(2));
+  EXPECT_EQ(cache.Radiance(2), Rgb(1, 2, 3));
+  EXPECT_EQ(cache.Irradiance(2), Rgb(4, 5, 6));
+  // A second result for the same vertex is a duplicate: the first stays.
+  const ShadedSample again{2, Rgb(9), Rgb(9)};
+  EXPECT_EQ(cache.Store(std::span(&again, 1)), 0u);
+  EXPECT_EQ(cache.Radiance(2), Rgb(1, 2, 3));
+  // A vertex made by refinement after Reserve grows the cache.
+  const ShadedSample late{10, Rgb(0.5f), Rgb(0.5f)};
+  EXPECT_EQ(cache.Store(std::span(&late, 1)), 1u);
+  EXPECT_TRUE(cache.IsShaded(10));
+  EXPECT_EQ(cache.ShadedCount(), 2u);
+  EXPECT_NEAR(cache.Luminance(10), 0.5f, 1e-6f);
+}
+
+TEST(ClientMirrorTest, SendsEachVertexOnceWhileHeld) {
+  const Scene s = QuadScene();
+  Hierarchy h(s);
+  SampleCache cache;
+  ShadeAll(h, cache);
+  ClientMirror mirror;
+  wire::Delta d1;
+  const std::vector<NodeId> first = {0};
+  EXPECT_EQ(mirror.AppendChanges({}, first, h, cache, d1), 1u);
+  EXPECT_EQ(d1.vertex_ids_size(), 3);
+  EXPECT_EQ(d1.vertex_positions_size(), 9);
+  EXPECT_EQ(d1.triangle_vertices_size(), 3);
+  // The second triangle shares the diagonal: only its one new vertex is sent.
+  wire::Delta d2;
+  const std::vector<NodeId> second = {1};
+  mirror.AppendChanges({}, second, h, cache, d2);
+  EXPECT_EQ(d2.vertex_ids_size(), 1);
+  EXPECT_EQ(mirror.VertexCount(), 4u);
+  // Adding a held triangle again sends nothing.
+  wire::Delta d3;
+  EXPECT_EQ(mirror.AppendChanges({}, second, h, cache, d3), 0u);
+  EXPECT_EQ(d3.triangle_ids_size(), 0);
+}
+
+TEST(ClientMirrorTest, RemovalsComeFirstSoAFreedVertexIsResent) {
+  const Scene s = QuadScene();
+  Hierarchy h(s);
+  SampleCache cache;
+  ShadeAll(h, cache);
+  ClientMirror mirror;
+  wire::Delta d1;
+  const std::vector<NodeId> zero = {0};
+  mirror.AppendChanges({}, zero, h, cache, d1);
+  // Remove triangle 0 and add triangle 1 in one delta: the client drops the
+  // shared vertices on removal, so they must come again with triangle 1.
+  wire::Delta d2;
+  const std::vector<NodeId> one = {1};
+  mirror.AppendChanges(zero, one, h, cache, d2);
+  EXPECT_EQ(d2.removed_triangles_size(), 1);
+  EXPECT_EQ(d2.vertex_ids_size(), 3);
+  EXPECT_FALSE(mirror.Holds(0));
+  EXPECT_TRUE(mirror.Holds(1));
+  EXPECT_EQ(mirror.VertexCount(), 3u);
+}
+
+TEST(ClientMirrorTest, TexturedTrianglesCarryTheirUvs) {
+  Scene s = QuadScene();
+  s.triangles[1].material = 1;  // textured
+  s.triangles[1].uv = {Vec2(0.1f, 0.2f), Vec2(0.3f, 0.4f), Vec2(0.5f, 0.6f)};
+  Hierarchy h(s);
+  SampleCache cache;
+  ShadeAll(h, cache);
+  ClientMirror mirror;
+  wire::Delta d;
+  const std::vector<NodeId> both = {0, 1};
+  mirror.AppendChanges({}, both, h, cache, d);
+  ASSERT_EQ(d.triangle_uvs_size(), 6);  // only the textured triangle
+  EXPECT_FLOAT_EQ(d.triangle_uvs(0), 0.1f);
+  EXPECT_FLOAT_EQ(d.triangle_uvs(5), 0.6f);
+  EXPECT_EQ(d.triangle_materials(1), 1u);
+}
+
+TEST(PlanViewTest, SortsTheDifferenceIntoThePapersLists) {
+  const Scene s = QuadScene();
+  Hierarchy h(s);
+  SampleCache cache;
+  // Shade only triangle 0's vertices.
+  std::vector<ShadedSample> samples;
+  for (VertexId v : h.GetNode(0).v) samples.push_back(ShadedSample{v, Rgb(1.0f), Rgb(1.0f)});
+  cache.Store(samples);
+  ClientMirror mirror;
+  ViewPlan plan = PlanView(Visible({0, 1}), mirror, h, cache);
+  EXPECT_EQ(plan.addCached, std::vector<NodeId>{0});
+  EXPECT_EQ(plan.pending, std::vector<NodeId>{1});
+  ASSERT_EQ(plan.missing.size(), 1u);  // triangle 1 shares two of its corners with 0
+  EXPECT_FALSE(cache.IsShaded(plan.missing[0]));
+  EXPECT_TRUE(plan.removeGone.empty());
+  EXPECT_GT(cache.Misses(), 0u);
+
+  wire::Delta d;
+  mirror.AppendChanges({}, plan.addCached, h, cache, d);
+  // Triangle 0 leaves the view: it is removed.
+  ViewPlan next = PlanView(Visible({1}), mirror, h, cache);
+  EXPECT_EQ(next.removeGone, std::vector<NodeId>{0});
+  EXPECT_TRUE(next.addCached.empty());
+}
+
+TEST(PlanViewTest, ParentReplacedByItsChildrenGoesWithThem) {
+  const Scene s = QuadScene();
+  Hierarchy h(s);
+  SampleCache cache;
+  ShadeAll(h, cache);
+  ClientMirror mirror;
+  wire::Delta d;
+  const std::vector<NodeId> roots = {0, 1};
+  mirror.AppendChanges({}, roots, h, cache, d);
+  h.Refine(0, RefineOptions{});
+  ShadeAll(h, cache);
+  // Now the children of both roots are visible.
+  std::vector<NodeId> children;
+  h.ForEachLeaf(kNoNode, [&](NodeId id) { children.push_back(id); });
+  const ViewPlan plan = PlanView(Visible(children), mirror, h, cache);
+  EXPECT_EQ(plan.removeReplaced, (std::vector<NodeId>{0, 1}));
+  EXPECT_TRUE(plan.removeGone.empty());
+  EXPECT_EQ(plan.addCached.size(), children.size());
+}
+
+TEST(DeltaWireBytesTest, MatchesTheEncodedEnvelope) {
+  wire::Delta d;
+  d.set_view_id(3);
+  for (int i = 0; i < 100; ++i) d.add_triangle_ids(uint64_t(i) * 1000);
+  wire::Envelope e;
+  *e.mutable_delta() = d;
+  EXPECT_EQ(DeltaWireBytes(d), 4 + e.ByteSizeLong());
+}
+
+}  // namespace
+}  // namespace penumbra::sma
