@@ -40,7 +40,7 @@ bool SmaTestClient::SendView(const CameraView& view, uint64_t viewId) {
   return wire_.Send(e);
 }
 
-Status SmaTestClient::Handle(const wire::Envelope& e) {
+Status SmaTestClient::Apply(const wire::Envelope& e) {
   if (e.has_error()) return Fail(fmt::format("SMA error {}: {}", wire::ErrorCode_Name(e.error().code()), e.error().message()));
   if (!e.has_delta()) return Status::Ok();
   const wire::Delta& d = e.delta();
@@ -58,7 +58,7 @@ Status SmaTestClient::WaitConverged(uint64_t viewId, std::chrono::milliseconds t
                               timeout.count(), mesh_.LastViewId(), mesh_.PendingSamples()));
     auto e = wire_.Receive(left);
     if (!e) return e.error();
-    if (auto ok = Handle(*e); !ok) return ok;
+    if (auto ok = Apply(*e); !ok) return ok;
   }
   return Status::Ok();
 }
@@ -77,7 +77,7 @@ Expected<double> SmaTestClient::Counter(const std::string& name) {
         if (c.name() == name) return c.value();
       return Fail(fmt::format("no counter '{}'", name));
     }
-    if (auto ok = Handle(*e); !ok) return ok.error();
+    if (auto ok = Apply(*e); !ok) return ok.error();
   }
   return Fail("timeout waiting for stats");
 }

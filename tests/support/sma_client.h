@@ -34,6 +34,10 @@ class SmaTestClient {
   /// Asks the SMA for a counter, applying deltas that arrive meanwhile.
   Expected<double> Counter(const std::string& name);
 
+  /// Applies one received envelope: deltas go to the mesh, an error reply
+  /// fails, anything else is ignored.
+  Status Apply(const wire::Envelope& envelope);
+
   /// Deltas applied so far, in order: (kind, view id, triangles added, removed).
   struct DeltaRecord {
     int kind;
@@ -45,8 +49,7 @@ class SmaTestClient {
 
  private:
   explicit SmaTestClient(WireClient wire) : wire_(std::move(wire)) {}
-  Status Handle(const wire::Envelope& envelope);
-
+  
   WireClient wire_;
   wire::Welcome welcome_;
   wire::SceneInfo info_;

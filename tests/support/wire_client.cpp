@@ -49,7 +49,8 @@ Expected<WireClient> WireClient::Connect(const std::string& host, uint16_t port,
   return Fail(fmt::format("connect {}:{}: {}", host, port, lastError));
 }
 
-WireClient::WireClient(WireClient&& other) noexcept : fd_(other.fd_), decoder_(std::move(other.decoder_)) {
+WireClient::WireClient(WireClient&& other) noexcept
+    : fd_(other.fd_), decoder_(std::move(other.decoder_)), bytesReceived_(other.bytesReceived_) {
   other.fd_ = -1;
 }
 
@@ -58,6 +59,7 @@ WireClient& WireClient::operator=(WireClient&& other) noexcept {
     if (fd_ >= 0) ::close(fd_);
     fd_ = other.fd_;
     decoder_ = std::move(other.decoder_);
+    bytesReceived_ = other.bytesReceived_;
     other.fd_ = -1;
   }
   return *this;
@@ -101,6 +103,7 @@ Expected<wire::Envelope> WireClient::Receive(std::chrono::milliseconds timeout, 
     const ssize_t n = ::recv(fd_, buffer, sizeof buffer, 0);
     if (n < 0 && errno == EINTR) continue;
     if (n <= 0) return Fail("closed");
+    bytesReceived_ += uint64_t(n);
     decoder_.Feed(buffer, size_t(n));
   }
 }

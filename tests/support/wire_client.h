@@ -41,6 +41,9 @@ class WireClient {
   Expected<wire::Welcome> Handshake(wire::Role role, uint64_t sceneHash, uint32_t version = 0,
                                     const std::string& name = "test-client");
 
+  /// Bytes received on this connection so far.
+  uint64_t BytesReceived() const { return bytesReceived_; }
+
   /// Sends a StatsRequest and returns the named counter's value.
   Expected<double> Counter(const std::string& name, std::chrono::milliseconds timeout = std::chrono::seconds(5));
 
@@ -48,6 +51,7 @@ class WireClient {
   explicit WireClient(int fd) : fd_(fd), decoder_(1u << 30) {}
   int fd_ = -1;
   FrameDecoder decoder_;
+  uint64_t bytesReceived_ = 0;
 };
 
 }  // namespace penumbra::testing

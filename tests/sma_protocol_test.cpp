@@ -1,0 +1,302 @@
+// Protocol-level tests of penumbra-sma with real penumbra-renderer processes,
+// all on free ports, driven by a scripted client whose every delta is checked
+// (support/held_mesh.h) and compared with an independent, brute-force
+// visibility computation (support/brute_visibility.h).
+
+#include <signal.h>
+
+#include <set>
+#include <thread>
+
+#include <gtest/gtest.h>
+
+#include "penumbra/common/framing.h"
+#include "penumbra/common/messages.h"
+#include "penumbra/common/scene.h"
+#include "support/brute_visibility.h"
+#include "support/service.h"
+#include "support/sma_client.h"
+
+namespace penumbra::testing {
+namespace {
+
+using namespace std::chrono_literals;
+
+const std::string kScene = std::string(PENUMBRA_SOURCE_DIR) + "/scenes/cornell-box.json";
+constexpr int kWidth = 96;
+constexpr int kHeight = 72;
+
+Service MustStart(const std::string& exe, const std::vector<std::string>& args, const std::string& tag) {
+  auto s = StartService(exe, args, tag);
+  EXPECT_TRUE(s.ok()) << s.error().message;
+  return s.ok() ? std::move(*s) : Service{};
+}
+
+Service StartRenderer(const std::string& tag, int pathsPerSample = 16) {
+  return MustStart(PENUMBRA_RENDERER_EXE,
+                   {"--scene", kScene, "--threads", "1", "--spp", std::to_string(pathsPerSample), "--max-depth", "3"},
+                   tag);
+}
+
+Service StartSma(const std::vector<std::string>& renderers, const std::string& tag,
+                 const std::vector<std::string>& extra = {}) {
+  std::vector<std::string> args = {"--scene", kScene};
+  for (const auto& r : renderers) args.insert(args.end(), {"--renderer", r});
+  args.insert(args.end(), extra.begin(), extra.end());
+  return MustStart(PENUMBRA_SMA_EXE, args, tag);
+}
+
+// The held triangles must be exactly what the brute-force reference sees:
+// every clearly visible triangle, and nothing beyond pixel-edge ties.
+void ExpectHeldIsVisibleSet(const Scene& scene, const CameraView& view, const HeldMesh& mesh) {
+  const BruteVisibility expected = BruteForceVisibleTriangles(scene, view);
+  ASSERT_FALSE(expected.certain.empty());
+  const std::set<uint64_t> held = mesh.TriangleIds();
+  for (uint32_t t : expected.certain) EXPECT_TRUE(held.contains(t)) << "visible triangle " << t << " not held";
+  for (uint64_t t : held)
+    EXPECT_TRUE(expected.certain.contains(uint32_t(t)) || expected.ties.contains(uint32_t(t)))
+        << "triangle " << t << " held but not visible";
+}
+
+void ExpectAllShaded(const HeldMesh& mesh) {
+  EXPECT_FALSE(mesh.Vertices().empty());
+  for (const auto& [id, v] : mesh.Vertices()) {
+    for (int c = 0; c < 3; ++c) {
+      EXPECT_GE(v.radiance[c], 0.0f) << "vertex " << id;
+      EXPECT_GE(v.irradiance[c], 0.0f) << "vertex " << id;
+    }
+  }
+}
+
+class SmaProtocolTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    auto scene = LoadScene(kScene);
+    ASSERT_TRUE(scene.ok()) << scene.error().message;
+    scene_ = new Scene(std::move(*scene));
+    renderer_ = new Service(StartRenderer("renderer"));
+    sma_ = new Service(StartSma({renderer_->Address()}, "sma"));
+  }
+  static void TearDownTestSuite() {
+    delete sma_;
+    delete renderer_;
+    delete scene_;
+  }
+  void TearDown() override {
+    ASSERT_TRUE(sma_->process.Running()) << sma_->process.LogTail();
+    ASSERT_TRUE(renderer_->process.Running()) << renderer_->process.LogTail();
+  }
+
+  static SmaTestClient Client(const std::string& name = "test-client") {
+    auto c = SmaTestClient::Connect(sma_->port, name);
+    EXPECT_TRUE(c.ok()) << c.error().message << "\n" << sma_->process.LogTail();
+    return std::move(*c);
+  }
+  static CameraView Preset(const SmaTestClient& c, const std::string& name) {
+    for (const auto& p : c.Info().cameras())
+      if (p.name() == name) return ViewFromPreset(p, kWidth, kHeight);
+    ADD_FAILURE() << "no camera preset " << name;
+    return CameraView{};
+  }
+  // A view from inside the box toward one corner: sees a few walls only.
+  static CameraView CornerView() {
+    CameraView v;
+    v.pose = CameraPose{Vec3(0.0f, 1.0f, 0.5f), Vec3(-1.0f, 0.3f, -1.0f), Vec3(0, 1, 0)};
+    v.fovYDeg = 40.0f;
+    v.width = kWidth;
+    v.height = kHeight;
+    return v;
+  }
+
+  static Scene* scene_;
+  static Service* renderer_;
+  static Service* sma_;
+};
+Scene* SmaProtocolTest::scene_ = nullptr;
+Service* SmaProtocolTest::renderer_ = nullptr;
+Service* SmaProtocolTest::sma_ = nullptr;
+
+TEST_F(SmaProtocolTest, HandshakeSendsSceneInfo) {
+  SmaTestClient c = Client();
+  EXPECT_EQ(c.Welcome().role(), wire::ROLE_SMA);
+  EXPECT_EQ(c.Welcome().scene_hash(), scene_->identity);
+  EXPECT_EQ(size_t(c.Info().materials_size()), scene_->materials.size());
+  EXPECT_GE(c.Info().cameras_size(), 1);
+  EXPECT_GT(c.Info().tone_mapping().bias(), 0.0f);
+  EXPECT_NEAR(c.Info().bounds_max().y(), scene_->bounds.max.y, 1e-5f);
+}
+
+TEST_F(SmaProtocolTest, ViewReceivesExactlyTheVisibleTrianglesAllShaded) {
+  SmaTestClient c = Client();
+  const CameraView view = Preset(c, "front");
+  ASSERT_TRUE(c.SendView(view, 1));
+  ASSERT_TRUE(c.WaitConverged(1).ok()) << sma_->process.LogTail();
+  ExpectHeldIsVisibleSet(*scene_, view, c.Mesh());
+  ExpectAllShaded(c.Mesh());
+  EXPECT_EQ(c.Mesh().PendingSamples(), 0u);
+  // The first delta answering the view is the cache's (paper's order).
+  ASSERT_FALSE(c.Log().empty());
+  EXPECT_EQ(c.Log().front().kind, wire::DELTA_KIND_CACHED);
+}
+
+TEST_F(SmaProtocolTest, SameViewAgainComesFromTheCacheWithNoRendererRequest) {
+  SmaTestClient first = Client("first");
+  const CameraView view = Preset(first, "front");
+  ASSERT_TRUE(first.SendView(view, 1));
+  ASSERT_TRUE(first.WaitConverged(1).ok());
+  auto requestedBefore = first.Counter("samples_requested");
+  ASSERT_TRUE(requestedBefore.ok()) << requestedBefore.error().message;
+
+  SmaTestClient second = Client("second");
+  ASSERT_TRUE(second.SendView(view, 1));
+  ASSERT_TRUE(second.WaitConverged(1).ok());
+  auto requestedAfter = second.Counter("samples_requested");
+  ASSERT_TRUE(requestedAfter.ok());
+  EXPECT_EQ(*requestedAfter, *requestedBefore);
+  // Everything arrived in the cache delta, nothing had to be rendered.
+  EXPECT_EQ(second.Mesh().added[wire::DELTA_KIND_CACHED], second.Mesh().Triangles().size());
+  EXPECT_EQ(second.Mesh().added[wire::DELTA_KIND_SHADED], 0u);
+  EXPECT_EQ(second.Mesh().TriangleIds(), first.Mesh().TriangleIds());
+  auto hitRate = second.Counter("cache_hit_rate");
+  ASSERT_TRUE(hitRate.ok());
+  EXPECT_GT(*hitRate, 0.0);
+}
+
+TEST_F(SmaProtocolTest, MovingTheCameraRemovesAndAddsWhatVisibilityImplies) {
+  SmaTestClient c = Client();
+  const CameraView a = Preset(c, "front");
+  const CameraView b = CornerView();
+  ASSERT_TRUE(c.SendView(a, 1));
+  ASSERT_TRUE(c.WaitConverged(1).ok());
+  const std::set<uint64_t> before = c.Mesh().TriangleIds();
+  const size_t logBefore = c.Log().size();
+  ASSERT_TRUE(c.SendView(b, 2));
+  ASSERT_TRUE(c.WaitConverged(2).ok());
+  const std::set<uint64_t> after = c.Mesh().TriangleIds();
+  ExpectHeldIsVisibleSet(*scene_, b, c.Mesh());
+  size_t added = 0, removed = 0;
+  for (size_t i = logBefore; i < c.Log().size(); ++i) {
+    added += size_t(c.Log()[i].added);
+    removed += size_t(c.Log()[i].removed);
+  }
+  std::vector<uint64_t> gone, fresh;
+  std::set_difference(before.begin(), before.end(), after.begin(), after.end(), std::back_inserter(gone));
+  std::set_difference(after.begin(), after.end(), before.begin(), before.end(), std::back_inserter(fresh));
+  EXPECT_FALSE(gone.empty());
+  EXPECT_EQ(removed, gone.size());
+  EXPECT_EQ(added, fresh.size());
+}
+
+TEST_F(SmaProtocolTest, TwoClientsAtOnceEachConverge) {
+  SmaTestClient a = Client("a");
+  SmaTestClient b = Client("b");
+  const CameraView va = Preset(a, "front");
+  CameraView vb = CornerView();
+  vb.pose.target = Vec3(1.0f, 0.4f, -1.0f);  // the other corner
+  ASSERT_TRUE(a.SendView(va, 1));
+  ASSERT_TRUE(b.SendView(vb, 1));
+  ASSERT_TRUE(a.WaitConverged(1).ok());
+  ASSERT_TRUE(b.WaitConverged(1).ok());
+  ExpectHeldIsVisibleSet(*scene_, va, a.Mesh());
+  ExpectHeldIsVisibleSet(*scene_, vb, b.Mesh());
+}
+
+TEST_F(SmaProtocolTest, MalformedInputClosesOnlyThatClient) {
+  SmaTestClient bystander = Client("bystander");
+  auto expectClosedWith = [](WireClient& w, wire::ErrorCode code) {
+    bool sawError = false;
+    for (int i = 0; i < 20 && !sawError; ++i) {
+      auto e = w.Receive(5s);
+      if (!e) break;
+      sawError = e->has_error() && e->error().code() == code && e->error().fatal();
+    }
+    EXPECT_TRUE(sawError) << wire::ErrorCode_Name(code);
+    EXPECT_TRUE(w.WaitClosed());
+  };
+  {  // garbage frame
+    SmaTestClient c = Client("garbage");
+    ASSERT_TRUE(c.Wire().SendRaw(EncodeFrame("\x12\x34 not an envelope \xff\xff")));
+    expectClosedWith(c.Wire(), wire::ERROR_CODE_BAD_FRAME);
+  }
+  {  // NaN camera
+    SmaTestClient c = Client("nan");
+    CameraView v = Preset(c, "front");
+    v.pose.eye.x = std::nanf("");
+    ASSERT_TRUE(c.SendView(v, 1));
+    expectClosedWith(c.Wire(), wire::ERROR_CODE_INVALID_REQUEST);
+  }
+  {  // absurd viewport
+    SmaTestClient c = Client("huge");
+    CameraView v = Preset(c, "front");
+    v.width = 1 << 20;
+    ASSERT_TRUE(c.SendView(v, 1));
+    expectClosedWith(c.Wire(), wire::ERROR_CODE_INVALID_REQUEST);
+  }
+  {  // a message clients do not send
+    SmaTestClient c = Client("confused");
+    wire::Envelope e;
+    e.mutable_shade_request()->set_batch_id(1);
+    ASSERT_TRUE(c.Wire().Send(e));
+    expectClosedWith(c.Wire(), wire::ERROR_CODE_UNEXPECTED_MESSAGE);
+  }
+  {  // a view before the handshake
+    auto w = WireClient::Connect("127.0.0.1", sma_->port);
+    ASSERT_TRUE(w.ok());
+    wire::Envelope e;
+    e.mutable_view()->set_view_id(1);
+    ASSERT_TRUE(w->Send(e));
+    expectClosedWith(*w, wire::ERROR_CODE_HANDSHAKE_REQUIRED);
+  }
+  // The bystander never noticed.
+  const CameraView view = Preset(bystander, "front");
+  ASSERT_TRUE(bystander.SendView(view, 1));
+  ASSERT_TRUE(bystander.WaitConverged(1).ok());
+  ExpectHeldIsVisibleSet(*scene_, view, bystander.Mesh());
+}
+
+TEST(SmaRendererFailureTest, KillingOneOfTwoRenderersLosesNoSample) {
+  auto scene = LoadScene(kScene);
+  ASSERT_TRUE(scene.ok());
+  // Slow samples (many paths) in small batches, so both renderers are busy
+  // when one dies.
+  Service r1 = StartRenderer("r1", 3000);
+  Service r2 = StartRenderer("r2", 3000);
+  Service sma = StartSma({r1.Address(), r2.Address()}, "sma2", {"--max-batch", "2", "--credits", "2"});
+  auto c = SmaTestClient::Connect(sma.port);
+  ASSERT_TRUE(c.ok()) << c.error().message;
+  // Both renderers connected before the view, so both get work.
+  for (int i = 0; i < 200; ++i) {
+    auto n = c->Counter("renderers_connected");
+    ASSERT_TRUE(n.ok());
+    if (*n == 2.0) break;
+    std::this_thread::sleep_for(50ms);
+  }
+  CameraView view;
+  for (const auto& p : c->Info().cameras())
+    if (p.name() == "front") view = ViewFromPreset(p, kWidth, kHeight);
+  ASSERT_TRUE(c->SendView(view, 1));
+  // Wait until r2 has samples in flight, then kill it.
+  const std::string key = "renderer." + r2.Address() + ".samples_in_flight";
+  bool busy = false;
+  for (int i = 0; i < 400 && !busy; ++i) {
+    auto n = c->Counter(key);
+    ASSERT_TRUE(n.ok()) << n.error().message;
+    busy = *n > 0.0;
+    if (!busy) std::this_thread::sleep_for(10ms);
+  }
+  ASSERT_TRUE(busy) << "renderer 2 never got work";
+  r2.process.Signal(SIGKILL);
+  ASSERT_TRUE(c->WaitConverged(1, 180s).ok()) << sma.process.LogTail();
+  ExpectHeldIsVisibleSet(*scene, view, c->Mesh());
+  ExpectAllShaded(c->Mesh());
+  auto requeued = c->Counter("samples_requeued");
+  ASSERT_TRUE(requeued.ok());
+  EXPECT_GT(*requeued, 0.0);
+  auto requested = c->Counter("samples_requested");
+  auto shaded = c->Counter("cache_shaded");
+  ASSERT_TRUE(requested.ok() && shaded.ok());
+  EXPECT_EQ(*requested, *shaded);  // every sample asked for is in the cache, none twice
+}
+
+}  // namespace
+}  // namespace penumbra::testing
