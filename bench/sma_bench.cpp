@@ -1,0 +1,279 @@
+// End-to-end SMA benchmark on real processes: a renderer, an SMA and a
+// scripted client on loopback, on the Sponza scene.
+//
+// Measured (issue targets in brackets):
+//  * new view:    view -> first delta, and stage 1 (every visible initial
+//                 triangle shaded, paper §5) with its sample count and the
+//                 achieved samples/s [stage 1 <= 1.5 s at 64 paths/vertex];
+//  * cached view: view -> first delta and view -> complete display when
+//                 alternating between views already in the cache, p50/p99
+//                 [complete display <= 50 ms];
+//  * walk:        the scene's camera path at 30 views/s, view -> first delta
+//                 per frame and bytes per frame.
+// Baselines measured in the same run: the renderer's own rate on the same
+// samples, fed directly over the wire (so stage 1 reads as a fraction of
+// what the renderer alone could do), and a stats round trip to the SMA (the
+// floor under any view -> delta latency).
+//
+//   sma_bench [--scene scenes/sponza.json] [--camera atrium] [--spp 64] [--width 1280 --height 720]
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <thread>
+
+#include <CLI/CLI.hpp>
+
+#include "penumbra/common/logging.h"
+#include "penumbra/common/messages.h"
+#include "penumbra/common/scene.h"
+#include "support/service.h"
+#include "support/sma_client.h"
+
+namespace penumbra {
+namespace {
+
+namespace fs = std::filesystem;
+using namespace penumbra::testing;
+using Clock = std::chrono::steady_clock;
+
+double Ms(Clock::duration d) { return std::chrono::duration<double, std::milli>(d).count(); }
+
+double Percentile(std::vector<double> v, double p) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  const size_t i = std::min(v.size() - 1, size_t(p / 100.0 * double(v.size() - 1) + 0.5));
+  return v[i];
+}
+
+struct Options {
+  fs::path scene = fs::path(PENUMBRA_SOURCE_DIR) / "scenes" / "sponza.json";
+  std::string camera = "atrium";
+  std::string path = "walk";
+  int spp = 64;
+  int maxDepth = 5;
+  int width = 1280;
+  int height = 720;
+  int threads = int(std::max(1u, std::thread::hardware_concurrency()));
+  int cachedRounds = 40;
+  double walkFps = 30.0;
+};
+
+// Milliseconds from sending `viewId` until the first delta for it, and until
+// it is converged; applies every delta on the way.
+struct ViewTiming {
+  double firstDeltaMs = -1.0;
+  double completeMs = -1.0;
+  uint64_t bytes = 0;
+};
+
+Expected<ViewTiming> TimeView(SmaTestClient& client, const CameraView& view, uint64_t viewId) {
+  ViewTiming t;
+  const uint64_t bytesBefore = client.Wire().BytesReceived();
+  const auto start = Clock::now();
+  if (!client.SendView(view, viewId)) return Fail("send failed");
+  while (true) {
+    auto e = client.Wire().Receive(std::chrono::seconds(600));
+    if (!e) return e.error();
+    if (auto ok = client.Apply(*e); !ok) return ok.error();
+    if (!e->has_delta() || e->delta().view_id() != viewId) continue;
+    if (t.firstDeltaMs < 0) t.firstDeltaMs = Ms(Clock::now() - start);
+    if (e->delta().converged()) break;
+  }
+  t.completeMs = Ms(Clock::now() - start);
+  t.bytes = client.Wire().BytesReceived() - bytesBefore;
+  return t;
+}
+
+// The renderer's own throughput on `count` of the scene's vertices, asked
+// directly over the wire in batches like the SMA's.
+Expected<double> DirectRendererRate(uint16_t port, const Scene& scene, size_t count, uint64_t idBase) {
+  auto c = WireClient::Connect("127.0.0.1", port);
+  if (!c) return c.error();
+  if (auto w = c->Handshake(wire::ROLE_SMA, scene.identity); !w) return w.error();
+  const size_t batchSize = 256;
+  size_t sent = 0, answered = 0;
+  uint64_t batchId = 1;
+  const auto start = Clock::now();
+  auto sendBatch = [&] {
+    wire::Envelope e;
+    auto* r = e.mutable_shade_request();
+    r->set_batch_id(batchId++);
+    for (size_t i = 0; i < batchSize && sent < count; ++i, ++sent) {
+      const uint32_t t = uint32_t((sent * 7919) % scene.triangles.size());
+      const Vertex& v = scene.vertices[scene.triangles[t].v[0]];
+      r->add_sample_ids(idBase + sent);
+      for (int k = 0; k < 3; ++k) r->add_positions(v.position[k]);
+      for (int k = 0; k < 3; ++k) r->add_normals(v.normal[k]);
+      r->add_triangle_ids(t);
+      r->add_barycentrics(0.0f);
+      r->add_barycentrics(0.0f);
+    }
+    return c->Send(e);
+  };
+  for (int i = 0; i < 4 && sent < count; ++i) sendBatch();  // as many in flight as the SMA's credits
+  while (answered < count) {
+    auto e = c->Receive(std::chrono::seconds(600));
+    if (!e) return e.error();
+    if (!e->has_shade_reply()) continue;
+    answered += size_t(e->shade_reply().sample_ids_size());
+    if (e->shade_reply().remaining() == 0 && sent < count) sendBatch();
+  }
+  return double(count) / std::chrono::duration<double>(Clock::now() - start).count();
+}
+
+int Run(const Options& o) {
+  SetupLogging("warn");
+  if (!fs::exists(o.scene)) {
+    std::printf("sma_bench: %s not found; skipping\n", o.scene.string().c_str());
+    return 0;
+  }
+  auto scene = LoadScene(o.scene);
+  if (!scene) {
+    std::printf("sma_bench: %s; skipping (is ../shared/scenes present?)\n", scene.error().message.c_str());
+    return 0;
+  }
+  const CameraPreset* preset = scene->FindCamera(o.camera);
+  if (!preset) {
+    std::fprintf(stderr, "sma_bench: no camera '%s'\n", o.camera.c_str());
+    return 1;
+  }
+  auto renderer = StartService(PENUMBRA_RENDERER_EXE,
+                               {"--scene", o.scene.string(), "--threads", std::to_string(o.threads), "--spp",
+                                std::to_string(o.spp), "--max-depth", std::to_string(o.maxDepth), "--log-level", "warn"},
+                               "bench-renderer", std::chrono::seconds(120));
+  if (!renderer) return std::fprintf(stderr, "sma_bench: %s\n", renderer.error().message.c_str()), 1;
+  auto sma = StartService(PENUMBRA_SMA_EXE,
+                          {"--scene", o.scene.string(), "--renderer", renderer->Address(), "--log-level", "warn"},
+                          "bench-sma", std::chrono::seconds(120));
+  if (!sma) return std::fprintf(stderr, "sma_bench: %s\n", sma.error().message.c_str()), 1;
+  auto client = SmaTestClient::Connect(sma->port, "sma_bench");
+  if (!client) return std::fprintf(stderr, "sma_bench: %s\n", client.error().message.c_str()), 1;
+  for (int i = 0; i < 600; ++i) {  // wait for the renderer link
+    auto n = client->Counter("renderers_connected");
+    if (n && *n >= 1.0) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+
+  CameraView atrium;
+  atrium.pose = preset->pose;
+  atrium.fovYDeg = preset->fovYDeg;
+  atrium.width = o.width;
+  atrium.height = o.height;
+  uint64_t viewId = 1;
+
+  // Stage 1 of a new view.
+  auto stage1 = TimeView(*client, atrium, viewId++);
+  if (!stage1) return std::fprintf(stderr, "sma_bench: %s\n", stage1.error().message.c_str()), 1;
+  const double samples = client->Counter("samples_requested").value();
+  const double triangles = double(client->Mesh().Triangles().size());
+  const double traceMs = client->Counter("client_last_trace_ms").value();
+  const double mapMs = client->Counter("client_last_map_ms").value();
+  const double stage1Rate = samples / (stage1->completeMs / 1000.0);
+
+  // Baselines: the renderer alone on as many samples; a bare round trip.
+  auto direct = DirectRendererRate(renderer->port, *scene, size_t(samples), 1ull << 40);
+  if (!direct) return std::fprintf(stderr, "sma_bench: %s\n", direct.error().message.c_str()), 1;
+  std::vector<double> rtt;
+  for (int i = 0; i < 20; ++i) {
+    const auto t0 = Clock::now();
+    (void)client->Counter("clients");
+    rtt.push_back(Ms(Clock::now() - t0));
+  }
+
+  // A second view, shaded too, then alternate: every view is a cached one.
+  CameraView other = atrium;
+  other.pose.target = atrium.pose.eye + glm::normalize(atrium.pose.target - atrium.pose.eye) * 0.999f +
+                      Vec3(0.02f, 0.0f, 0.02f);
+  if (!TimeView(*client, other, viewId++)) return 1;
+  std::vector<double> cachedFirst, cachedComplete;
+  uint64_t cachedBytes = 0;
+  const double requestedBefore = client->Counter("samples_requested").value();
+  for (int i = 0; i < o.cachedRounds; ++i) {
+    auto t = TimeView(*client, i % 2 == 0 ? atrium : other, viewId++);
+    if (!t) return std::fprintf(stderr, "sma_bench: %s\n", t.error().message.c_str()), 1;
+    cachedFirst.push_back(t->firstDeltaMs);
+    cachedComplete.push_back(t->completeMs);
+    cachedBytes += t->bytes;
+  }
+  const double requestedAfter = client->Counter("samples_requested").value();
+
+  // A walk along the scene's path at a fixed rate, not waiting for shading.
+  std::vector<double> walkFirst;
+  std::vector<double> walkBytes;
+  const CameraPath* path = scene->FindPath(o.path);
+  if (path) {
+    auto walker = SmaTestClient::Connect(sma->port, "sma_bench-walk");
+    if (!walker) return 1;
+    const double duration = path->DurationSeconds();
+    const int frames = std::max(2, int(duration * o.walkFps));
+    for (int f = 0; f < frames; ++f) {
+      CameraView v = path->ViewAt(duration * f / (frames - 1));
+      v.width = o.width;
+      v.height = o.height;
+      const uint64_t id = uint64_t(f + 1);
+      const uint64_t before = walker->Wire().BytesReceived();
+      const auto sent = Clock::now();
+      walker->SendView(v, id);
+      double first = -1.0;
+      const auto frameEnd = sent + std::chrono::duration<double>(1.0 / o.walkFps);
+      while (Clock::now() < frameEnd || first < 0) {
+        auto left = std::chrono::duration_cast<std::chrono::milliseconds>(frameEnd - Clock::now());
+        auto e = walker->Wire().Receive(std::max(left, std::chrono::milliseconds(first < 0 ? 5000 : 1)));
+        if (!e) {
+          if (e.error().message == "timeout" && first >= 0) break;
+          if (e.error().message == "timeout") continue;
+          return std::fprintf(stderr, "sma_bench: walk: %s\n", e.error().message.c_str()), 1;
+        }
+        (void)walker->Apply(*e);
+        if (first < 0 && e->has_delta() && e->delta().view_id() == id) first = Ms(Clock::now() - sent);
+      }
+      walkFirst.push_back(first);
+      walkBytes.push_back(double(walker->Wire().BytesReceived() - before));
+    }
+  }
+
+  const double rttP50 = Percentile(rtt, 50);
+  std::printf("SMA benchmark: %s, camera '%s', %dx%d, %d paths/vertex, max depth %d, renderer threads %d\n",
+              scene->name.c_str(), o.camera.c_str(), o.width, o.height, o.spp, o.maxDepth, o.threads);
+  std::printf("baselines: stats round trip p50 %.2f ms; renderer alone %.0f samples/s\n", rttP50, *direct);
+  std::printf("new view:    view->first delta %.1f ms (visibility: trace %.1f ms + map %.1f ms)\n",
+              stage1->firstDeltaMs, traceMs, mapMs);
+  std::printf("             stage 1 %.2f s for %.0f samples, %.0f triangles: %.0f samples/s = %.2f x renderer alone\n",
+              stage1->completeMs / 1000.0, samples, triangles, stage1Rate, stage1Rate / *direct);
+  std::printf("             %.1f KiB received, %.1f bytes per triangle\n", double(stage1->bytes) / 1024.0,
+              double(stage1->bytes) / triangles);
+  std::printf("cached view: view->first delta p50 %.1f ms p99 %.1f ms; complete display p50 %.1f ms p99 %.1f ms "
+              "(%.0f x round trip); %.0f new samples over %d views; %.1f KiB per view\n",
+              Percentile(cachedFirst, 50), Percentile(cachedFirst, 99), Percentile(cachedComplete, 50),
+              Percentile(cachedComplete, 99), Percentile(cachedComplete, 50) / rttP50, requestedAfter - requestedBefore,
+              o.cachedRounds, double(cachedBytes) / 1024.0 / o.cachedRounds);
+  if (!walkFirst.empty()) {
+    std::printf("walk '%s':  %zu frames at %.0f/s: view->first delta p50 %.1f ms p99 %.1f ms; "
+                "bytes/frame p50 %.0f, p99 %.0f, max %.0f\n",
+                o.path.c_str(), walkFirst.size(), o.walkFps, Percentile(walkFirst, 50), Percentile(walkFirst, 99),
+                Percentile(walkBytes, 50), Percentile(walkBytes, 99), *std::max_element(walkBytes.begin(), walkBytes.end()));
+  }
+  return 0;
+}
+
+}  // namespace
+}  // namespace penumbra
+
+int main(int argc, char** argv) {
+  penumbra::Options o;
+  CLI::App app{"sma_bench: end-to-end SMA latencies and stage-1 time on real processes"};
+  app.add_option("--scene", o.scene, "Scene file")->capture_default_str();
+  app.add_option("--camera", o.camera, "Camera preset for the new/cached views")->capture_default_str();
+  app.add_option("--path", o.path, "Camera path for the walk")->capture_default_str();
+  app.add_option("--spp", o.spp, "Paths per vertex")->capture_default_str();
+  app.add_option("--max-depth", o.maxDepth, "Path segments")->capture_default_str();
+  app.add_option("--width", o.width, "Viewport width")->capture_default_str();
+  app.add_option("--height", o.height, "Viewport height")->capture_default_str();
+  app.add_option("--threads", o.threads, "Renderer threads")->capture_default_str();
+  app.add_option("--cached-rounds", o.cachedRounds, "Cached views timed")->capture_default_str();
+  app.add_option("--walk-fps", o.walkFps, "Views per second on the walk")->capture_default_str();
+  CLI11_PARSE(app, argc, argv);
+  return penumbra::Run(o);
+}
