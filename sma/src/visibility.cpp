@@ -7,8 +7,9 @@
 // Embree's packet traversal (and the coherent context flag) is built for.
 //
 // MapHitsToNodes walks the hits row by row on TBB threads, locating each in
-// the hierarchy and counting runs of equal nodes along the row; the runs,
-// far fewer than pixels, are then sorted by node and summed into coverage.
+// the hierarchy and counting runs of equal nodes along the row, folded
+// together across nearby rows; the runs, far fewer than pixels, are then
+// sorted by node and summed into coverage.
 
 #include "penumbra/sma/visibility.h"
 
@@ -341,13 +342,43 @@ class NodeFinder {
   float margin_ = 0.0f;
 };
 
-// Consecutive pixels of a row that map to one node.
+// Pixels that map to one node.
 struct Run {
   NodeId node;
   uint32_t pixels;
 };
 
-constexpr int kRowsPerChunk = 8;  // rows per unit of work (and per run list)
+constexpr int kRowsPerChunk = 16;  // rows per unit of work (and per run list)
+
+// Sums the runs of a chunk's rows before they reach the sort. A node's runs
+// in neighbouring rows come a row apart, so a small direct-mapped table
+// catches most of them; a run that evicts another just passes the evicted
+// one on, to be summed after the sort.
+class RunFolder {
+ public:
+  RunFolder() { slots_.fill(Run{kNoNode, 0}); }
+
+  void Add(const Run& run, std::vector<Run>& out) {
+    Run& slot = slots_[run.node % kSlots];
+    if (slot.node == run.node) {
+      slot.pixels += run.pixels;
+      return;
+    }
+    if (slot.node != kNoNode) out.push_back(slot);
+    slot = run;
+  }
+
+  void Flush(std::vector<Run>& out) {
+    for (Run& slot : slots_) {
+      if (slot.node != kNoNode) out.push_back(slot);
+      slot = Run{kNoNode, 0};
+    }
+  }
+
+ private:
+  static constexpr size_t kSlots = 2048;  // 16 KiB: stays in L1
+  std::array<Run, kSlots> slots_;
+};
 
 // Sorts runs by node with a least-significant-digit radix sort over the bits
 // that ids below `nodeCount` use: linear in the number of runs, whatever the
@@ -381,6 +412,7 @@ void MapHitsToNodes(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFu
   std::vector<std::vector<Run>> runsOfChunk(static_cast<size_t>(chunkCount));
   tbb::parallel_for(tbb::blocked_range<int>(0, chunkCount), [&](const tbb::blocked_range<int>& chunks) {
     NodeFinder finder(hierarchy, descend, context);
+    RunFolder folder;
     for (int chunk = chunks.begin(); chunk != chunks.end(); ++chunk) {
       std::vector<Run>& runs = runsOfChunk[size_t(chunk)];
       const int endY = std::min(height, (chunk + 1) * kRowsPerChunk);
@@ -392,13 +424,14 @@ void MapHitsToNodes(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFu
           const NodeId node = rowHits[x].triangle == kNoHit ? kNoNode : finder.Find(rowHits[x]);
           rowNodes[x] = node;
           if (node != run.node) {
-            if (run.node != kNoNode) runs.push_back(run);
+            if (run.node != kNoNode) folder.Add(run, runs);
             run = {node, 0};
           }
           ++run.pixels;
         }
-        if (run.node != kNoNode) runs.push_back(run);
+        if (run.node != kNoNode) folder.Add(run, runs);
       }
+      folder.Flush(runs);
     }
   });
 
