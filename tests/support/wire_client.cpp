@@ -153,4 +153,54 @@ Expected<double> WireClient::Counter(const std::string& name, std::chrono::milli
   return Fail("timeout");
 }
 
+Expected<WireListener> WireListener::Listen(uint16_t port) {
+  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  if (fd < 0) return Fail(fmt::format("socket: {}", std::strerror(errno)));
+  int one = 1;
+  ::setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+  sockaddr_in address{};
+  address.sin_family = AF_INET;
+  address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  address.sin_port = htons(port);
+  if (::bind(fd, reinterpret_cast<sockaddr*>(&address), sizeof address) != 0 || ::listen(fd, 16) != 0) {
+    const std::string error = std::strerror(errno);
+    ::close(fd);
+    return Fail(fmt::format("listen on 127.0.0.1:{}: {}", port, error));
+  }
+  socklen_t length = sizeof address;
+  ::getsockname(fd, reinterpret_cast<sockaddr*>(&address), &length);
+  return WireListener(fd, ntohs(address.sin_port));
+}
+
+WireListener::WireListener(WireListener&& other) noexcept : fd_(other.fd_), port_(other.port_) { other.fd_ = -1; }
+
+WireListener& WireListener::operator=(WireListener&& other) noexcept {
+  if (this != &other) {
+    if (fd_ >= 0) ::close(fd_);
+    fd_ = other.fd_;
+    port_ = other.port_;
+    other.fd_ = -1;
+  }
+  return *this;
+}
+
+WireListener::~WireListener() {
+  if (fd_ >= 0) ::close(fd_);
+}
+
+Expected<WireClient> WireListener::Accept(std::chrono::milliseconds timeout) {
+  pollfd p{fd_, POLLIN, 0};
+  int rc;
+  do {
+    rc = ::poll(&p, 1, int(timeout.count()));
+  } while (rc < 0 && errno == EINTR);
+  if (rc == 0) return Fail("timeout");
+  if (rc < 0) return Fail(fmt::format("poll: {}", std::strerror(errno)));
+  const int fd = ::accept(fd_, nullptr, nullptr);
+  if (fd < 0) return Fail(fmt::format("accept: {}", std::strerror(errno)));
+  int one = 1;
+  ::setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+  return WireClient(fd);
+}
+
 }  // namespace penumbra::testing

@@ -48,10 +48,33 @@ class WireClient {
   Expected<double> Counter(const std::string& name, std::chrono::milliseconds timeout = std::chrono::seconds(5));
 
  private:
+  friend class WireListener;
   explicit WireClient(int fd) : fd_(fd), decoder_(1u << 30) {}
   int fd_ = -1;
   FrameDecoder decoder_;
   uint64_t bytesReceived_ = 0;
+};
+
+/// A listening socket on 127.0.0.1, for tests that play a server (a fake
+/// SMA): each accepted connection is a WireClient.
+class WireListener {
+ public:
+  /// Listens on `port` (0: any free port).
+  static Expected<WireListener> Listen(uint16_t port = 0);
+  WireListener(WireListener&& other) noexcept;
+  WireListener& operator=(WireListener&& other) noexcept;
+  WireListener(const WireListener&) = delete;
+  WireListener& operator=(const WireListener&) = delete;
+  ~WireListener();
+
+  uint16_t Port() const { return port_; }
+  /// The next connection; "timeout" when none arrives in time.
+  Expected<WireClient> Accept(std::chrono::milliseconds timeout = std::chrono::seconds(10));
+
+ private:
+  WireListener(int fd, uint16_t port) : fd_(fd), port_(port) {}
+  int fd_ = -1;
+  uint16_t port_ = 0;
 };
 
 }  // namespace penumbra::testing

@@ -1,0 +1,145 @@
+#pragma once
+// What the client holds: the visible, shaded triangles and their vertices,
+// exactly as the SMA's deltas built them (docs/protocol.md, "Delta"), laid
+// out in slots that mirror the GPU buffers one to one.
+//
+// Vertices live in one slot array (a texture buffer on the GPU, fetched by
+// slot index); triangles live in per-texture groups of slots, each corner
+// naming its vertex slot, so that the renderer draws each group with one
+// call and one texture bound. A delta touches only the slots it adds or
+// removes: removed triangle slots are rewritten as empty (drawn as nothing)
+// and reused by later additions, and the touched slots are recorded as
+// dirty ranges for the renderer to upload. No GL here.
+//
+// Threads: owned by the render thread; not thread-safe.
+
+#include <cstdint>
+#include <optional>
+#include <span>
+#include <unordered_map>
+#include <vector>
+
+#include "penumbra/client/slots.h"
+#include "penumbra/common/expected.h"
+#include "penumbra/common/tonemap.h"
+#include "penumbra/wire.pb.h"
+
+namespace penumbra::client {
+
+/// One vertex slot as the vertex shader fetches it: three RGBA32F texels.
+struct GpuVertex {
+  float position[4];    // world space; w unused
+  float radiance[4];    // linear RGB leaving the surface toward the viewer side; a unused
+  float irradiance[4];  // linear RGB irradiance E (textured materials); a unused
+};
+static_assert(sizeof(GpuVertex) == 48, "the shader reads three vec4 texels per vertex");
+
+/// Material index of a triangle slot that holds no triangle; the vertex
+/// shader places such corners outside the clip volume.
+inline constexpr uint32_t kEmptyTriangleSlot = 0xffffffffu;
+
+/// One corner of a triangle slot, as the vertex shader reads it (one
+/// attribute record per corner, drawn with glDrawArrays).
+struct GpuCorner {
+  uint32_t vertexSlot = 0;
+  uint32_t material = kEmptyTriangleSlot;
+  float uv[2] = {0.0f, 0.0f};  // zero for untextured materials
+};
+struct GpuTriangle {
+  GpuCorner corners[3];
+};
+static_assert(sizeof(GpuTriangle) == 48, "tightly packed corner records");
+
+/// Triangles drawn with one texture bound. Group 0 holds untextured
+/// materials; group t + 1 holds the materials that use texture t.
+struct TriangleGroup {
+  int32_t texture = -1;
+  std::vector<GpuTriangle> slots;  // CPU mirror; the first allocator.HighWater() are meaningful
+  SlotAllocator allocator;
+  DirtyRanges dirty;
+};
+
+class MeshStore {
+ public:
+  /// Empties the store and sets the scene's materials: the texture index of
+  /// each material (-1: none), each below `textureCount`. Called on every
+  /// (re)connection, so the mesh always starts empty.
+  void Reset(std::span<const int32_t> materialTextures, uint32_t textureCount);
+
+  /// Applies one delta in the protocol's order: removals, then vertices, then
+  /// triangles. Fails with a message naming the delta's sequence and the
+  /// offending id on any violation: a sequence gap, arrays of inconsistent
+  /// length, a value that is not finite, an unknown material, a removal of a
+  /// triangle not held, a vertex sent while held, a triangle added while held
+  /// or using a vertex not held, a vertex sent but used by no triangle. After
+  /// a failure the store is consistent (every held triangle's vertices are
+  /// held and counted) but holds part of the delta; the caller drops the
+  /// connection and calls Reset().
+  Status Apply(const wire::Delta& delta);
+
+  size_t TriangleCount() const { return triangles_.size(); }
+  size_t VertexCount() const { return vertices_.size(); }
+  bool HoldsTriangle(uint64_t id) const { return triangles_.contains(id); }
+  /// How many held triangles use vertex `id`; nullopt when it is not held.
+  std::optional<uint32_t> VertexRefs(uint64_t id) const;
+
+  /// From the last applied delta (0 / false before the first).
+  uint64_t LastSequence() const { return sequence_; }
+  uint64_t LastViewId() const { return viewId_; }
+  uint32_t PendingSamples() const { return pendingSamples_; }
+  bool Converged() const { return converged_; }
+
+  /// MeasureLuminance (common/tonemap.h) of the held vertices' radiance,
+  /// maintained incrementally: O(1) per added or removed vertex, plus a scan
+  /// of the vertex slots the first time it is asked after the brightest
+  /// vertex was removed.
+  ViewLuminance HeldLuminance();
+
+  // --- GPU mirror (read by the renderer, which then takes the dirty ranges)
+  /// Vertex slots [0, HighWater); free slots hold zeros.
+  std::span<const GpuVertex> VertexSlots() const { return {vertexSlots_.data(), vertexAllocator_.HighWater()}; }
+  DirtyRanges& DirtyVertices() { return dirtyVertices_; }
+  std::span<TriangleGroup> Groups() { return groups_; }
+  std::span<const TriangleGroup> Groups() const { return groups_; }
+
+ private:
+  struct VertexRecord {
+    uint32_t slot = 0;
+    uint32_t refs = 0;
+  };
+  struct TriangleRecord {
+    uint32_t group = 0;
+    uint32_t slot = 0;
+  };
+
+  Status CheckShape(const wire::Delta& d) const;
+  Status RemoveTriangle(uint64_t id);
+  Status AddVertex(const wire::Delta& d, int index);
+  Status AddTriangle(const wire::Delta& d, int index, int uvIndex);
+  void ReleaseVertex(uint64_t id, uint32_t slot);
+
+  // Luminance bookkeeping (MeasureLuminance's rules: only positive values).
+  void CountLuminance(float luminance);
+  void UncountLuminance(float luminance);
+
+  std::vector<int32_t> materialTextures_;
+  std::unordered_map<uint64_t, VertexRecord> vertices_;
+  std::unordered_map<uint64_t, TriangleRecord> triangles_;
+  std::vector<GpuVertex> vertexSlots_;
+  std::vector<uint64_t> vertexSlotIds_;  // slot -> vertex id, to release a removed triangle's vertices
+  SlotAllocator vertexAllocator_;
+  DirtyRanges dirtyVertices_;
+  std::vector<TriangleGroup> groups_;
+
+  uint64_t sequence_ = 0;
+  uint64_t viewId_ = 0;
+  uint32_t pendingSamples_ = 0;
+  bool converged_ = false;
+
+  size_t luminanceCount_ = 0;
+  double logLuminanceSum_ = 0.0;
+  float maxLuminance_ = 0.0f;
+  bool maxStale_ = false;  // the brightest vertex left; rescan on demand
+};
+
+}  // namespace penumbra::client

@@ -1,0 +1,154 @@
+#pragma once
+// The client's side of the client protocol (docs/protocol.md, "Client
+// protocol"), on its own network thread: connects to an SMA, handshakes,
+// sends the camera, requests textures and counters, and hands everything it
+// receives to the render thread as SessionEvents. When the connection fails
+// or is lost it reconnects with exponential back-off and sends the latest
+// view again; each successful handshake starts a new numbered connection, so
+// the render thread can tell a fresh mesh from a stale one.
+//
+// Threads: the session owns one network thread running an io_context; all
+// connection and session state is touched only there. The public methods
+// are thread-safe and never block on the network: they post to that thread
+// or read a snapshot under a small lock.
+
+#include <chrono>
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <optional>
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "penumbra/common/camera.h"
+#include "penumbra/common/connection.h"
+#include "penumbra/common/endpoint.h"
+#include "penumbra/wire.pb.h"
+
+namespace penumbra::client {
+
+// --- Events handed to the render thread ------------------------------------
+
+/// A handshake completed: `connection` (1, 2, ...) numbers it; everything
+/// held from earlier connections is stale.
+struct Connected {
+  uint64_t connection = 0;
+  wire::Welcome welcome;
+  wire::SceneInfo sceneInfo;  // validated (ValidateSceneInfo)
+};
+
+/// The numbered connection ended; a reconnection follows unless stopping.
+struct Disconnected {
+  uint64_t connection = 0;
+  std::string reason;
+};
+
+struct DeltaReceived {
+  uint64_t connection = 0;
+  /// The SetView() serial of the view this delta answers, or 0 when it
+  /// answers an older view than the last one sent.
+  uint64_t viewSerial = 0;
+  wire::Delta delta;
+};
+
+struct TextureReceived {
+  uint64_t connection = 0;
+  wire::TextureData texture;
+};
+
+/// The SMA's counters about this client, in stream order with the deltas:
+/// after applying every earlier delta the client should hold exactly what
+/// the SMA believes it holds.
+struct SmaCountersReceived {
+  uint64_t connection = 0;
+  std::map<std::string, double> counters;
+};
+
+using SessionEvent = std::variant<Connected, Disconnected, DeltaReceived, TextureReceived, SmaCountersReceived>;
+
+/// Checks what the client relies on in a SceneInfo: finite bounds and
+/// presets, texture indices below texture_count, tone-mapping parameters in
+/// range (bias in (0, 1), positive exposure and display luminance).
+Status ValidateSceneInfo(const wire::SceneInfo& info);
+
+/// What the render thread's model asks of the network side. Calls name the
+/// connection they concern and are ignored once it has ended.
+class SessionRequests {
+ public:
+  virtual ~SessionRequests() = default;
+  /// Asks the SMA for a texture (answered by a TextureReceived).
+  virtual void RequestTexture(uint64_t connection, uint32_t texture) = 0;
+  /// Reports a protocol violation to the SMA (a fatal ErrorReply), closes
+  /// the connection and reconnects after the back-off.
+  virtual void AbandonConnection(uint64_t connection, const std::string& reason) = 0;
+};
+
+enum class ConnectionState {
+  kConnecting,   // resolving, connecting or handshaking
+  kConnected,    // handshake done, SceneInfo received
+  kWaiting,      // back-off before the next attempt
+  kStopped,
+};
+const char* ToString(ConnectionState state);
+
+/// A snapshot for the HUD and the statistics lines.
+struct SessionStatus {
+  ConnectionState state = ConnectionState::kConnecting;
+  uint64_t connections = 0;       // successful handshakes so far
+  uint64_t bytesReceived = 0;     // over every connection
+  std::optional<double> viewToFirstDeltaMs;  // the latest view's, once its first delta arrived
+  std::string lastError;          // why the last connection or attempt failed; empty if none
+  /// When the state is kConnecting or kWaiting: since when the client has
+  /// been without a connection (or since Start()).
+  std::chrono::steady_clock::time_point disconnectedSince;
+};
+
+struct SessionOptions {
+  HostPort sma;
+  std::string clientName = "penumbra-client";
+  net::ConnectionOptions connection{.maxFrameBytes = 256u << 20};  // textures arrive whole
+  std::chrono::milliseconds connectTimeout{3000};
+  std::chrono::milliseconds reconnectMin{250};
+  std::chrono::milliseconds reconnectMax{5000};
+  /// Interval between StatsRequests while connected (one is also sent after
+  /// every delta that reports convergence).
+  std::chrono::milliseconds countersInterval{1000};
+  /// Reading from the socket pauses while the render thread has not taken
+  /// this many bytes of events, so a slow renderer backs the SMA up (which
+  /// then coalesces its deltas) instead of growing memory.
+  size_t maxPendingEventBytes = size_t(64) << 20;
+};
+
+class SmaSession final : public SessionRequests {
+ public:
+  explicit SmaSession(SessionOptions options);
+  /// Stops the network thread (Stop()).
+  ~SmaSession() override;
+  SmaSession(const SmaSession&) = delete;
+  SmaSession& operator=(const SmaSession&) = delete;
+
+  /// Starts the network thread and the first connection attempt. Once.
+  void Start();
+  /// Closes the connection and joins the network thread. Idempotent.
+  void Stop();
+
+  /// The camera to show. Sent at once when connected (with the next view id
+  /// of the connection), and again after every reconnection. Returns the
+  /// view's serial (1, 2, ...), which DeltaReceived::viewSerial refers to.
+  uint64_t SetView(const CameraView& view);
+
+  /// Every event since the last call, in arrival order. Never blocks.
+  std::vector<SessionEvent> TakeEvents();
+
+  SessionStatus Status() const;
+
+  void RequestTexture(uint64_t connection, uint32_t texture) override;
+  void AbandonConnection(uint64_t connection, const std::string& reason) override;
+
+ private:
+  class Impl;
+  std::shared_ptr<Impl> impl_;
+};
+
+}  // namespace penumbra::client

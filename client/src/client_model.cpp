@@ -1,0 +1,122 @@
+#include "penumbra/client/client_model.h"
+
+#include <fmt/format.h>
+
+#include "penumbra/common/logging.h"
+
+namespace penumbra::client {
+
+namespace {
+constexpr uint32_t kMaxTextureSide = 16384;
+}
+
+ClientModel::ClientModel() : log_(Logger("client")) {}
+
+void ClientModel::Apply(std::vector<SessionEvent> events, SessionRequests& requests) {
+  for (SessionEvent& event : events) {
+    if (auto* connected = std::get_if<Connected>(&event)) {
+      OnConnected(std::move(*connected));
+    } else if (const auto* disconnected = std::get_if<Disconnected>(&event)) {
+      // The last image stays on screen until the next connection replaces it.
+      if (disconnected->connection == connection_) online_ = false;
+    } else if (!online_) {
+      continue;  // a connection that ended or was abandoned
+    } else if (const auto* delta = std::get_if<DeltaReceived>(&event)) {
+      if (delta->connection == connection_) OnDelta(*delta, requests);
+    } else if (auto* texture = std::get_if<TextureReceived>(&event)) {
+      if (texture->connection == connection_) OnTexture(std::move(*texture), requests);
+    } else if (const auto* counters = std::get_if<SmaCountersReceived>(&event)) {
+      if (counters->connection == connection_) OnCounters(*counters);
+    }
+  }
+}
+
+void ClientModel::OnConnected(Connected&& event) {
+  const uint64_t hash = event.welcome.scene_hash();
+  // Without an identity (hash 0) nothing proves it is the same scene.
+  const bool sameScene = sceneInfo_ && hash != 0 && hash == sceneHash_;
+  if (!sameScene) {
+    ++sceneGeneration_;
+    texturesReceived_.clear();
+    texturesToUpload_.clear();
+  }
+  sceneHash_ = hash;
+  sceneInfo_ = std::move(event.sceneInfo);
+  connection_ = event.connection;
+  online_ = true;
+  deltaViewSerial_ = 0;
+  smaReport_.reset();
+  // Requests made on an earlier connection will not be answered.
+  texturesRequested_ = texturesReceived_;
+  std::vector<int32_t> materialTextures;
+  for (const auto& m : sceneInfo_->materials()) materialTextures.push_back(m.texture());
+  mesh_.Reset(materialTextures, sceneInfo_->texture_count());
+}
+
+void ClientModel::OnDelta(const DeltaReceived& event, SessionRequests& requests) {
+  if (auto ok = mesh_.Apply(event.delta); !ok) return Abandon(ok.error().message, requests);
+  deltaViewSerial_ = event.viewSerial;
+  RequestNeededTextures(requests);
+}
+
+void ClientModel::OnTexture(TextureReceived&& event, SessionRequests& requests) {
+  const wire::TextureData& t = event.texture;
+  if (!texturesRequested_.contains(t.texture()) || texturesReceived_.contains(t.texture()))
+    return Abandon(fmt::format("texture {} was not asked for", t.texture()), requests);
+  if (t.width() == 0 || t.height() == 0 || t.width() > kMaxTextureSide || t.height() > kMaxTextureSide ||
+      t.rgb8().size() != size_t(t.width()) * size_t(t.height()) * 3)
+    return Abandon(fmt::format("texture {}: {}x{} texels but {} bytes of rgb8", t.texture(), t.width(), t.height(),
+                               t.rgb8().size()),
+                   requests);
+  texturesReceived_.insert(t.texture());
+  texturesToUpload_.push_back(
+      ReceivedTexture{t.texture(), int(t.width()), int(t.height()), std::move(*event.texture.mutable_rgb8())});
+}
+
+void ClientModel::OnCounters(const SmaCountersReceived& event) {
+  auto triangles = event.counters.find("client_triangles_held");
+  auto vertices = event.counters.find("client_vertices_held");
+  if (triangles == event.counters.end() || vertices == event.counters.end()) return;
+  SmaReport report;
+  report.trianglesHeld = uint64_t(triangles->second);
+  report.verticesHeld = uint64_t(vertices->second);
+  report.agrees = report.trianglesHeld == mesh_.TriangleCount() && report.verticesHeld == mesh_.VertexCount();
+  report.atSequence = mesh_.LastSequence();
+  if (!report.agrees && (!smaReport_ || smaReport_->agrees))
+    log_->warn("the SMA believes this client holds {} triangles and {} vertices; it holds {} and {}",
+               report.trianglesHeld, report.verticesHeld, mesh_.TriangleCount(), mesh_.VertexCount());
+  smaReport_ = report;
+}
+
+void ClientModel::Abandon(const std::string& reason, SessionRequests& requests) {
+  ++protocolErrors_;
+  log_->error("connection {}: {}; emptying the mesh and reconnecting", connection_, reason);
+  requests.AbandonConnection(connection_, reason);
+  online_ = false;
+  std::vector<int32_t> materialTextures;
+  for (const auto& m : sceneInfo_->materials()) materialTextures.push_back(m.texture());
+  mesh_.Reset(materialTextures, sceneInfo_->texture_count());
+}
+
+void ClientModel::RequestNeededTextures(SessionRequests& requests) {
+  for (const TriangleGroup& group : mesh_.Groups()) {
+    if (group.texture < 0 || group.allocator.Live() == 0) continue;
+    if (texturesRequested_.insert(uint32_t(group.texture)).second)
+      requests.RequestTexture(connection_, uint32_t(group.texture));
+  }
+}
+
+bool ClientModel::NeededTexturesArrived() const {
+  for (const TriangleGroup& group : mesh_.Groups())
+    if (group.texture >= 0 && group.allocator.Live() > 0 && !texturesReceived_.contains(uint32_t(group.texture)))
+      return false;
+  return true;
+}
+
+std::vector<ReceivedTexture> ClientModel::TakeTextures() { return std::exchange(texturesToUpload_, {}); }
+
+bool ClientModel::Converged(uint64_t viewSerial) const {
+  return online_ && viewSerial != 0 && deltaViewSerial_ == viewSerial && mesh_.Converged() && NeededTexturesArrived();
+}
+
+}  // namespace penumbra::client

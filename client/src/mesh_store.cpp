@@ -1,0 +1,223 @@
+#include "penumbra/client/mesh_store.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include <fmt/format.h>
+
+#include "penumbra/common/check.h"
+#include "penumbra/common/math.h"
+
+namespace penumbra::client {
+
+namespace {
+
+bool AllFinite(const google::protobuf::RepeatedField<float>& values) {
+  return std::all_of(values.begin(), values.end(), [](float v) { return std::isfinite(v); });
+}
+
+Rgb RgbAt(const google::protobuf::RepeatedField<float>& values, int index) {
+  return Rgb(values[3 * index], values[3 * index + 1], values[3 * index + 2]);
+}
+
+float SlotLuminance(const GpuVertex& v) { return Luminance(Rgb(v.radiance[0], v.radiance[1], v.radiance[2])); }
+
+}  // namespace
+
+void MeshStore::Reset(std::span<const int32_t> materialTextures, uint32_t textureCount) {
+  materialTextures_.assign(materialTextures.begin(), materialTextures.end());
+  for (int32_t t : materialTextures_)
+    PENUMBRA_CHECK(t >= -1 && t < int64_t(textureCount), "material texture index checked with the SceneInfo");
+  vertices_.clear();
+  triangles_.clear();
+  vertexSlots_.clear();
+  vertexSlotIds_.clear();
+  vertexAllocator_.Clear();
+  dirtyVertices_.Clear();
+  groups_.assign(size_t(textureCount) + 1, TriangleGroup{});
+  for (uint32_t t = 0; t < textureCount; ++t) groups_[t + 1].texture = int32_t(t);
+  sequence_ = viewId_ = 0;
+  pendingSamples_ = 0;
+  converged_ = false;
+  luminanceCount_ = 0;
+  logLuminanceSum_ = 0.0;
+  maxLuminance_ = 0.0f;
+  maxStale_ = false;
+}
+
+std::optional<uint32_t> MeshStore::VertexRefs(uint64_t id) const {
+  auto it = vertices_.find(id);
+  if (it == vertices_.end()) return std::nullopt;
+  return it->second.refs;
+}
+
+Status MeshStore::CheckShape(const wire::Delta& d) const {
+  if (d.sequence() != sequence_ + 1)
+    return Fail(fmt::format("delta sequence {} follows {} (a gap)", d.sequence(), sequence_));
+  if (!wire::DeltaKind_IsValid(d.kind()) || d.kind() == wire::DELTA_KIND_UNSPECIFIED)
+    return Fail(fmt::format("delta {}: unknown kind {}", d.sequence(), int(d.kind())));
+  const int nv = d.vertex_ids_size();
+  const int nt = d.triangle_ids_size();
+  if (d.kind() == wire::DELTA_KIND_STATUS && (nv > 0 || nt > 0 || d.removed_triangles_size() > 0))
+    return Fail(fmt::format("delta {}: a STATUS delta carries triangles or vertices", d.sequence()));
+  if (d.vertex_positions_size() != 3 * nv || d.vertex_radiance_size() != 3 * nv ||
+      d.vertex_irradiance_size() != 3 * nv)
+    return Fail(fmt::format("delta {}: {} vertex ids but {} / {} / {} position / radiance / irradiance values "
+                            "(3 per vertex)",
+                            d.sequence(), nv, d.vertex_positions_size(), d.vertex_radiance_size(),
+                            d.vertex_irradiance_size()));
+  if (d.triangle_vertices_size() != 3 * nt || d.triangle_materials_size() != nt)
+    return Fail(fmt::format("delta {}: {} triangle ids but {} corner vertex ids (3 per triangle) and {} materials",
+                            d.sequence(), nt, d.triangle_vertices_size(), d.triangle_materials_size()));
+  int textured = 0;
+  for (int i = 0; i < nt; ++i) {
+    const uint32_t m = d.triangle_materials(i);
+    if (m >= materialTextures_.size())
+      return Fail(fmt::format("delta {}: triangle {} has material {} but the scene has {}", d.sequence(),
+                              d.triangle_ids(i), m, materialTextures_.size()));
+    if (materialTextures_[m] >= 0) ++textured;
+  }
+  if (d.triangle_uvs_size() != 6 * textured)
+    return Fail(fmt::format("delta {}: {} texture coordinates for {} textured triangles (6 each)", d.sequence(),
+                            d.triangle_uvs_size(), textured));
+  if (!AllFinite(d.vertex_positions()) || !AllFinite(d.vertex_radiance()) || !AllFinite(d.vertex_irradiance()) ||
+      !AllFinite(d.triangle_uvs()))
+    return Fail(fmt::format("delta {}: a vertex position, radiance, irradiance or texture coordinate is not finite",
+                            d.sequence()));
+  return Status::Ok();
+}
+
+Status MeshStore::Apply(const wire::Delta& d) {
+  if (auto ok = CheckShape(d); !ok) return ok;
+  sequence_ = d.sequence();
+
+  for (uint64_t id : d.removed_triangles())
+    if (auto ok = RemoveTriangle(id); !ok) return Fail(fmt::format("delta {}: {}", d.sequence(), ok.error().message));
+  for (int i = 0; i < d.vertex_ids_size(); ++i)
+    if (auto ok = AddVertex(d, i); !ok) return Fail(fmt::format("delta {}: {}", d.sequence(), ok.error().message));
+  int uvIndex = 0;
+  for (int i = 0; i < d.triangle_ids_size(); ++i) {
+    const bool textured = materialTextures_[d.triangle_materials(i)] >= 0;
+    if (auto ok = AddTriangle(d, i, textured ? uvIndex++ : -1); !ok)
+      return Fail(fmt::format("delta {}: {}", d.sequence(), ok.error().message));
+  }
+  // The SMA never sends a vertex no triangle uses: a client would leak it.
+  for (uint64_t id : d.vertex_ids())
+    if (vertices_.at(id).refs == 0)
+      return Fail(fmt::format("delta {}: vertex {} sent but used by no triangle", d.sequence(), id));
+
+  viewId_ = d.view_id();
+  pendingSamples_ = d.pending_samples();
+  converged_ = d.converged();
+  return Status::Ok();
+}
+
+Status MeshStore::RemoveTriangle(uint64_t id) {
+  auto it = triangles_.find(id);
+  if (it == triangles_.end()) return Fail(fmt::format("removal of triangle {}, which is not held", id));
+  const TriangleRecord record = it->second;
+  triangles_.erase(it);
+  TriangleGroup& group = groups_[record.group];
+  GpuTriangle& slot = group.slots[record.slot];
+  for (const GpuCorner& corner : slot.corners) {
+    const uint64_t vertexId = vertexSlotIds_[corner.vertexSlot];
+    VertexRecord& vertex = vertices_.at(vertexId);
+    if (--vertex.refs == 0) ReleaseVertex(vertexId, vertex.slot);
+  }
+  slot = GpuTriangle{};  // an empty slot draws nothing
+  group.allocator.Release(record.slot);
+  group.dirty.Mark(record.slot);
+  return Status::Ok();
+}
+
+void MeshStore::ReleaseVertex(uint64_t id, uint32_t slot) {
+  UncountLuminance(SlotLuminance(vertexSlots_[slot]));
+  // Zeroed so that a luminance rescan over all slots skips it; no triangle
+  // refers to it, so the GPU copy need not change.
+  vertexSlots_[slot] = GpuVertex{};
+  vertexAllocator_.Release(slot);
+  vertices_.erase(id);
+}
+
+Status MeshStore::AddVertex(const wire::Delta& d, int i) {
+  const uint64_t id = d.vertex_ids(i);
+  if (vertices_.contains(id)) return Fail(fmt::format("vertex {} sent while already held", id));
+  const uint32_t slot = vertexAllocator_.Allocate();
+  if (slot >= vertexSlots_.size()) {
+    vertexSlots_.resize(size_t(slot) + 1);
+    vertexSlotIds_.resize(size_t(slot) + 1);
+  }
+  GpuVertex& v = vertexSlots_[slot];
+  const Rgb position = RgbAt(d.vertex_positions(), i);
+  const Rgb radiance = RgbAt(d.vertex_radiance(), i);
+  const Rgb irradiance = RgbAt(d.vertex_irradiance(), i);
+  v = GpuVertex{{position.x, position.y, position.z, 1.0f},
+                {radiance.r, radiance.g, radiance.b, 0.0f},
+                {irradiance.r, irradiance.g, irradiance.b, 0.0f}};
+  vertexSlotIds_[slot] = id;
+  vertices_.emplace(id, VertexRecord{slot, 0});
+  dirtyVertices_.Mark(slot);
+  CountLuminance(Luminance(radiance));
+  return Status::Ok();
+}
+
+Status MeshStore::AddTriangle(const wire::Delta& d, int i, int uvIndex) {
+  const uint64_t id = d.triangle_ids(i);
+  if (triangles_.contains(id)) return Fail(fmt::format("triangle {} added while already held", id));
+  VertexRecord* corners[3];
+  for (int c = 0; c < 3; ++c) {
+    const uint64_t vertexId = d.triangle_vertices(3 * i + c);
+    auto it = vertices_.find(vertexId);
+    if (it == vertices_.end())
+      return Fail(fmt::format("triangle {} uses vertex {}, which is neither held nor sent", id, vertexId));
+    corners[c] = &it->second;
+  }
+  const uint32_t material = d.triangle_materials(i);
+  const uint32_t groupIndex = uint32_t(materialTextures_[material] + 1);
+  TriangleGroup& group = groups_[groupIndex];
+  const uint32_t slot = group.allocator.Allocate();
+  if (slot >= group.slots.size()) group.slots.resize(size_t(slot) + 1);
+  GpuTriangle& t = group.slots[slot];
+  for (int c = 0; c < 3; ++c) {
+    ++corners[c]->refs;
+    GpuCorner& corner = t.corners[c];
+    corner.vertexSlot = corners[c]->slot;
+    corner.material = material;
+    corner.uv[0] = uvIndex >= 0 ? d.triangle_uvs(6 * uvIndex + 2 * c) : 0.0f;
+    corner.uv[1] = uvIndex >= 0 ? d.triangle_uvs(6 * uvIndex + 2 * c + 1) : 0.0f;
+  }
+  triangles_.emplace(id, TriangleRecord{groupIndex, slot});
+  group.dirty.Mark(slot);
+  return Status::Ok();
+}
+
+void MeshStore::CountLuminance(float luminance) {
+  if (!(luminance > 0.0f)) return;
+  ++luminanceCount_;
+  logLuminanceSum_ += std::log(double(luminance));
+  if (!maxStale_) maxLuminance_ = std::max(maxLuminance_, luminance);
+}
+
+void MeshStore::UncountLuminance(float luminance) {
+  if (!(luminance > 0.0f)) return;
+  if (--luminanceCount_ == 0) {
+    logLuminanceSum_ = 0.0;  // no rounding residue once nothing is left
+    maxLuminance_ = 0.0f;
+    maxStale_ = false;
+    return;
+  }
+  logLuminanceSum_ -= std::log(double(luminance));
+  if (luminance >= maxLuminance_) maxStale_ = true;
+}
+
+ViewLuminance MeshStore::HeldLuminance() {
+  if (luminanceCount_ == 0) return ViewLuminance{};
+  if (maxStale_) {
+    maxLuminance_ = 0.0f;
+    for (const GpuVertex& v : VertexSlots()) maxLuminance_ = std::max(maxLuminance_, SlotLuminance(v));
+    maxStale_ = false;
+  }
+  return ViewLuminance{maxLuminance_, float(std::exp(logLuminanceSum_ / double(luminanceCount_)))};
+}
+
+}  // namespace penumbra::client

@@ -1,0 +1,56 @@
+#include "penumbra/client/path_player.h"
+
+#include <fstream>
+#include <sstream>
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include "penumbra/common/check.h"
+
+namespace penumbra::client {
+
+Expected<CameraPath> LoadCameraPathSpec(std::string_view spec) {
+  const size_t hash = spec.rfind('#');
+  if (hash == std::string_view::npos) return LoadCameraPath(std::string(spec));
+  const std::string file(spec.substr(0, hash));
+  const std::string name(spec.substr(hash + 1));
+  std::ifstream in(file, std::ios::binary);
+  if (!in) return Fail(fmt::format("{}: cannot open scene file", file));
+  std::ostringstream text;
+  text << in.rdbuf();
+  const auto doc = nlohmann::json::parse(text.str(), nullptr, /*allow_exceptions=*/false);
+  if (doc.is_discarded() || !doc.is_object()) return Fail(fmt::format("{}: not a JSON object", file));
+  const auto paths = doc.find("paths");
+  if (paths == doc.end() || !paths->is_object() || !paths->contains(name))
+    return Fail(fmt::format("{}: no camera path named '{}' in its \"paths\"", file, name));
+  auto path = ParseCameraPathJson(paths->at(name).dump(), std::string(spec));
+  if (path && path->name.empty()) path->name = name;
+  return path;
+}
+
+CameraPath StillPath(const wire::CameraPreset& preset, int width, int height) {
+  CameraPath path;
+  path.name = preset.name();
+  path.fovYDeg = preset.fov_y_deg();
+  path.width = width;
+  path.height = height;
+  auto toVec3 = [](const wire::Vec3& v) { return Vec3(v.x(), v.y(), v.z()); };
+  path.keyframes.push_back(
+      CameraKeyframe{0.0, CameraPose{toVec3(preset.eye()), toVec3(preset.target()), toVec3(preset.up())}});
+  return path;
+}
+
+PathPlayer::PathPlayer(CameraPath path) : path_(std::move(path)) {
+  PENUMBRA_CHECK(!path_.keyframes.empty(), "a camera path has at least one keyframe");
+}
+
+CameraView PathPlayer::ViewAt(std::chrono::duration<double> elapsed) const {
+  return path_.ViewAt(path_.keyframes.front().timeSeconds + elapsed.count());
+}
+
+bool PathPlayer::Finished(std::chrono::duration<double> elapsed) const {
+  return elapsed.count() >= path_.DurationSeconds();
+}
+
+}  // namespace penumbra::client

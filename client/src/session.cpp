@@ -1,0 +1,468 @@
+#include "penumbra/client/session.h"
+
+#include <atomic>
+#include <cmath>
+#include <mutex>
+#include <thread>
+
+#include <fmt/format.h>
+
+#include "penumbra/common/logging.h"
+#include "penumbra/common/messages.h"
+
+namespace penumbra::client {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+using boost::system::error_code;
+
+bool IsFiniteWire(const wire::Vec3& v) {
+  return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z());
+}
+
+void ToWire(const Vec3& in, wire::Vec3* out) {
+  out->set_x(in.x);
+  out->set_y(in.y);
+  out->set_z(in.z);
+}
+
+/// Rough size of an event, for the read-pause threshold.
+size_t EventBytes(const SessionEvent& event) {
+  if (const auto* d = std::get_if<DeltaReceived>(&event)) return d->delta.ByteSizeLong();
+  if (const auto* t = std::get_if<TextureReceived>(&event)) return t->texture.rgb8().size();
+  return 256;
+}
+
+}  // namespace
+
+Status ValidateSceneInfo(const wire::SceneInfo& info) {
+  if (!IsFiniteWire(info.bounds_min()) || !IsFiniteWire(info.bounds_max()))
+    return Fail("scene_info: bounds are not finite");
+  for (int i = 0; i < info.cameras_size(); ++i) {
+    const auto& c = info.cameras(i);
+    if (!IsFiniteWire(c.eye()) || !IsFiniteWire(c.target()) || !IsFiniteWire(c.up()) || !std::isfinite(c.fov_y_deg()))
+      return Fail(fmt::format("scene_info: camera {} ('{}') is not finite", i, c.name()));
+  }
+  for (int i = 0; i < info.materials_size(); ++i) {
+    const auto& m = info.materials(i);
+    if (m.texture() < -1 || m.texture() >= int64_t(info.texture_count()))
+      return Fail(fmt::format("scene_info: material {} uses texture {} of {}", i, m.texture(), info.texture_count()));
+    if (!IsFiniteWire(m.albedo()) || !IsFiniteWire(m.emission()))
+      return Fail(fmt::format("scene_info: material {} has a colour that is not finite", i));
+  }
+  const auto& tm = info.tone_mapping();
+  if (!(tm.bias() > 0.0f && tm.bias() < 1.0f) || !(tm.exposure() > 0.0f) || !std::isfinite(tm.exposure()) ||
+      !(tm.max_display_luminance() > 0.0f) || !std::isfinite(tm.max_display_luminance()))
+    return Fail(fmt::format("scene_info: tone mapping bias {} (must be in (0,1)), exposure {} and display luminance {} "
+                            "(must be positive)",
+                            tm.bias(), tm.exposure(), tm.max_display_luminance()));
+  return Status::Ok();
+}
+
+const char* ToString(ConnectionState state) {
+  switch (state) {
+    case ConnectionState::kConnecting: return "connecting";
+    case ConnectionState::kConnected: return "connected";
+    case ConnectionState::kWaiting: return "waiting";
+    case ConnectionState::kStopped: return "stopped";
+  }
+  return "?";
+}
+
+// Everything below the public methods runs on the network thread.
+class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
+ public:
+  explicit Impl(SessionOptions options)
+      : options_(std::move(options)),
+        work_(asio::make_work_guard(io_)),
+        resolver_(io_),
+        retryTimer_(io_),
+        countersTimer_(io_),
+        log_(Logger("client.session")),
+        address_(options_.sma.ToString()),
+        backoff_(options_.reconnectMin) {
+    status_.disconnectedSince = Clock::now();
+  }
+
+  void Start() {
+    asio::post(io_, [self = shared_from_this()] { self->Attempt(); });
+    thread_ = std::thread([this] { io_.run(); });
+  }
+
+  void Stop() {
+    if (!thread_.joinable()) return;
+    asio::post(io_, [self = shared_from_this()] {
+      self->stopping_ = true;
+      self->retryTimer_.cancel();
+      self->countersTimer_.cancel();
+      self->resolver_.cancel();
+      if (self->connection_) self->connection_->Close("client stopping");
+      self->work_.reset();
+    });
+    thread_.join();
+    std::lock_guard lock(mutex_);
+    status_.state = ConnectionState::kStopped;
+  }
+
+  uint64_t SetView(const CameraView& view) {
+    const uint64_t serial = ++lastSerial_;
+    asio::post(io_, [self = shared_from_this(), view, serial] {
+      self->view_ = view;
+      self->viewSerial_ = serial;
+      if (self->ready_) self->SendView();
+    });
+    return serial;
+  }
+
+  std::vector<SessionEvent> TakeEvents() {
+    std::vector<SessionEvent> taken;
+    bool resume = false;
+    {
+      std::lock_guard lock(mutex_);
+      taken.swap(events_);
+      pendingEventBytes_ = 0;
+      resume = std::exchange(readPaused_, false);
+    }
+    if (resume) {
+      asio::post(io_, [self = shared_from_this()] {
+        if (self->connection_) self->connection_->SetReadPaused(false);
+      });
+    }
+    return taken;
+  }
+
+  SessionStatus Status() const {
+    std::lock_guard lock(mutex_);
+    SessionStatus s = status_;
+    if (statusConnection_) s.bytesReceived += statusConnection_->BytesReceived();
+    return s;
+  }
+
+  void RequestTexture(uint64_t connection, uint32_t texture) {
+    asio::post(io_, [self = shared_from_this(), connection, texture] {
+      if (!self->ready_ || connection != self->connectionNumber_) return;
+      wire::Envelope e;
+      e.mutable_texture_request()->set_texture(texture);
+      self->connection_->Send(e);
+    });
+  }
+
+  void AbandonConnection(uint64_t connection, const std::string& reason) {
+    asio::post(io_, [self = shared_from_this(), connection, reason] {
+      if (!self->ready_ || connection != self->connectionNumber_) return;
+      self->log_->error("SMA {} broke the protocol: {}; dropping the connection", self->address_, reason);
+      self->connection_->FailAndClose(MakeError(0, wire::ERROR_CODE_INVALID_REQUEST, reason, true), reason);
+    });
+  }
+
+ private:
+  // --- Connecting ------------------------------------------------------------
+
+  void Attempt() {
+    if (stopping_) return;
+    SetState(ConnectionState::kConnecting);
+    resolver_.async_resolve(options_.sma.host, std::to_string(options_.sma.port),
+                            [self = shared_from_this()](const error_code& ec, tcp::resolver::results_type results) {
+                              if (self->stopping_) return;
+                              if (ec || results.empty())
+                                return self->AttemptFailed(fmt::format("cannot resolve: {}", ec.message()));
+                              std::vector<tcp::endpoint> endpoints;
+                              for (const auto& r : results) endpoints.push_back(r.endpoint());
+                              self->TryEndpoint(std::move(endpoints), 0, "");
+                            });
+  }
+
+  // Tries the addresses a name resolves to in turn; the first that accepts wins.
+  void TryEndpoint(std::vector<tcp::endpoint> endpoints, size_t index, std::string lastError) {
+    if (stopping_) return;
+    if (index >= endpoints.size()) return AttemptFailed(lastError);
+    const tcp::endpoint endpoint = endpoints[index];
+    net::AsyncConnect(io_, endpoint, options_.connectTimeout,
+                      [self = shared_from_this(), endpoints = std::move(endpoints), index](const error_code& ec,
+                                                                                           tcp::socket socket) mutable {
+                        // AsyncConnect's handler may run on the socket's strand; hop to the session.
+                        asio::post(self->io_, [self, ec, socket = std::move(socket), endpoints = std::move(endpoints),
+                                               index]() mutable {
+                          if (self->stopping_) return;
+                          if (ec) return self->TryEndpoint(std::move(endpoints), index + 1, ec.message());
+                          self->OnSocket(std::move(socket));
+                        });
+                      });
+  }
+
+  void OnSocket(tcp::socket socket) {
+    auto connection = net::Connection::Create(std::move(socket), options_.connection, "sma " + address_);
+    connection_ = connection;
+    welcomed_ = false;
+    ready_ = false;
+    {
+      std::lock_guard lock(mutex_);
+      statusConnection_ = connection;
+    }
+    std::weak_ptr<Impl> weak = weak_from_this();
+    // The connection's handlers run on its strand; both hop to the session's
+    // thread of control so that session state has a single owner.
+    connection->Start(
+        [weak, connection](wire::Envelope&& envelope) {
+          if (auto self = weak.lock())
+            asio::post(self->io_, [self, connection, envelope = std::move(envelope)]() mutable {
+              if (connection == self->connection_) self->OnMessage(std::move(envelope));
+            });
+        },
+        [weak, connection](const std::string& reason) {
+          if (auto self = weak.lock())
+            asio::post(self->io_, [self, connection, reason] {
+              if (connection == self->connection_) self->OnClosed(reason);
+            });
+        });
+    wire::Envelope hello;
+    auto* h = hello.mutable_hello();
+    h->set_protocol_version(kProtocolVersion);
+    h->set_role(wire::ROLE_CLIENT);
+    h->set_peer_name(options_.clientName);
+    h->set_scene_hash(0);  // a client takes whatever scene the SMA serves
+    connection->Send(hello);
+  }
+
+  void AttemptFailed(const std::string& reason) {
+    RecordError(reason);
+    log_->info("cannot connect to SMA {}: {}; retrying in {} ms", address_, reason, ScheduleRetry().count());
+  }
+
+  /// Arms the reconnection timer and returns its delay; the delay doubles
+  /// with each failure up to reconnectMax and resets on a handshake.
+  std::chrono::milliseconds ScheduleRetry() {
+    const auto delay = backoff_;
+    if (stopping_) return delay;
+    SetState(ConnectionState::kWaiting);
+    retryTimer_.expires_after(delay);
+    backoff_ = std::min(options_.reconnectMax, backoff_ * 2);
+    retryTimer_.async_wait([self = shared_from_this()](const error_code& ec) {
+      if (!ec) self->Attempt();
+    });
+    return delay;
+  }
+
+  void OnClosed(const std::string& reason) {
+    {
+      std::lock_guard lock(mutex_);
+      status_.bytesReceived += connection_->BytesReceived();
+      statusConnection_.reset();
+      status_.disconnectedSince = Clock::now();
+    }
+    connection_.reset();
+    countersTimer_.cancel();
+    RecordError(reason);
+    const bool wasReady = std::exchange(ready_, false);
+    if (wasReady) Push(Disconnected{connectionNumber_, reason});
+    if (stopping_) return;
+    const auto delay = ScheduleRetry();
+    if (wasReady)
+      log_->warn("lost connection {} to SMA {}: {}; reconnecting in {} ms", connectionNumber_, address_, reason,
+                 delay.count());
+    else
+      log_->info("SMA {} closed the connection during the handshake: {}; retrying in {} ms", address_, reason,
+                 delay.count());
+  }
+
+  // --- Messages ----------------------------------------------------------------
+
+  void OnMessage(wire::Envelope&& envelope) {
+    if (envelope.has_error()) return OnErrorReply(envelope.error());
+    if (!welcomed_) {
+      if (!envelope.has_welcome())
+        return Refuse(wire::ERROR_CODE_HANDSHAKE_REQUIRED,
+                      fmt::format("expected welcome, got {}", BodyName(envelope)));
+      wire::ErrorCode code = wire::ERROR_CODE_UNSPECIFIED;
+      if (auto ok = ValidateWelcome(envelope.welcome(), wire::ROLE_SMA, 0, &code); !ok)
+        return Refuse(code, ok.error().message);
+      welcome_ = envelope.welcome();
+      welcomed_ = true;
+      return;
+    }
+    if (!ready_) {
+      if (!envelope.has_scene_info())
+        return Refuse(wire::ERROR_CODE_UNEXPECTED_MESSAGE,
+                      fmt::format("expected scene_info after welcome, got {}", BodyName(envelope)));
+      if (auto ok = ValidateSceneInfo(envelope.scene_info()); !ok)
+        return Refuse(wire::ERROR_CODE_INVALID_REQUEST, ok.error().message);
+      return OnReady(std::move(*envelope.mutable_scene_info()));
+    }
+    switch (envelope.body_case()) {
+      case wire::Envelope::kDelta:
+        return OnDelta(std::move(*envelope.mutable_delta()));
+      case wire::Envelope::kTextureData:
+        return Push(TextureReceived{connectionNumber_, std::move(*envelope.mutable_texture_data())});
+      case wire::Envelope::kStatsReply: {
+        SmaCountersReceived counters{connectionNumber_, {}};
+        for (const auto& c : envelope.stats_reply().counters()) counters.counters[c.name()] = c.value();
+        return Push(std::move(counters));
+      }
+      default:
+        return Refuse(wire::ERROR_CODE_UNEXPECTED_MESSAGE,
+                      fmt::format("a client does not take {} messages", BodyName(envelope)));
+    }
+  }
+
+  void OnErrorReply(const wire::ErrorReply& error) {
+    const std::string text = fmt::format("SMA {} reports {}: {}", address_, wire::ErrorCode_Name(error.code()),
+                                         error.message());
+    if (error.fatal()) {
+      log_->error("{} (it closes the connection)", text);
+      RecordError(text);
+    } else {
+      log_->warn("{}", text);
+    }
+  }
+
+  void Refuse(wire::ErrorCode code, const std::string& reason) {
+    log_->error("SMA {}: {}; dropping the connection", address_, reason);
+    connection_->FailAndClose(MakeError(0, code, reason, true), reason);
+  }
+
+  void OnReady(wire::SceneInfo info) {
+    ready_ = true;
+    ++connectionNumber_;
+    nextViewId_ = 1;
+    lastSentViewId_ = 0;
+    backoff_ = options_.reconnectMin;
+    SetState(ConnectionState::kConnected, /*connected=*/true);
+    log_->info("connected to SMA {} ('{}'), scene '{}' (connection {})", address_, welcome_.server_name(), info.name(),
+               connectionNumber_);
+    Push(Connected{connectionNumber_, welcome_, std::move(info)});
+    if (view_) SendView();
+    ArmCountersTimer();
+  }
+
+  void SendView() {
+    wire::Envelope e;
+    auto* v = e.mutable_view();
+    v->set_view_id(nextViewId_);
+    ToWire(view_->pose.eye, v->mutable_eye());
+    ToWire(view_->pose.target, v->mutable_target());
+    ToWire(view_->pose.up, v->mutable_up());
+    v->set_fov_y_deg(view_->fovYDeg);
+    v->set_width(uint32_t(view_->width));
+    v->set_height(uint32_t(view_->height));
+    if (!connection_->Send(e)) return;  // closing; the next connection sends it
+    lastSentViewId_ = nextViewId_++;
+    lastSentSerial_ = viewSerial_;
+    lastViewSentAt_ = Clock::now();
+    awaitingFirstDelta_ = true;
+  }
+
+  void OnDelta(wire::Delta delta) {
+    if (delta.view_id() == 0 || delta.view_id() > lastSentViewId_)
+      return Refuse(wire::ERROR_CODE_INVALID_REQUEST,
+                    fmt::format("delta {} answers view {}, which was never sent (last {})", delta.sequence(),
+                                delta.view_id(), lastSentViewId_));
+    const bool forLatest = delta.view_id() == lastSentViewId_;
+    if (forLatest && awaitingFirstDelta_) {
+      awaitingFirstDelta_ = false;
+      const double ms = std::chrono::duration<double, std::milli>(Clock::now() - lastViewSentAt_).count();
+      std::lock_guard lock(mutex_);
+      status_.viewToFirstDeltaMs = ms;
+    }
+    // Counters right after convergence let the render thread check that it
+    // holds exactly what the SMA thinks it holds.
+    if (forLatest && delta.converged()) SendStatsRequest();
+    Push(DeltaReceived{connectionNumber_, forLatest ? lastSentSerial_ : 0, std::move(delta)});
+  }
+
+  void SendStatsRequest() {
+    wire::Envelope e;
+    e.mutable_stats_request()->set_request_id(++nextStatsId_);
+    connection_->Send(e);
+  }
+
+  void ArmCountersTimer() {
+    countersTimer_.expires_after(options_.countersInterval);
+    countersTimer_.async_wait([self = shared_from_this()](const error_code& ec) {
+      if (ec || !self->ready_) return;
+      self->SendStatsRequest();
+      self->ArmCountersTimer();
+    });
+  }
+
+  // --- Shared with the render thread -------------------------------------------
+
+  void Push(SessionEvent event) {
+    const size_t bytes = EventBytes(event);
+    bool pause = false;
+    {
+      std::lock_guard lock(mutex_);
+      events_.push_back(std::move(event));
+      pendingEventBytes_ += bytes;
+      if (pendingEventBytes_ > options_.maxPendingEventBytes && !readPaused_) pause = readPaused_ = true;
+    }
+    if (pause && connection_) {
+      log_->debug("render thread is {} bytes behind; pausing reads", pendingEventBytes_);
+      connection_->SetReadPaused(true);
+    }
+  }
+
+  void SetState(ConnectionState state, bool connected = false) {
+    std::lock_guard lock(mutex_);
+    status_.state = state;
+    if (connected) {
+      status_.connections = connectionNumber_;
+      status_.lastError.clear();
+    }
+  }
+
+  void RecordError(const std::string& reason) {
+    std::lock_guard lock(mutex_);
+    status_.lastError = reason;
+  }
+
+  SessionOptions options_;
+  asio::io_context io_;
+  asio::executor_work_guard<asio::io_context::executor_type> work_;
+  tcp::resolver resolver_;
+  asio::steady_timer retryTimer_;
+  asio::steady_timer countersTimer_;
+  std::shared_ptr<spdlog::logger> log_;
+  const std::string address_;
+  std::thread thread_;
+  std::atomic<uint64_t> lastSerial_{0};
+
+  // Network-thread state.
+  bool stopping_ = false;
+  std::shared_ptr<net::Connection> connection_;  // the current one, from connect to close
+  bool welcomed_ = false;
+  bool ready_ = false;  // SceneInfo received on connection_
+  wire::Welcome welcome_;
+  uint64_t connectionNumber_ = 0;
+  std::chrono::milliseconds backoff_;
+  std::optional<CameraView> view_;
+  uint64_t viewSerial_ = 0;
+  uint64_t nextViewId_ = 1;
+  uint64_t lastSentViewId_ = 0;
+  uint64_t lastSentSerial_ = 0;
+  Clock::time_point lastViewSentAt_;
+  bool awaitingFirstDelta_ = false;
+  uint64_t nextStatsId_ = 0;
+
+  // Shared, under mutex_.
+  mutable std::mutex mutex_;
+  std::vector<SessionEvent> events_;
+  size_t pendingEventBytes_ = 0;
+  bool readPaused_ = false;
+  SessionStatus status_;
+  std::shared_ptr<net::Connection> statusConnection_;  // for its byte counter
+};
+
+SmaSession::SmaSession(SessionOptions options) : impl_(std::make_shared<Impl>(std::move(options))) {}
+SmaSession::~SmaSession() { Stop(); }
+void SmaSession::Start() { impl_->Start(); }
+void SmaSession::Stop() { impl_->Stop(); }
+uint64_t SmaSession::SetView(const CameraView& view) { return impl_->SetView(view); }
+std::vector<SessionEvent> SmaSession::TakeEvents() { return impl_->TakeEvents(); }
+SessionStatus SmaSession::Status() const { return impl_->Status(); }
+void SmaSession::RequestTexture(uint64_t connection, uint32_t texture) { impl_->RequestTexture(connection, texture); }
+void SmaSession::AbandonConnection(uint64_t connection, const std::string& reason) {
+  impl_->AbandonConnection(connection, reason);
+}
+
+}  // namespace penumbra::client

@@ -1,0 +1,233 @@
+// MeshStore: delta application in the protocol's order, reference-counted
+// vertices, every malformed delta refused, and slot reuse with dirty ranges.
+
+#include "penumbra/client/mesh_store.h"
+
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "support/delta_builder.h"
+
+namespace penumbra::client {
+namespace {
+
+using testing::DeltaBuilder;
+
+constexpr uint32_t kGrey = 0;      // untextured
+constexpr uint32_t kTextured = 1;  // texture 0
+
+class MeshStoreTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const std::vector<int32_t> materialTextures = {-1, 0};
+    store_.Reset(materialTextures, 1);
+  }
+
+  // A quad of two triangles over vertices 1..4 (sequence 1).
+  static DeltaBuilder Quad() {
+    DeltaBuilder d(1, 1);
+    d.Vertex(1, Vec3(0, 0, 0), Rgb(1.0f)).Vertex(2, Vec3(1, 0, 0), Rgb(2.0f));
+    d.Vertex(3, Vec3(1, 1, 0), Rgb(3.0f)).Vertex(4, Vec3(0, 1, 0), Rgb(4.0f));
+    d.Triangle(10, {1, 2, 3}, kGrey).Triangle(11, {1, 3, 4}, kGrey);
+    return d;
+  }
+
+  void ExpectRefused(const wire::Delta& d, const std::string& fragment) {
+    auto ok = store_.Apply(d);
+    ASSERT_FALSE(ok.ok()) << "accepted a delta that should fail with '" << fragment << "'";
+    EXPECT_NE(ok.error().message.find(fragment), std::string::npos) << ok.error().message;
+  }
+
+  MeshStore store_;
+};
+
+TEST_F(MeshStoreTest, AppliesVerticesThenTrianglesAndCountsReferences) {
+  ASSERT_TRUE(store_.Apply(Quad().Pending(7).Delta()).ok());
+  EXPECT_EQ(store_.TriangleCount(), 2u);
+  EXPECT_EQ(store_.VertexCount(), 4u);
+  EXPECT_EQ(store_.VertexRefs(1), 2u);
+  EXPECT_EQ(store_.VertexRefs(2), 1u);
+  EXPECT_EQ(store_.PendingSamples(), 7u);
+  EXPECT_FALSE(store_.Converged());
+  EXPECT_EQ(store_.LastSequence(), 1u);
+}
+
+TEST_F(MeshStoreTest, AVertexGoesWithItsLastTriangle) {
+  ASSERT_TRUE(store_.Apply(Quad().Delta()).ok());
+  ASSERT_TRUE(store_.Apply(DeltaBuilder(2, 1, wire::DELTA_KIND_REMOVED).Remove(10).Delta()).ok());
+  EXPECT_EQ(store_.TriangleCount(), 1u);
+  EXPECT_FALSE(store_.VertexRefs(2).has_value()) << "vertex 2 was used only by triangle 10";
+  EXPECT_EQ(store_.VertexRefs(1), 1u);
+  EXPECT_EQ(store_.VertexRefs(3), 1u);
+}
+
+TEST_F(MeshStoreTest, RemovalsComeFirstSoADroppedVertexCanBeResentInTheSameDelta) {
+  ASSERT_TRUE(store_.Apply(Quad().Delta()).ok());
+  // Removing 10 drops vertex 2; the SMA then sends it again for triangle 12.
+  DeltaBuilder d(2, 1, wire::DELTA_KIND_REFINED);
+  d.Remove(10).Vertex(2, Vec3(1, 0, 0), Rgb(2.0f)).Triangle(12, {1, 2, 3}, kGrey).Converged();
+  ASSERT_TRUE(store_.Apply(d.Delta()).ok());
+  EXPECT_EQ(store_.TriangleCount(), 2u);
+  EXPECT_EQ(store_.VertexRefs(2), 1u);
+  EXPECT_TRUE(store_.Converged());
+}
+
+TEST_F(MeshStoreTest, RefusesRemovalOfATriangleNotHeld) {
+  ASSERT_TRUE(store_.Apply(Quad().Delta()).ok());
+  ExpectRefused(DeltaBuilder(2, 1).Remove(99).Delta(), "removal of triangle 99");
+}
+
+TEST_F(MeshStoreTest, RefusesATriangleWhoseVertexWasNotSent) {
+  DeltaBuilder d(1, 1);
+  d.Vertex(1, Vec3(0), Rgb(1)).Vertex(2, Vec3(1, 0, 0), Rgb(1)).Triangle(10, {1, 2, 3});
+  ExpectRefused(d.Delta(), "uses vertex 3");
+}
+
+TEST_F(MeshStoreTest, RefusesAVertexSentWhileHeld) {
+  ASSERT_TRUE(store_.Apply(Quad().Delta()).ok());
+  DeltaBuilder d(2, 1);
+  d.Vertex(1, Vec3(0), Rgb(1)).Vertex(5, Vec3(2, 0, 0), Rgb(1)).Triangle(12, {1, 2, 5});
+  ExpectRefused(d.Delta(), "vertex 1 sent while already held");
+}
+
+TEST_F(MeshStoreTest, RefusesATriangleAddedTwice) {
+  ASSERT_TRUE(store_.Apply(Quad().Delta()).ok());
+  ExpectRefused(DeltaBuilder(2, 1).Triangle(10, {1, 2, 3}).Delta(), "triangle 10 added while already held");
+}
+
+TEST_F(MeshStoreTest, RefusesAVertexNoTriangleUses) {
+  DeltaBuilder d = Quad();
+  d.Vertex(5, Vec3(2, 0, 0), Rgb(1));
+  ExpectRefused(d.Delta(), "vertex 5 sent but used by no triangle");
+}
+
+TEST_F(MeshStoreTest, RefusesArraysOfInconsistentLength) {
+  {
+    DeltaBuilder d = Quad();
+    d.Mutable().mutable_vertex_positions()->RemoveLast();
+    ExpectRefused(d.Delta(), "position / radiance / irradiance");
+  }
+  {
+    DeltaBuilder d = Quad();
+    d.Mutable().mutable_vertex_irradiance()->Add(0.0f);
+    ExpectRefused(d.Delta(), "position / radiance / irradiance");
+  }
+  {
+    DeltaBuilder d = Quad();
+    d.Mutable().mutable_triangle_vertices()->RemoveLast();
+    ExpectRefused(d.Delta(), "corner vertex ids");
+  }
+  {
+    DeltaBuilder d = Quad();
+    d.Mutable().add_triangle_materials(0);
+    ExpectRefused(d.Delta(), "materials");
+  }
+  {  // an untextured triangle carries no texture coordinates
+    DeltaBuilder d = Quad();
+    for (int i = 0; i < 6; ++i) d.Mutable().add_triangle_uvs(0.5f);
+    ExpectRefused(d.Delta(), "texture coordinates for 0 textured triangles");
+  }
+  {  // a textured one must carry them
+    DeltaBuilder d(1, 1);
+    d.Vertex(1, Vec3(0), Rgb(1)).Vertex(2, Vec3(1, 0, 0), Rgb(1)).Vertex(3, Vec3(0, 1, 0), Rgb(1));
+    d.Triangle(10, {1, 2, 3}, kTextured);
+    ExpectRefused(d.Delta(), "texture coordinates for 1 textured triangles");
+  }
+  EXPECT_EQ(store_.TriangleCount(), 0u) << "shape errors are found before anything is applied";
+}
+
+TEST_F(MeshStoreTest, RefusesSequenceGapsAndUnknownKinds) {
+  ExpectRefused(DeltaBuilder(2, 1).Delta(), "sequence 2 follows 0");
+  ASSERT_TRUE(store_.Apply(Quad().Delta()).ok());
+  ExpectRefused(DeltaBuilder(1, 1).Delta(), "sequence 1 follows 1");
+  ExpectRefused(DeltaBuilder(3, 1).Delta(), "sequence 3 follows 1");
+  ExpectRefused(DeltaBuilder(2, 1, wire::DELTA_KIND_UNSPECIFIED).Delta(), "unknown kind");
+  ExpectRefused(DeltaBuilder(2, 1, wire::DELTA_KIND_STATUS).Remove(10).Delta(), "STATUS");
+}
+
+TEST_F(MeshStoreTest, RefusesUnknownMaterialsAndValuesThatAreNotFinite) {
+  {
+    DeltaBuilder d = Quad();
+    d.Mutable().set_triangle_materials(0, 2);
+    ExpectRefused(d.Delta(), "material 2 but the scene has 2");
+  }
+  {
+    DeltaBuilder d = Quad();
+    d.Mutable().set_vertex_radiance(4, std::nanf(""));
+    ExpectRefused(d.Delta(), "not finite");
+  }
+}
+
+TEST_F(MeshStoreTest, ResetEmptiesEverything) {
+  ASSERT_TRUE(store_.Apply(Quad().Delta()).ok());
+  const std::vector<int32_t> materialTextures = {-1};
+  store_.Reset(materialTextures, 0);
+  EXPECT_EQ(store_.TriangleCount(), 0u);
+  EXPECT_EQ(store_.VertexCount(), 0u);
+  EXPECT_EQ(store_.LastSequence(), 0u);
+  EXPECT_EQ(store_.Groups().size(), 1u);
+  EXPECT_EQ(store_.VertexSlots().size(), 0u);
+  ASSERT_TRUE(store_.Apply(Quad().Delta()).ok()) << "sequence starts again at 1";
+}
+
+TEST_F(MeshStoreTest, RemovedTriangleSlotIsEmptiedMarkedDirtyAndReused) {
+  ASSERT_TRUE(store_.Apply(Quad().Delta()).ok());
+  TriangleGroup& grey = store_.Groups()[0];
+  ASSERT_EQ(grey.dirty.Take(), (std::vector<SlotRange>{{0, 2}}));
+  ASSERT_EQ(store_.DirtyVertices().Take(), (std::vector<SlotRange>{{0, 4}}));
+
+  ASSERT_TRUE(store_.Apply(DeltaBuilder(2, 1, wire::DELTA_KIND_REMOVED).Remove(10).Delta()).ok());
+  EXPECT_EQ(grey.dirty.Take(), (std::vector<SlotRange>{{0, 1}}));
+  EXPECT_EQ(grey.slots[0].corners[0].material, kEmptyTriangleSlot);
+  EXPECT_TRUE(store_.DirtyVertices().Empty()) << "a dropped vertex needs no upload: nothing refers to it";
+
+  // The next triangle takes the freed slot; the arrays do not grow.
+  DeltaBuilder d(3, 1, wire::DELTA_KIND_SHADED);
+  d.Vertex(5, Vec3(2, 0, 0), Rgb(5.0f)).Triangle(12, {1, 5, 3}, kGrey);
+  ASSERT_TRUE(store_.Apply(d.Delta()).ok());
+  EXPECT_EQ(grey.allocator.HighWater(), 2u);
+  EXPECT_EQ(grey.dirty.Take(), (std::vector<SlotRange>{{0, 1}}));
+  EXPECT_EQ(grey.slots[0].corners[0].material, kGrey);
+  // Vertex 5 took vertex 2's slot (1).
+  EXPECT_EQ(store_.VertexSlots().size(), 4u);
+  EXPECT_EQ(store_.DirtyVertices().Take(), (std::vector<SlotRange>{{1, 1}}));
+  EXPECT_EQ(grey.slots[0].corners[1].vertexSlot, 1u);
+  EXPECT_EQ(store_.VertexSlots()[1].position[0], 2.0f);
+}
+
+TEST_F(MeshStoreTest, TexturedTrianglesGoToTheirTextureGroupWithTheirUvs) {
+  DeltaBuilder d(1, 1);
+  d.Vertex(1, Vec3(0), Rgb(1), Rgb(3)).Vertex(2, Vec3(1, 0, 0), Rgb(1)).Vertex(3, Vec3(0, 1, 0), Rgb(1));
+  d.Triangle(10, {1, 2, 3}, kGrey).Triangle(11, {3, 2, 1}, kTextured, std::array<float, 6>{0, 1, 2, 3, 4, 5});
+  ASSERT_TRUE(store_.Apply(d.Delta()).ok());
+  ASSERT_EQ(store_.Groups().size(), 2u);
+  const TriangleGroup& textured = store_.Groups()[1];
+  EXPECT_EQ(textured.texture, 0);
+  ASSERT_EQ(textured.allocator.Live(), 1u);
+  EXPECT_EQ(store_.Groups()[0].allocator.Live(), 1u);
+  const GpuTriangle& t = textured.slots[0];
+  EXPECT_EQ(t.corners[0].material, kTextured);
+  EXPECT_EQ(t.corners[2].uv[0], 4.0f);
+  EXPECT_EQ(t.corners[2].uv[1], 5.0f);
+  EXPECT_EQ(store_.VertexSlots()[t.corners[2].vertexSlot].irradiance[0], 3.0f);
+}
+
+TEST_F(MeshStoreTest, HeldLuminanceIsMeasureLuminanceOfTheHeldVertices) {
+  ASSERT_TRUE(store_.Apply(Quad().Delta()).ok());
+  auto expectMatches = [&](std::vector<Rgb> held) {
+    const ViewLuminance expected = MeasureLuminance(held);
+    const ViewLuminance got = store_.HeldLuminance();
+    EXPECT_FLOAT_EQ(got.max, expected.max);
+    EXPECT_NEAR(got.logAverage, expected.logAverage, 1e-5f * expected.logAverage);
+  };
+  expectMatches({Rgb(1.0f), Rgb(2.0f), Rgb(3.0f), Rgb(4.0f)});
+  // Removing triangle 11 drops vertex 4, the brightest.
+  ASSERT_TRUE(store_.Apply(DeltaBuilder(2, 1, wire::DELTA_KIND_REMOVED).Remove(11).Delta()).ok());
+  expectMatches({Rgb(1.0f), Rgb(2.0f), Rgb(3.0f)});
+  ASSERT_TRUE(store_.Apply(DeltaBuilder(3, 1, wire::DELTA_KIND_REMOVED).Remove(10).Delta()).ok());
+  expectMatches({});
+}
+
+}  // namespace
+}  // namespace penumbra::client

@@ -1,0 +1,82 @@
+// Camera paths: loading from a path file or a scene file's named path,
+// still views from presets, real-time playback.
+
+#include "penumbra/client/path_player.h"
+
+#include <filesystem>
+#include <fstream>
+
+#include <gtest/gtest.h>
+
+#include "support/fake_sma.h"
+#include "support/process.h"
+
+namespace penumbra::client {
+namespace {
+
+using namespace std::chrono_literals;
+
+std::string WriteFile(const std::string& name, const std::string& text) {
+  const std::string path = testing::MakeTempDir("penumbra-path-test") + "/" + name;
+  std::ofstream(path) << text;
+  return path;
+}
+
+constexpr const char* kTwoKeyframes = R"({"fov_y_deg": 50, "width": 320, "height": 240, "keyframes": [
+  {"t": 1, "eye": [0, 0, 4], "target": [0, 0, 0]},
+  {"t": 3, "eye": [0, 0, 2], "target": [0, 0, 0]}]})";
+
+TEST(PathSpecTest, LoadsAPathFile) {
+  auto path = LoadCameraPathSpec(WriteFile("dolly.json", kTwoKeyframes));
+  ASSERT_TRUE(path.ok()) << path.error().message;
+  EXPECT_EQ(path->width, 320);
+  EXPECT_EQ(path->keyframes.size(), 2u);
+}
+
+TEST(PathSpecTest, LoadsANamedPathOfASceneFile) {
+  const std::string scene = std::string(R"({"mesh": "x.obj", "paths": {"dolly": )") + kTwoKeyframes + "}}";
+  const std::string file = WriteFile("scene.json", scene);
+  auto path = LoadCameraPathSpec(file + "#dolly");
+  ASSERT_TRUE(path.ok()) << path.error().message;
+  EXPECT_EQ(path->name, "dolly");
+  EXPECT_FLOAT_EQ(path->fovYDeg, 50.0f);
+
+  auto missing = LoadCameraPathSpec(file + "#orbit");
+  ASSERT_FALSE(missing.ok());
+  EXPECT_NE(missing.error().message.find("no camera path named 'orbit'"), std::string::npos);
+  EXPECT_FALSE(LoadCameraPathSpec("/nonexistent/scene.json#walk").ok());
+  EXPECT_FALSE(LoadCameraPathSpec(WriteFile("bad.json", "{\"keyframes\": []}")).ok());
+}
+
+TEST(PathSpecTest, TheSharedSceneFilesPathsLoad) {
+  auto walk = LoadCameraPathSpec(std::string(PENUMBRA_SOURCE_DIR) + "/scenes/sponza.json#walk");
+  ASSERT_TRUE(walk.ok()) << walk.error().message;
+  EXPECT_EQ(walk->keyframes.size(), 4u);
+}
+
+TEST(PathPlayerTest, PlaysFromTheFirstKeyframeAndHoldsTheLast) {
+  auto path = LoadCameraPathSpec(WriteFile("dolly.json", kTwoKeyframes));
+  ASSERT_TRUE(path.ok());
+  const PathPlayer player(*path);
+  EXPECT_FLOAT_EQ(player.ViewAt(0s).pose.eye.z, 4.0f);
+  EXPECT_FLOAT_EQ(player.ViewAt(1s).pose.eye.z, 3.0f);
+  EXPECT_FALSE(player.Finished(1.9s));
+  EXPECT_TRUE(player.Finished(2s));
+  EXPECT_FLOAT_EQ(player.ViewAt(10s).pose.eye.z, 2.0f);
+  EXPECT_EQ(player.ViewAt(0s).width, 320);
+}
+
+TEST(PathPlayerTest, APresetIsAStillPathFinishedAtOnce) {
+  const wire::SceneInfo info = testing::UnitSquareSceneInfo();
+  const PathPlayer player(StillPath(info.cameras(0), 64, 48));
+  EXPECT_TRUE(player.Finished(0s));
+  const CameraView view = player.ViewAt(5s);
+  EXPECT_EQ(view.width, 64);
+  EXPECT_EQ(view.height, 48);
+  EXPECT_FLOAT_EQ(view.pose.eye.z, 2.0f);
+  EXPECT_FLOAT_EQ(view.fovYDeg, 45.0f);
+  EXPECT_TRUE(ValidateCameraView(view).ok());
+}
+
+}  // namespace
+}  // namespace penumbra::client

@@ -1,0 +1,213 @@
+// SmaSession against a scripted SMA in the same process (support/fake_sma.h):
+// handshake, views, deltas, texture requests, and reconnection with
+// back-off after the SMA goes away or the client abandons a connection.
+
+#include "penumbra/client/session.h"
+
+#include <thread>
+
+#include <gtest/gtest.h>
+
+#include "support/delta_builder.h"
+#include "support/fake_sma.h"
+
+namespace penumbra::client {
+namespace {
+
+using namespace std::chrono_literals;
+using testing::DeltaBuilder;
+using testing::WireClient;
+using testing::WireListener;
+using Clock = std::chrono::steady_clock;
+
+CameraView FrontView() {
+  CameraView view;
+  view.pose = CameraPose{Vec3(0.5f, 0.5f, 2.0f), Vec3(0.5f, 0.5f, 0.0f), Vec3(0, 1, 0)};
+  view.width = 64;
+  view.height = 48;
+  return view;
+}
+
+class SessionTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    auto listener = WireListener::Listen();
+    ASSERT_TRUE(listener.ok()) << listener.error().message;
+    listener_ = std::make_unique<WireListener>(std::move(*listener));
+    SessionOptions options;
+    options.sma = HostPort{"127.0.0.1", listener_->Port()};
+    options.reconnectMin = 50ms;
+    options.reconnectMax = 200ms;
+    session_ = std::make_unique<SmaSession>(options);
+    session_->Start();
+  }
+
+  // Accepts the session's next connection and serves the handshake.
+  WireClient AcceptClient() {
+    auto client = listener_->Accept(5s);
+    EXPECT_TRUE(client.ok()) << client.error().message;
+    auto served = testing::ServeClientHandshake(*client, testing::UnitSquareSceneInfo());
+    EXPECT_TRUE(served.ok()) << served.error().message;
+    return std::move(*client);
+  }
+
+  // Collects events until one of type T arrives (or a timeout).
+  template <class T>
+  std::optional<T> WaitForEvent(std::chrono::milliseconds timeout = 5s) {
+    const auto deadline = Clock::now() + timeout;
+    while (Clock::now() < deadline) {
+      for (SessionEvent& e : session_->TakeEvents()) {
+        seen_.push_back(e);
+        if (auto* t = std::get_if<T>(&e)) return std::move(*t);
+      }
+      std::this_thread::sleep_for(5ms);
+    }
+    return std::nullopt;
+  }
+
+  std::unique_ptr<WireListener> listener_;
+  std::unique_ptr<SmaSession> session_;
+  std::vector<SessionEvent> seen_;
+};
+
+TEST_F(SessionTest, HandshakesSendsTheViewAndHandsDeltasOver) {
+  const uint64_t serial = session_->SetView(FrontView());
+  EXPECT_EQ(serial, 1u);
+  WireClient sma = AcceptClient();
+  auto connected = WaitForEvent<Connected>();
+  ASSERT_TRUE(connected.has_value());
+  EXPECT_EQ(connected->connection, 1u);
+  EXPECT_EQ(connected->sceneInfo.name(), "unit-square");
+  EXPECT_EQ(session_->Status().state, ConnectionState::kConnected);
+
+  auto view = testing::ReceiveView(sma);
+  ASSERT_TRUE(view.ok()) << view.error().message;
+  EXPECT_EQ(view->view_id(), 1u);
+  EXPECT_EQ(view->width(), 64u);
+  EXPECT_FLOAT_EQ(view->eye().z(), 2.0f);
+
+  ASSERT_TRUE(sma.Send(DeltaBuilder(1, 1).Converged().Envelope()));
+  auto delta = WaitForEvent<DeltaReceived>();
+  ASSERT_TRUE(delta.has_value());
+  EXPECT_EQ(delta->viewSerial, serial);
+  EXPECT_EQ(delta->delta.sequence(), 1u);
+  const SessionStatus status = session_->Status();
+  EXPECT_TRUE(status.viewToFirstDeltaMs.has_value());
+  EXPECT_GT(status.bytesReceived, 0u);
+
+  // A converged delta is followed by a counters request, and a new view gets
+  // the connection's next id.
+  const uint64_t second = session_->SetView(FrontView());
+  EXPECT_EQ(second, 2u);
+  bool sawStatsRequest = false;
+  for (int i = 0; i < 5; ++i) {
+    auto e = sma.Receive(2s);
+    ASSERT_TRUE(e.ok()) << e.error().message;
+    sawStatsRequest |= e->has_stats_request();
+    if (e->has_view()) {
+      EXPECT_EQ(e->view().view_id(), 2u);
+      break;
+    }
+  }
+  EXPECT_TRUE(sawStatsRequest);
+}
+
+TEST_F(SessionTest, ReconnectsWhenTheSmaGoesAwayAndSendsTheViewAgain) {
+  session_->SetView(FrontView());
+  {
+    WireClient sma = AcceptClient();
+    ASSERT_TRUE(WaitForEvent<Connected>().has_value());
+    ASSERT_TRUE(testing::ReceiveView(sma).ok());
+  }  // the SMA closes
+  auto lost = WaitForEvent<Disconnected>();
+  ASSERT_TRUE(lost.has_value());
+  EXPECT_EQ(lost->connection, 1u);
+  EXPECT_FALSE(session_->Status().lastError.empty());
+
+  WireClient sma = AcceptClient();
+  auto connected = WaitForEvent<Connected>();
+  ASSERT_TRUE(connected.has_value());
+  EXPECT_EQ(connected->connection, 2u);
+  auto view = testing::ReceiveView(sma);
+  ASSERT_TRUE(view.ok());
+  EXPECT_EQ(view->view_id(), 1u) << "view ids count per connection";
+  EXPECT_EQ(session_->Status().connections, 2u);
+}
+
+TEST_F(SessionTest, AbandoningAConnectionTellsTheSmaWhyAndReconnects) {
+  session_->SetView(FrontView());
+  WireClient first = AcceptClient();
+  ASSERT_TRUE(WaitForEvent<Connected>().has_value());
+  session_->AbandonConnection(1, "delta 2: removal of triangle 9, which is not held");
+  bool sawError = false;
+  for (int i = 0; i < 5 && !sawError; ++i) {
+    auto e = first.Receive(2s);
+    if (!e) break;
+    sawError = e->has_error() && e->error().fatal() &&
+               e->error().message().find("removal of triangle 9") != std::string::npos;
+  }
+  EXPECT_TRUE(sawError);
+  EXPECT_TRUE(first.WaitClosed());
+  WireClient second = AcceptClient();
+  auto connected = WaitForEvent<Connected>();
+  ASSERT_TRUE(connected.has_value());
+  EXPECT_EQ(connected->connection, 2u);
+  // A request naming the abandoned connection is ignored.
+  session_->AbandonConnection(1, "stale");
+  session_->RequestTexture(2, 0);
+  auto request = second.Receive(2s);
+  ASSERT_TRUE(request.ok());
+  while (request.ok() && !request->has_texture_request()) request = second.Receive(2s);
+  ASSERT_TRUE(request.ok());
+  EXPECT_EQ(request->texture_request().texture(), 0u);
+}
+
+TEST_F(SessionTest, RefusesADeltaForAViewNeverSent) {
+  WireClient sma = AcceptClient();
+  ASSERT_TRUE(WaitForEvent<Connected>().has_value());
+  ASSERT_TRUE(sma.Send(DeltaBuilder(1, 5).Envelope()));
+  bool sawError = false;
+  for (int i = 0; i < 5 && !sawError; ++i) {
+    auto e = sma.Receive(2s);
+    if (!e) break;
+    sawError = e->has_error() && e->error().fatal() && e->error().message().find("view 5") != std::string::npos;
+  }
+  EXPECT_TRUE(sawError);
+  EXPECT_TRUE(sma.WaitClosed());
+  EXPECT_FALSE(WaitForEvent<DeltaReceived>(300ms).has_value());
+}
+
+TEST(SessionRetryTest, KeepsTryingUntilAnSmaListens) {
+  uint16_t port = 0;
+  {
+    auto probe = WireListener::Listen();
+    ASSERT_TRUE(probe.ok());
+    port = probe->Port();
+  }  // nobody listens there now
+  SessionOptions options;
+  options.sma = HostPort{"127.0.0.1", port};
+  options.reconnectMin = 20ms;
+  options.reconnectMax = 100ms;
+  SmaSession session(options);
+  session.Start();
+  std::this_thread::sleep_for(300ms);
+  SessionStatus status = session.Status();
+  EXPECT_NE(status.state, ConnectionState::kConnected);
+  EXPECT_NE(status.lastError.find("refused"), std::string::npos) << status.lastError;
+
+  auto listener = WireListener::Listen(port);
+  ASSERT_TRUE(listener.ok()) << listener.error().message;
+  auto sma = listener->Accept(5s);
+  ASSERT_TRUE(sma.ok()) << sma.error().message;
+  ASSERT_TRUE(testing::ServeClientHandshake(*sma, testing::UnitSquareSceneInfo()).ok());
+  const auto deadline = Clock::now() + 5s;
+  while (session.Status().state != ConnectionState::kConnected && Clock::now() < deadline)
+    std::this_thread::sleep_for(5ms);
+  EXPECT_EQ(session.Status().state, ConnectionState::kConnected);
+  EXPECT_TRUE(session.Status().lastError.empty());
+  session.Stop();
+  EXPECT_EQ(session.Status().state, ConnectionState::kStopped);
+}
+
+}  // namespace
+}  // namespace penumbra::client
