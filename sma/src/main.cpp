@@ -44,6 +44,24 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(1, 86400))->capture_default_str();
   app.add_option("--resolve-interval", resolveSeconds, "Seconds between re-resolving renderer names")
       ->check(CLI::Range(1, 86400))->capture_default_str();
+  std::string criterion = std::string(CriterionName(options.refinement.criterion));
+  int maxDepth = options.refinement.maxDepth;
+  RefinementParams& refine = options.refinement;
+  app.add_option("--criterion", criterion, "Refinement criterion: nld_os, nld_is, rnd, nld_os_rnd or none")
+      ->capture_default_str();
+  app.add_option("--s-req", refine.sReq, "S_req: normalised luminance difference above which to split")
+      ->capture_default_str();
+  app.add_option("--refine-batch", refine.batch, "R: leaves chosen per refinement step")->capture_default_str();
+  app.add_option("--min-pixels", refine.minPixels, "Leaves covering fewer pixels are never split")->capture_default_str();
+  app.add_option("--large-fraction", refine.largeFraction,
+                 "NLD_OS: leaves covering more of the image than this are always split")
+      ->capture_default_str();
+  app.add_option("--aspect-threshold", refine.aspectThreshold,
+                 "Propagation: neighbours lower than this times the shared edge split 1->2")
+      ->capture_default_str();
+  app.add_option("--max-depth", maxDepth, "Deepest level a leaf is split from")->capture_default_str();
+  app.add_option("--pixel-fraction", refine.pixelFraction, "NLD_IS / RND budget as a fraction of the image's pixels")
+      ->capture_default_str();
   app.add_option("--io-threads", options.ioThreads, "Network threads")->check(CLI::Range(1, 64))->capture_default_str();
   app.add_option("--view-threads", options.viewThreads, "Visibility job threads")
       ->check(CLI::Range(1, 64))->capture_default_str();
@@ -72,6 +90,21 @@ int main(int argc, char** argv) {
     return 2;
   }
   options.listen = *where;
+  auto parsedCriterion = ParseCriterion(criterion);
+  if (!parsedCriterion) {
+    std::fprintf(stderr, "penumbra-sma: --criterion: %s\n", parsedCriterion.error().message.c_str());
+    return 2;
+  }
+  refine.criterion = *parsedCriterion;
+  if (maxDepth < 1 || maxDepth > 20) {
+    std::fprintf(stderr, "penumbra-sma: --max-depth must be in [1, 20]\n");
+    return 2;
+  }
+  refine.maxDepth = uint8_t(maxDepth);
+  if (auto ok = refine.Validate(); !ok) {
+    std::fprintf(stderr, "penumbra-sma: %s\n", ok.error().message.c_str());
+    return 2;
+  }
   for (const std::string& r : renderers) {
     auto hp = ParseHostPort(r);
     if (!hp) {

@@ -13,6 +13,7 @@
 #include "penumbra/common/messages.h"
 #include "penumbra/sma/delta.h"
 #include "penumbra/sma/hierarchy.h"
+#include "penumbra/sma/refinement.h"
 #include "penumbra/sma/sample_cache.h"
 #include "penumbra/sma/visibility.h"
 
@@ -123,6 +124,9 @@ class SmaServer::Impl {
   void NotifyArrived(const std::shared_ptr<Session>& session, std::shared_ptr<const std::vector<VertexId>> vertices);
 
   void AddGlobalCounters(wire::StatsReply* reply);
+  DragoParams DragoForClients() const {
+    return DragoParams{options_.toneMapping.bias, options_.toneMapping.maxDisplayLuminance, options_.toneMapping.exposure};
+  }
 
   const Scene& scene_;
   SmaOptions options_;
@@ -156,8 +160,14 @@ class SmaServer::Impl {
 class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
  public:
   Session(Impl& server, std::shared_ptr<net::Connection> connection, uint64_t id)
-      : server_(server), connection_(std::move(connection)), id_(id), log_(Logger("sma.client")),
-        refreshTimer_(connection_->Strand()), unblockTimer_(connection_->Strand()) {}
+      : server_(server),
+        connection_(std::move(connection)),
+        id_(id),
+        log_(Logger("sma.client")),
+        refreshTimer_(connection_->Strand()),
+        unblockTimer_(connection_->Strand()),
+        params_(server.options_.refinement),
+        refiner_(std::make_shared<Refiner>(params_)) {}
 
   void Start() {
     auto self = shared_from_this();
@@ -181,6 +191,7 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   void OnView(const wire::View& view);
   void OnStatsRequest(const wire::StatsRequest& request);
   void OnTextureRequest(const wire::TextureRequest& request);
+  void OnSessionOptions(const wire::SessionOptions& options);
   void OnClosed(const std::string& reason);
   void Fatal(wire::ErrorCode code, const std::string& message) {
     log_->warn("{}: {} (closing)", connection_->Id(), message);
@@ -199,14 +210,28 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   /// report convergence; `alwaysSend`: send even when nothing changed.
   void SendChanges(wire::DeltaKind kind, std::span<const NodeId> removals, std::span<const NodeId> additions,
                    bool alwaysSend, bool last);
-  void FillStatus(wire::Delta& delta, bool last) const {
+  void FillStatus(wire::Delta& delta, bool last) {
     delta.set_view_id(appliedViewId_);
-    delta.set_pending_samples(uint32_t(waiting_.size()));
-    delta.set_converged(last && Converged());
+    delta.set_pending_samples(uint32_t(waiting_.size() + refinementPending_.size()));
+    const bool converged = last && Converged();
+    delta.set_converged(converged);
+    if (converged && stage2Ms_ < 0.0) stage2Ms_ = Ms(Clock::now() - viewReceived_);
   }
-  bool Converged() const {
+  // Stage 1 (paper §5): every initially visible triangle of the view shaded.
+  bool Stage1Done() const {
     return hasVisible_ && appliedViewId_ == viewId_ && !jobRunning_ && waiting_.empty() && pending_.empty();
   }
+  bool RefinementDone() const {
+    return params_.criterion == Criterion::kNone ||
+           (refinementDone_ && refinementPending_.empty() && !refineRunning_ && !refreshWanted_);
+  }
+  bool Converged() const { return Stage1Done() && RefinementDone(); }
+  void NoteStage1();
+  void MaybeRefine();
+  void OnRefineStepDone(const std::shared_ptr<Refiner>& refiner, size_t chosen, std::vector<VertexId> newVertices,
+                        bool exhausted);
+  void SendStatus();
+  void RestartRefinement();
 
   Impl& server_;
   std::shared_ptr<net::Connection> connection_;
@@ -236,9 +261,22 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   std::vector<VertexId> interest_;                               // vertices we asked the pool for
   uint64_t sequence_ = 0;
   uint64_t deltasSent_ = 0;
+  uint64_t trianglesSent_ = 0;
   uint64_t viewsReceived_ = 0;
   JobTimings lastTimings_;
   double lastFirstDeltaMs_ = 0.0;
+
+  // Refinement of the current view (paper §4): one Refiner per view; its
+  // steps run on job threads one at a time.
+  RefinementParams params_;
+  std::shared_ptr<Refiner> refiner_;
+  bool refineRunning_ = false;
+  bool refinementDone_ = false;
+  std::unordered_set<VertexId> refinementPending_;  // split vertices not yet shaded
+  uint64_t refinementSplits_ = 0;
+  uint64_t refinementSamples_ = 0;
+  double stage1Ms_ = -1.0;  // view received -> stage 1 done
+  double stage2Ms_ = -1.0;  // view received -> converged
 };
 
 void SmaServer::Impl::NotifyArrived(const std::shared_ptr<Session>& session,
@@ -260,6 +298,8 @@ void SmaServer::Impl::Session::OnMessage(wire::Envelope&& envelope) {
       return OnStatsRequest(envelope.stats_request());
     case wire::Envelope::kTextureRequest:
       return OnTextureRequest(envelope.texture_request());
+    case wire::Envelope::kSessionOptions:
+      return OnSessionOptions(envelope.session_options());
     case wire::Envelope::kError:
       log_->warn("{}: client reports {}: {}", connection_->Id(), wire::ErrorCode_Name(envelope.error().code()),
                  envelope.error().message());
@@ -332,6 +372,8 @@ void SmaServer::Impl::Session::OnView(const wire::View& v) {
   viewId_ = v.view_id();
   view_ = view;
   viewReceived_ = Clock::now();
+  stage1Ms_ = stage2Ms_ = -1.0;
+  RestartRefinement();
   // A new view supersedes whatever this client was waiting for: a running
   // job's result is dropped when it lands, and StartJob picks this view.
   StartJob();
@@ -398,6 +440,8 @@ void SmaServer::Impl::Session::OnJobDone(uint64_t viewId, bool newView, std::sha
   }
   (void)started;
   if (refreshWanted_) ScheduleRefresh();
+  NoteStage1();
+  MaybeRefine();
 }
 
 void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
@@ -453,8 +497,8 @@ void SmaServer::Impl::Session::SendChanges(wire::DeltaKind kind, std::span<const
     wire::Envelope envelope;
     wire::Delta& delta = *envelope.mutable_delta();
     delta.set_kind(kind);
-    mirror_.AppendChanges(first ? removals : std::span<const NodeId>{}, additions.subspan(offset, count),
-                          server_.hierarchy_, server_.cache_, delta);
+    trianglesSent_ += mirror_.AppendChanges(first ? removals : std::span<const NodeId>{},
+                                            additions.subspan(offset, count), server_.hierarchy_, server_.cache_, delta);
     offset += count;
     first = false;
     const bool empty = delta.removed_triangles_size() == 0 && delta.triangle_ids_size() == 0;
@@ -476,6 +520,7 @@ void SmaServer::Impl::Session::OnSamplesArrived(const std::vector<VertexId>& ver
   bool refinement = false;
   const size_t baseVertices = server_.scene_.vertices.size();
   for (VertexId v : vertices) {
+    refinementPending_.erase(v);
     auto it = waiting_.find(v);
     if (it == waiting_.end()) {
       // A midpoint this client was not waiting for may complete the children
@@ -502,6 +547,140 @@ void SmaServer::Impl::Session::OnSamplesArrived(const std::vector<VertexId>& ver
     return;
   }
   SendChanges(wire::DELTA_KIND_SHADED, {}, ready, /*alwaysSend=*/Converged(), /*last=*/true);
+  lock.unlock();
+  NoteStage1();
+  MaybeRefine();
+}
+
+void SmaServer::Impl::Session::NoteStage1() {
+  if (stage1Ms_ < 0.0 && Stage1Done()) {
+    stage1Ms_ = Ms(Clock::now() - viewReceived_);
+    log_->debug("{}: view {}: stage 1 in {:.0f} ms, {} triangles", connection_->Id(), appliedViewId_, stage1Ms_,
+                mirror_.TriangleCount());
+  }
+}
+
+void SmaServer::Impl::Session::RestartRefinement() {
+  // A running step keeps the old Refiner; its result is recognised as stale.
+  refiner_ = std::make_shared<Refiner>(params_);
+  refinementDone_ = false;
+  refinementPending_.clear();
+}
+
+void SmaServer::Impl::Session::MaybeRefine() {
+  if (params_.criterion == Criterion::kNone || refineRunning_ || refinementDone_ || !Stage1Done() ||
+      !connection_->IsOpen())
+    return;
+  refineRunning_ = true;
+  auto self = shared_from_this();
+  auto refiner = refiner_;
+  auto hits = hits_;
+  auto visible = visible_;
+  // Splits still waiting for samples, or shaded but not yet re-mapped: an
+  // empty choice now would not mean NLD_OS is done.
+  const bool outstanding = !refinementPending_.empty() || refreshWanted_ || refreshArmed_;
+  server_.jobs_.Post([self, refiner, hits, visible, outstanding] {
+    Impl& server = self->server_;
+    std::vector<NodeId> chosen;
+    {
+      std::shared_lock lock(server.stateMutex_);
+      chosen = refiner->Select(server.hierarchy_, server.cache_, *hits, *visible, server.DragoForClients(), outstanding);
+    }
+    std::vector<VertexId> created;
+    if (!chosen.empty()) {
+      std::unique_lock lock(server.stateMutex_);
+      const RefineOptions options = refiner->Params().ToRefineOptions();
+      for (NodeId id : chosen) {
+        if (!server.hierarchy_.GetNode(id).IsLeaf()) continue;  // split meanwhile, by another client
+        RefineResult r = server.hierarchy_.Refine(id, options);
+        created.insert(created.end(), r.newVertices.begin(), r.newVertices.end());
+      }
+      server.cache_.Reserve(server.hierarchy_.VertexCount());
+      std::vector<SampleRequest> requests;
+      requests.reserve(created.size());
+      for (VertexId v : created) requests.push_back(MakeSampleRequest(server.hierarchy_, v));
+      server.pool_->Request(requests, Priority::kBackground);
+    }
+    refiner->CountRequested(created.size());
+    const bool exhausted = refiner->Exhausted();
+    asio::post(self->connection_->Strand(), [self, refiner, n = chosen.size(), created = std::move(created), exhausted]() mutable {
+      self->OnRefineStepDone(refiner, n, std::move(created), exhausted);
+    });
+  });
+}
+
+void SmaServer::Impl::Session::OnRefineStepDone(const std::shared_ptr<Refiner>& refiner, size_t chosen,
+                                                std::vector<VertexId> newVertices, bool exhausted) {
+  refineRunning_ = false;
+  if (refiner != refiner_ || !connection_->IsOpen()) {  // the view changed meanwhile
+    MaybeRefine();
+    return;
+  }
+  refinementSplits_ += chosen;
+  refinementSamples_ += newVertices.size();
+  {
+    // Results may have landed before this step's report: only wait for
+    // what is still unshaded.
+    std::shared_lock lock(server_.stateMutex_);
+    for (VertexId v : newVertices)
+      if (!server_.cache_.IsShaded(v)) refinementPending_.insert(v);
+  }
+  if (chosen > 0) {
+    // Bounded batches (the paper's R): give the strand's queue -- a new view
+    // above all -- a turn before the next step.
+    asio::post(connection_->Strand(), [self = shared_from_this()] { self->MaybeRefine(); });
+    return;
+  }
+  if (exhausted) {
+    refinementDone_ = true;
+    if (Converged()) SendStatus();
+  }
+  // Otherwise samples are on their way; their arrival re-maps the view and
+  // the next step follows.
+}
+
+void SmaServer::Impl::Session::SendStatus() {
+  if (Blocked()) {
+    WaitUntilUnblocked();
+    return;
+  }
+  wire::Envelope envelope;
+  wire::Delta& delta = *envelope.mutable_delta();
+  delta.set_kind(wire::DELTA_KIND_STATUS);
+  delta.set_sequence(++sequence_);
+  FillStatus(delta, /*last=*/true);
+  if (connection_->Send(envelope)) ++deltasSent_;
+}
+
+void SmaServer::Impl::Session::OnSessionOptions(const wire::SessionOptions& o) {
+  RefinementParams p = params_;
+  if (!o.criterion().empty()) {
+    auto c = ParseCriterion(o.criterion());
+    if (!c) {
+      connection_->Send(MakeError(0, wire::ERROR_CODE_INVALID_REQUEST, c.error().message, false));
+      return;
+    }
+    p.criterion = *c;
+  }
+  if (o.has_s_req()) p.sReq = o.s_req();
+  if (o.has_batch()) p.batch = o.batch();
+  if (o.has_min_pixels()) p.minPixels = o.min_pixels();
+  if (o.has_large_fraction()) p.largeFraction = o.large_fraction();
+  if (o.has_aspect_threshold()) p.aspectThreshold = o.aspect_threshold();
+  if (o.has_pixel_fraction()) p.pixelFraction = o.pixel_fraction();
+  if (o.has_max_depth()) p.maxDepth = uint8_t(std::clamp<uint32_t>(o.max_depth(), 0, 255));
+  if (auto ok = o.has_max_depth() && o.max_depth() > 20 ? Status(Fail(fmt::format("max_depth = {} is out of range", o.max_depth())))
+                                                        : p.Validate();
+      !ok) {
+    connection_->Send(MakeError(0, wire::ERROR_CODE_INVALID_REQUEST, "session options: " + ok.error().message, false));
+    return;
+  }
+  params_ = p;
+  log_->info("{}: refinement {} (S_req {}, R {}, min {} px)", connection_->Id(), CriterionName(p.criterion), p.sReq,
+             p.batch, p.minPixels);
+  RestartRefinement();
+  MaybeRefine();
+  if (Converged()) SendStatus();
 }
 
 void SmaServer::Impl::Session::ScheduleRefresh() {
@@ -557,6 +736,12 @@ void SmaServer::Impl::Session::OnStatsRequest(const wire::StatsRequest& request)
   AddCounter(reply, "client_last_trace_ms", lastTimings_.traceMs);
   AddCounter(reply, "client_last_map_ms", lastTimings_.mapMs);
   AddCounter(reply, "client_last_view_to_first_delta_ms", lastFirstDeltaMs_);
+  AddCounter(reply, "client_triangles_sent", double(trianglesSent_));
+  AddCounter(reply, "client_stage1_ms", stage1Ms_);
+  AddCounter(reply, "client_stage2_ms", stage2Ms_);
+  AddCounter(reply, "client_refinement_splits", double(refinementSplits_));
+  AddCounter(reply, "client_refinement_samples", double(refinementSamples_));
+  AddCounter(reply, "client_refinement_pending", double(refinementPending_.size()));
   connection_->Send(envelope);
 }
 

@@ -62,11 +62,6 @@ struct ViewPlan {
 ViewPlan PlanView(const VisibleSet& visible, const ClientMirror& mirror, const Hierarchy& hierarchy,
                   const SampleCache& cache);
 
-/// Whether the corners of `node` are all shaded.
-inline bool CornersShaded(const Node& node, const SampleCache& cache) {
-  return cache.IsShaded(node.v[0]) && cache.IsShaded(node.v[1]) && cache.IsShaded(node.v[2]);
-}
-
 /// Bytes a delta takes on the wire (its encoded frame, header included).
 size_t DeltaWireBytes(const wire::Delta& delta);
 

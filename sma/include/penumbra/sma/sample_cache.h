@@ -60,4 +60,9 @@ class SampleCache {
   mutable std::atomic<uint64_t> misses_{0};
 };
 
+/// Whether the corners of `node` are all shaded.
+inline bool CornersShaded(const Node& node, const SampleCache& cache) {
+  return cache.IsShaded(node.v[0]) && cache.IsShaded(node.v[1]) && cache.IsShaded(node.v[2]);
+}
+
 }  // namespace penumbra::sma

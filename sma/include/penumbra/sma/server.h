@@ -24,6 +24,7 @@
 #include "penumbra/common/endpoint.h"
 #include "penumbra/common/expected.h"
 #include "penumbra/common/scene.h"
+#include "penumbra/sma/refinement.h"
 #include "penumbra/sma/renderer_pool.h"
 
 namespace penumbra::sma {
@@ -38,6 +39,7 @@ struct SmaOptions {
   HostPort listen{"127.0.0.1", 7200};
   std::string name = "penumbra-sma";
   RendererPoolOptions pool;            // renderers, scene hash (filled in), credits, timeouts
+  RefinementParams refinement;         // each session starts with these; clients may change theirs
   net::ConnectionOptions clientConnection;
   int ioThreads = 1;
   int viewThreads = 2;                 // visibility jobs in parallel (each also uses TBB inside)

@@ -1,0 +1,284 @@
+#include "penumbra/sma/refinement.h"
+
+#include <algorithm>
+#include <cmath>
+#include <unordered_set>
+
+#include <fmt/format.h>
+
+namespace penumbra::sma {
+
+Expected<Criterion> ParseCriterion(std::string_view name) {
+  if (name == "none") return Criterion::kNone;
+  if (name == "nld_os") return Criterion::kNldOs;
+  if (name == "nld_is") return Criterion::kNldIs;
+  if (name == "rnd") return Criterion::kRnd;
+  if (name == "nld_os_rnd") return Criterion::kNldOsRnd;
+  return Fail(fmt::format("unknown criterion '{}' (nld_os, nld_is, rnd, nld_os_rnd or none)", name));
+}
+
+std::string_view CriterionName(Criterion c) {
+  switch (c) {
+    case Criterion::kNone: return "none";
+    case Criterion::kNldOs: return "nld_os";
+    case Criterion::kNldIs: return "nld_is";
+    case Criterion::kRnd: return "rnd";
+    case Criterion::kNldOsRnd: return "nld_os_rnd";
+  }
+  return "?";
+}
+
+Status RefinementParams::Validate() const {
+  auto bad = [](const char* what, double v) { return Fail(fmt::format("{} = {} is out of range", what, v)); };
+  if (!(sReq >= 0.0f && sReq <= 1.0f)) return bad("s_req", sReq);
+  if (batch < 1 || batch > 1000000) return bad("batch (R)", batch);
+  if (!(minPixels >= 0.0f && std::isfinite(minPixels))) return bad("min_pixels", minPixels);
+  if (!(largeFraction > 0.0f && largeFraction <= 1.0f)) return bad("large_fraction", largeFraction);
+  if (!(aspectThreshold > 0.0f && std::isfinite(aspectThreshold))) return bad("aspect_threshold", aspectThreshold);
+  if (maxDepth < 1 || maxDepth > 20) return bad("max_depth", maxDepth);
+  if (!(pixelFraction > 0.0f && pixelFraction <= 1.0f)) return bad("pixel_fraction", pixelFraction);
+  return Status::Ok();
+}
+
+RefineOptions RefinementParams::ToRefineOptions() const {
+  RefineOptions o;
+  o.aspectThreshold = aspectThreshold;
+  // Propagation may go one level past the selection limit to keep the mesh
+  // conforming.
+  o.maxDepth = uint8_t(std::min(20, maxDepth + 1));
+  return o;
+}
+
+float NormalizedLuminanceDifference(std::span<const float> l, float lMax) {
+  const size_t n = l.size();
+  if (n < 2 || !(lMax > 0.0f)) return 0.0f;
+  double sum = 0.0;
+  for (size_t i = 0; i + 1 < n; ++i)
+    for (size_t j = i + 1; j < n; ++j) sum += double(l[i] - l[j]) * double(l[i] - l[j]);
+  const double denominator = double((n * n) / 4) * double(lMax) * double(lMax);
+  return float(std::sqrt(sum / denominator));
+}
+
+// --- VertexLuminance --------------------------------------------------------
+
+VertexLuminance::VertexLuminance(const Hierarchy& hierarchy, const SampleCache& cache, const ViewLuminance& view,
+                                 const DragoParams& params)
+    : hierarchy_(hierarchy), cache_(cache), view_(view), params_(params) {}
+
+Rgb VertexLuminance::UntexturedRadiance(const Hierarchy& hierarchy, const SampleCache& cache, VertexId v) {
+  const SampleVertex& sv = hierarchy.GetVertex(v);
+  const Material& m = hierarchy.GetScene().MaterialOf(sv.baseTriangle);
+  return m.emission + m.albedo * cache.Irradiance(v) * kInvPi;
+}
+
+float VertexLuminance::operator()(VertexId v) {
+  if (!cache_.IsShaded(v)) return 0.0f;
+  auto [it, inserted] = memo_.try_emplace(v, 0.0f);
+  if (inserted)
+    it->second = DragoDisplayLuminance(Luminance(UntexturedRadiance(hierarchy_, cache_, v)), view_, params_);
+  return it->second;
+}
+
+ViewLuminance VertexLuminance::Measure(const Hierarchy& hierarchy, const SampleCache& cache,
+                                       std::span<const NodeId> nodes) {
+  std::vector<Rgb> radiance;
+  std::unordered_set<VertexId> seen;
+  for (NodeId id : nodes)
+    for (VertexId v : hierarchy.GetNode(id).v)
+      if (cache.IsShaded(v) && seen.insert(v).second) radiance.push_back(UntexturedRadiance(hierarchy, cache, v));
+  return MeasureLuminance(radiance);
+}
+
+// --- Refiner ----------------------------------------------------------------
+
+Refiner::Refiner(RefinementParams params) : params_(params), rng_(params.seed, 0x5eed) {}
+
+void Refiner::Reset(const RefinementParams& params) { *this = Refiner(params); }
+
+bool Refiner::Splittable(const Hierarchy& h, const SampleCache& cache, NodeId id, uint32_t coverage) const {
+  const Node& n = h.GetNode(id);
+  return n.IsLeaf() && n.depth < params_.maxDepth && float(coverage) >= params_.minPixels && CornersShaded(n, cache);
+}
+
+namespace {
+
+uint32_t CoverageOf(const VisibleSet& visible, NodeId id) {
+  auto it = std::lower_bound(visible.nodes.begin(), visible.nodes.end(), id);
+  if (it == visible.nodes.end() || *it != id) return 0;
+  return visible.coverage[size_t(it - visible.nodes.begin())];
+}
+
+}  // namespace
+
+std::vector<NodeId> Refiner::Select(const Hierarchy& hierarchy, const SampleCache& cache, const HitBuffer& hits,
+                                    const VisibleSet& visible, const DragoParams& toneMapping,
+                                    bool samplesOutstanding) {
+  if (exhausted_ || params_.criterion == Criterion::kNone) {
+    exhausted_ = true;
+    return {};
+  }
+  const ViewLuminance view = VertexLuminance::Measure(hierarchy, cache, visible.nodes);
+  VertexLuminance lum(hierarchy, cache, view, toneMapping);
+  // L_max: the largest tone-mapped luminance in the view (Drago maps the
+  // view's maximum close to 1; measured rather than assumed).
+  float lMax = 0.0f;
+  for (NodeId id : visible.nodes)
+    for (VertexId v : hierarchy.GetNode(id).v) lMax = std::max(lMax, lum(v));
+  const size_t pixels = size_t(hits.view.width) * size_t(hits.view.height);
+
+  switch (params_.criterion) {
+    case Criterion::kNldOs: {
+      auto chosen = SelectObjectSpace(hierarchy, cache, visible, lum, lMax, params_.batch);
+      if (chosen.empty() && !samplesOutstanding) exhausted_ = true;
+      return chosen;
+    }
+    case Criterion::kNldIs:
+      return SelectImageSpace(hierarchy, cache, hits, visible, lum, lMax);
+    case Criterion::kRnd: {
+      auto chosen = SelectRandom(hierarchy, cache, visible, size_t(params_.pixelFraction * float(pixels)), params_.batch);
+      return chosen;
+    }
+    case Criterion::kNldOsRnd: {
+      if (phase_ == 1) {
+        auto chosen = SelectRandom(hierarchy, cache, visible, size_t(params_.pixelFraction * 0.25f * float(pixels)),
+                                   params_.batch);
+        if (!exhausted_) return chosen;
+        // The random pass is spent: NLD_OS follows up on what it found.
+        exhausted_ = false;
+        phase_ = 2;
+        if (!chosen.empty()) return chosen;
+      }
+      auto chosen = SelectObjectSpace(hierarchy, cache, visible, lum, lMax, params_.batch);
+      if (chosen.empty() && !samplesOutstanding) {
+        if (phase_ == 0) {
+          phase_ = 1;
+          return SelectRandom(hierarchy, cache, visible, size_t(params_.pixelFraction * 0.25f * float(pixels)),
+                              params_.batch);
+        }
+        exhausted_ = true;
+      }
+      return chosen;
+    }
+    case Criterion::kNone:
+      break;
+  }
+  return {};
+}
+
+std::vector<NodeId> Refiner::SelectObjectSpace(const Hierarchy& h, const SampleCache& cache,
+                                               const VisibleSet& visible, VertexLuminance& lum, float lMax,
+                                               size_t limit) {
+  const float pixels = float(visible.pixelNode.size());
+  struct Candidate {
+    float priority;
+    NodeId id;
+  };
+  std::vector<Candidate> candidates;
+  for (size_t i = 0; i < visible.nodes.size(); ++i) {
+    const NodeId id = visible.nodes[i];
+    const uint32_t coverage = visible.coverage[i];
+    if (!Splittable(h, cache, id, coverage)) continue;
+    const bool large = float(coverage) > params_.largeFraction * pixels;
+    const Node& n = h.GetNode(id);
+    const float l[3] = {lum(n.v[0]), lum(n.v[1]), lum(n.v[2])};
+    const float s = NormalizedLuminanceDifference(l, lMax);
+    // Large leaves first (they may hide anything), then by S.
+    if (large) candidates.push_back(Candidate{2.0f + float(coverage) / pixels, id});
+    else if (s > params_.sReq) candidates.push_back(Candidate{s, id});
+  }
+  const size_t keep = std::min(limit, candidates.size());
+  std::partial_sort(candidates.begin(), candidates.begin() + std::ptrdiff_t(keep), candidates.end(),
+                    [](const Candidate& a, const Candidate& b) { return a.priority > b.priority || (a.priority == b.priority && a.id < b.id); });
+  std::vector<NodeId> chosen;
+  chosen.reserve(keep);
+  for (size_t i = 0; i < keep; ++i) chosen.push_back(candidates[i].id);
+  return chosen;
+}
+
+std::vector<NodeId> Refiner::SelectImageSpace(const Hierarchy& h, const SampleCache& cache, const HitBuffer& hits,
+                                              const VisibleSet& visible, VertexLuminance& lum, float lMax) {
+  const int width = hits.view.width, height = hits.view.height;
+  if (!quadrantsSeeded_) {
+    quadrants_.push_back(Quadrant{0, 0, width - 1, height - 1});
+    quadrantsSeeded_ = true;
+  }
+  const double budget = double(params_.pixelFraction) * double(width) * double(height);
+  // Luminance interpolated over the displayed leaf under a pixel centre.
+  auto luminanceAt = [&](int x, int y) -> float {
+    const size_t p = size_t(y) * size_t(width) + size_t(x);
+    const NodeId id = visible.pixelNode[p];
+    if (id == kNoNode) return 0.0f;
+    const Node& n = h.GetNode(id);
+    const PixelHit& hit = hits.hits[p];
+    // Node-local barycentrics of the hit: solve hit = c0 + l1 (c1 - c0) + l2 (c2 - c0)
+    // in the base triangle's barycentric plane.
+    const Vec2 p0 = n.bary[0], e1 = n.bary[1] - p0, e2 = n.bary[2] - p0, d = Vec2(hit.b1, hit.b2) - p0;
+    const float det = e1.x * e2.y - e1.y * e2.x;
+    if (std::abs(det) < 1e-30f) return lum(n.v[0]);
+    const float l1 = (d.x * e2.y - d.y * e2.x) / det;
+    const float l2 = (e1.x * d.y - e1.y * d.x) / det;
+    return (1.0f - l1 - l2) * lum(n.v[0]) + l1 * lum(n.v[1]) + l2 * lum(n.v[2]);
+  };
+  std::vector<NodeId> chosen;
+  std::unordered_set<NodeId> taken;
+  size_t expectedSamples = requested_;
+  while (nextQuadrant_ < quadrants_.size() && chosen.size() < params_.batch) {
+    if (double(expectedSamples) >= budget) {
+      exhausted_ = true;
+      return chosen;
+    }
+    const Quadrant q = quadrants_[nextQuadrant_++];
+    if (q.x1 - q.x0 < 1 && q.y1 - q.y0 < 1) continue;  // pixel-sized: the recursion ends
+    const int mx = (q.x0 + q.x1) / 2, my = (q.y0 + q.y1) / 2;
+    const Quadrant children[4] = {{q.x0, q.y0, mx, my},
+                                  {std::min(mx + 1, q.x1), q.y0, q.x1, my},
+                                  {q.x0, std::min(my + 1, q.y1), mx, q.y1},
+                                  {std::min(mx + 1, q.x1), std::min(my + 1, q.y1), q.x1, q.y1}};
+    float bestS = -1.0f;
+    int best = 0;
+    for (int c = 0; c < 4; ++c) {
+      const Quadrant& r = children[c];
+      const float corners[4] = {luminanceAt(r.x0, r.y0), luminanceAt(r.x1, r.y0), luminanceAt(r.x0, r.y1),
+                                luminanceAt(r.x1, r.y1)};
+      const float s = NormalizedLuminanceDifference(corners, lMax);
+      if (s > bestS) {
+        bestS = s;
+        best = c;
+      }
+      quadrants_.push_back(r);
+    }
+    if (bestS > params_.sReq) {
+      const Quadrant& r = children[best];
+      const int cx = (r.x0 + r.x1) / 2, cy = (r.y0 + r.y1) / 2;
+      const NodeId id = visible.pixelNode[size_t(cy) * size_t(width) + size_t(cx)];
+      if (id != kNoNode && Splittable(h, cache, id, CoverageOf(visible, id)) && taken.insert(id).second) {
+        chosen.push_back(id);
+        expectedSamples += 3;  // a 1 -> 4 split asks for up to three new vertices
+      }
+    }
+  }
+  if (nextQuadrant_ >= quadrants_.size()) exhausted_ = true;
+  // Visited quadrants are not needed again; keep the list from growing.
+  if (nextQuadrant_ > 4096 && nextQuadrant_ * 2 > quadrants_.size()) {
+    quadrants_.erase(quadrants_.begin(), quadrants_.begin() + std::ptrdiff_t(nextQuadrant_));
+    nextQuadrant_ = 0;
+  }
+  return chosen;
+}
+
+std::vector<NodeId> Refiner::SelectRandom(const Hierarchy& h, const SampleCache& cache, const VisibleSet& visible,
+                                          size_t points, size_t limit) {
+  const size_t pixels = visible.pixelNode.size();
+  std::vector<NodeId> chosen;
+  std::unordered_set<NodeId> taken;
+  while (chosen.size() < limit && pointsDrawn_ < points && pixels > 0) {
+    ++pointsDrawn_;
+    const NodeId id = visible.pixelNode[rng_.NextBelow(uint32_t(pixels))];
+    if (id == kNoNode || !Splittable(h, cache, id, CoverageOf(visible, id))) continue;
+    if (taken.insert(id).second) chosen.push_back(id);
+  }
+  if (pointsDrawn_ >= points) exhausted_ = true;
+  return chosen;
+}
+
+}  // namespace penumbra::sma

@@ -1,0 +1,257 @@
+#include "penumbra/sma/refinement.h"
+
+#include <cmath>
+#include <set>
+
+#include <gtest/gtest.h>
+
+namespace penumbra::sma {
+namespace {
+
+constexpr float kShadowEdgeX = 3.3f;  // lit for x < 3.3, in shadow beyond: crosses cells, touches no vertex
+constexpr int kGrid = 6;
+constexpr int kImage = 96;
+
+Scene GridScene() {
+  SceneBuilder b;
+  Material m;
+  m.albedo = Rgb(0.5f);
+  const uint32_t mat = b.AddMaterial(m);
+  for (int i = 0; i < kGrid; ++i)
+    for (int j = 0; j < kGrid; ++j) b.AddQuad(Vec3(float(i), 0, float(j)), Vec3(0, 0, 1), Vec3(1, 0, 0), mat);
+  Scene s;
+  EXPECT_TRUE(b.BuildInto(s).ok());
+  return s;
+}
+
+// Shades every unshaded vertex: irradiance 1 left of the shadow edge, 0.01 right of it.
+void ShadeHardShadow(const Hierarchy& h, SampleCache& cache, bool uniform = false) {
+  std::vector<ShadedSample> samples;
+  for (VertexId v = 0; v < h.VertexCount(); ++v) {
+    if (cache.IsShaded(v)) continue;
+    const float e = uniform || h.GetVertex(v).position.x < kShadowEdgeX ? 1.0f : 0.01f;
+    samples.push_back(ShadedSample{v, Rgb(0.5f * e * kInvPi), Rgb(e)});
+  }
+  cache.Store(samples);
+}
+
+struct Fixture {
+  Scene scene = GridScene();
+  Hierarchy hierarchy{scene};
+  SampleCache cache;
+  std::unique_ptr<VisibilityTracer> tracer;
+  HitBuffer hits;
+  VisibleSet visible;
+
+  explicit Fixture(bool uniform = false) {
+    auto t = VisibilityTracer::Build(scene);
+    EXPECT_TRUE(t.ok());
+    tracer = std::move(*t);
+    // Straight down onto the middle of the grid: no background in the image,
+    // so the only image-space edge is the shadow's.
+    CameraView view;
+    view.pose = CameraPose{Vec3(3, 5, 3), Vec3(3, 0, 3), Vec3(0, 0, -1)};
+    view.fovYDeg = 45.0f;
+    view.width = view.height = kImage;
+    tracer->Trace(view, hits);
+    ShadeHardShadow(hierarchy, cache, uniform);
+    Remap();
+  }
+  void Remap() {
+    MapHitsToNodes(
+        hierarchy, hits,
+        [](const Node& n, const void* c) {
+          for (VertexId m : n.mid)
+            if (m != kNoVertex && !static_cast<const SampleCache*>(c)->IsShaded(m)) return false;
+          return true;
+        },
+        &cache, visible);
+  }
+  std::vector<NodeId> Select(Refiner& r, bool outstanding = false) {
+    return r.Select(hierarchy, cache, hits, visible, DragoParams{}, outstanding);
+  }
+  // Splits the chosen leaves, shades what the splits made, re-maps.
+  size_t Apply(const std::vector<NodeId>& chosen, const RefinementParams& p, bool uniform = false) {
+    size_t created = 0;
+    for (NodeId id : chosen)
+      if (hierarchy.GetNode(id).IsLeaf()) created += hierarchy.Refine(id, p.ToRefineOptions()).newVertices.size();
+    cache.Reserve(hierarchy.VertexCount());
+    ShadeHardShadow(hierarchy, cache, uniform);
+    Remap();
+    return created;
+  }
+  bool Straddles(NodeId id) const {
+    bool lit = false, dark = false;
+    for (VertexId v : hierarchy.GetNode(id).v) (hierarchy.GetVertex(v).position.x < kShadowEdgeX ? lit : dark) = true;
+    return lit && dark;
+  }
+};
+
+TEST(NldMetricTest, MatchesEquationOne) {
+  const float three[] = {0.0f, 0.0f, 1.0f};
+  // sum of squared differences 2, n^2 div 4 = 2 for n = 3.
+  EXPECT_NEAR(NormalizedLuminanceDifference(three, 1.0f), 1.0f, 1e-6f);
+  const float four[] = {0.0f, 0.0f, 0.0f, 1.0f};
+  // sum 3, n^2 div 4 = 4.
+  EXPECT_NEAR(NormalizedLuminanceDifference(four, 1.0f), std::sqrt(0.75f), 1e-6f);
+  const float halved[] = {0.0f, 0.0f, 0.5f};
+  EXPECT_NEAR(NormalizedLuminanceDifference(halved, 0.5f), 1.0f, 1e-6f);  // normalised by L_max
+  const float flat[] = {0.3f, 0.3f, 0.3f};
+  EXPECT_EQ(NormalizedLuminanceDifference(flat, 1.0f), 0.0f);
+}
+
+TEST(CriterionTest, ParsesNames) {
+  for (const char* name : {"none", "nld_os", "nld_is", "rnd", "nld_os_rnd"}) {
+    auto c = ParseCriterion(name);
+    ASSERT_TRUE(c.ok()) << name;
+    EXPECT_EQ(CriterionName(*c), name);
+  }
+  EXPECT_FALSE(ParseCriterion("nld").ok());
+  RefinementParams p;
+  EXPECT_TRUE(p.Validate().ok());
+  p.sReq = 2.0f;
+  EXPECT_FALSE(p.Validate().ok());
+}
+
+TEST(NldOsTest, SplitsExactlyTheLeavesAcrossTheShadowEdge) {
+  Fixture f;
+  RefinementParams p;
+  p.criterion = Criterion::kNldOs;
+  p.largeFraction = 1.0f;  // only the metric decides here
+  p.batch = 1000;
+  Refiner r(p);
+  const auto chosen = f.Select(r);
+  ASSERT_FALSE(chosen.empty());
+  for (NodeId id : chosen) EXPECT_TRUE(f.Straddles(id)) << "leaf " << id << " is not on the shadow edge";
+  // Every straddling leaf large enough to split was chosen.
+  for (size_t i = 0; i < f.visible.nodes.size(); ++i) {
+    if (f.Straddles(f.visible.nodes[i]) && float(f.visible.coverage[i]) >= p.minPixels) {
+      EXPECT_NE(std::find(chosen.begin(), chosen.end(), f.visible.nodes[i]), chosen.end());
+    }
+  }
+}
+
+TEST(NldOsTest, RespectsTheBatchSizeAndTheMinimumArea) {
+  Fixture f;
+  RefinementParams p;
+  p.largeFraction = 1.0f;
+  p.batch = 2;
+  Refiner r(p);
+  EXPECT_EQ(f.Select(r).size(), 2u);
+  p.minPixels = float(kImage * kImage);  // no leaf is that large
+  Refiner small(p);
+  EXPECT_TRUE(f.Select(small).empty());
+}
+
+TEST(NldOsTest, LargeLeavesAreSplitWhateverTheirMetric) {
+  Fixture f(/*uniform=*/true);
+  RefinementParams p;
+  p.largeFraction = 0.005f;  // each grid triangle covers ~1% of the image
+  p.batch = 1000;
+  Refiner r(p);
+  EXPECT_FALSE(f.Select(r).empty());
+  p.largeFraction = 1.0f;
+  Refiner none(p);
+  EXPECT_TRUE(f.Select(none).empty());
+}
+
+TEST(NldOsTest, IsDoneOnlyWhenNothingIsOutstanding) {
+  Fixture f(/*uniform=*/true);
+  RefinementParams p;
+  p.largeFraction = 1.0f;
+  Refiner r(p);
+  EXPECT_TRUE(f.Select(r, /*outstanding=*/true).empty());
+  EXPECT_FALSE(r.Exhausted());
+  EXPECT_TRUE(f.Select(r, /*outstanding=*/false).empty());
+  EXPECT_TRUE(r.Exhausted());
+}
+
+TEST(NldOsTest, RefinesDownToTheEdgeAndLeavesTheRestAlone) {
+  Fixture f;
+  RefinementParams p;
+  p.largeFraction = 1.0f;
+  p.minPixels = 6.0f;
+  Refiner r(p);
+  for (int step = 0; step < 200 && !r.Exhausted(); ++step) f.Apply(f.Select(r), p);
+  ASSERT_TRUE(r.Exhausted());
+  // Straddling leaves still displayed are small: under the pixel minimum.
+  float deepest = 0.0f;
+  for (size_t i = 0; i < f.visible.nodes.size(); ++i) {
+    const NodeId id = f.visible.nodes[i];
+    if (f.Straddles(id)) {
+      EXPECT_LT(float(f.visible.coverage[i]), p.minPixels * 2.0f) << id;
+    }
+    deepest = std::max(deepest, float(f.hierarchy.GetNode(id).depth));
+  }
+  EXPECT_GE(deepest, 3.0f);
+  // Far from the edge (x < 1 or x > 5) the roots were never split.
+  for (NodeId root = 0; root < f.scene.triangles.size(); ++root) {
+    const Vec3 c = f.scene.PointAt(root, 1.0f / 3, 1.0f / 3);
+    if (c.x < 1.0f || c.x > 5.0f) {
+      EXPECT_TRUE(f.hierarchy.GetNode(root).IsLeaf()) << root;
+    }
+  }
+}
+
+TEST(RndTest, SpendsItsPixelBudgetAndStops) {
+  Fixture f;
+  RefinementParams p;
+  p.criterion = Criterion::kRnd;
+  p.pixelFraction = 0.01f;  // 92 points on a 96x96 image
+  p.batch = 1000;
+  Refiner r(p);
+  size_t chosen = 0;
+  for (int step = 0; step < 100 && !r.Exhausted(); ++step) chosen += f.Select(r).size();
+  EXPECT_TRUE(r.Exhausted());
+  EXPECT_GT(chosen, 0u);
+  EXPECT_LE(chosen, size_t(0.01f * kImage * kImage));
+}
+
+TEST(NldIsTest, SplitsWhereTheImageChangesAndNowhereOnAFlatImage) {
+  {
+    Fixture f;
+    RefinementParams p;
+    p.criterion = Criterion::kNldIs;
+    p.batch = 1000;
+    Refiner r(p);
+    const auto chosen = f.Select(r);
+    ASSERT_FALSE(chosen.empty());
+    // The chosen leaves lie near the edge: within a grid cell of it.
+    for (NodeId id : chosen) {
+      const Node& n = f.hierarchy.GetNode(id);
+      float minX = 1e9f, maxX = -1e9f;
+      for (VertexId v : n.v) {
+        minX = std::min(minX, f.hierarchy.GetVertex(v).position.x);
+        maxX = std::max(maxX, f.hierarchy.GetVertex(v).position.x);
+      }
+      EXPECT_LT(minX, kShadowEdgeX + 1.0f);
+      EXPECT_GT(maxX, kShadowEdgeX - 1.0f);
+    }
+  }
+  {
+    Fixture flat(/*uniform=*/true);
+    RefinementParams p;
+    p.criterion = Criterion::kNldIs;
+    Refiner r(p);
+    size_t chosen = 0;
+    for (int step = 0; step < 10000 && !r.Exhausted(); ++step) chosen += flat.Select(r).size();
+    EXPECT_EQ(chosen, 0u);
+    EXPECT_TRUE(r.Exhausted());
+  }
+}
+
+TEST(NldOsRndTest, RandomPassFindsWorkNldOsAloneDoesNot) {
+  Fixture f(/*uniform=*/true);
+  RefinementParams p;
+  p.criterion = Criterion::kNldOsRnd;
+  p.largeFraction = 1.0f;
+  p.pixelFraction = 0.05f;
+  Refiner r(p);
+  size_t chosen = 0;
+  for (int step = 0; step < 1000 && !r.Exhausted(); ++step) chosen += f.Apply(f.Select(r), p, /*uniform=*/true) > 0;
+  EXPECT_GT(chosen, 0u);
+  EXPECT_TRUE(r.Exhausted());
+}
+
+}  // namespace
+}  // namespace penumbra::sma
