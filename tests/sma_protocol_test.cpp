@@ -38,9 +38,11 @@ Service StartRenderer(const std::string& tag, int pathsPerSample = 16) {
                    tag);
 }
 
+// `criterion` "none" unless a test is about refinement: the others compare
+// held triangles with base-triangle visibility.
 Service StartSma(const std::vector<std::string>& renderers, const std::string& tag,
-                 const std::vector<std::string>& extra = {}) {
-  std::vector<std::string> args = {"--scene", kScene};
+                 const std::vector<std::string>& extra = {}, const std::string& criterion = "none") {
+  std::vector<std::string> args = {"--scene", kScene, "--criterion", criterion};
   for (const auto& r : renderers) args.insert(args.end(), {"--renderer", r});
   args.insert(args.end(), extra.begin(), extra.end());
   return MustStart(PENUMBRA_SMA_EXE, args, tag);
@@ -296,6 +298,77 @@ TEST(SmaRendererFailureTest, KillingOneOfTwoRenderersLosesNoSample) {
   auto shaded = c->Counter("cache_shaded");
   ASSERT_TRUE(requested.ok() && shaded.ok());
   EXPECT_EQ(*requested, *shaded);  // every sample asked for is in the cache, none twice
+}
+
+// --- Refinement (founding paper §4) -------------------------------------------
+
+CameraView FrontView(const SmaTestClient& c, int width, int height) {
+  for (const auto& p : c.Info().cameras())
+    if (p.name() == "front") return ViewFromPreset(p, width, height);
+  ADD_FAILURE() << "no camera preset front";
+  return CameraView{};
+}
+
+// Everything the client holds once a refined view converges: a conforming
+// mesh, refined below the base triangles, every vertex shaded.
+void ExpectRefinedAndConforming(SmaTestClient& c, size_t baseTriangles) {
+  size_t children = 0;
+  for (uint64_t id : c.Mesh().TriangleIds()) children += id >= baseTriangles;
+  EXPECT_GT(children, 0u) << "no refined triangle held";
+  EXPECT_EQ(c.Mesh().CountTVertices(), 0u);
+  ExpectAllShaded(c.Mesh());
+  size_t refinedDeltas = 0;
+  for (const auto& d : c.Log()) refinedDeltas += d.kind == wire::DELTA_KIND_REFINED;
+  EXPECT_GT(refinedDeltas, 0u);
+  auto splits = c.Counter("client_refinement_splits");
+  ASSERT_TRUE(splits.ok()) << splits.error().message;
+  EXPECT_GT(*splits, 0.0);
+}
+
+TEST(SmaRefinementTest, NldOsRefinesTheViewAndConverges) {
+  auto scene = LoadScene(kScene);
+  ASSERT_TRUE(scene.ok());
+  Service renderer = StartRenderer("refine-renderer");
+  Service sma = StartSma({renderer.Address()}, "refine-sma", {}, "nld_os");
+  auto c = SmaTestClient::Connect(sma.port);
+  ASSERT_TRUE(c.ok()) << c.error().message;
+  ASSERT_TRUE(c->SendView(FrontView(*c, 160, 120), 1));
+  ASSERT_TRUE(c->WaitConverged(1, 180s).ok()) << sma.process.LogTail();
+  ExpectRefinedAndConforming(*c, scene->triangles.size());
+  auto stage1 = c->Counter("client_stage1_ms");
+  auto stage2 = c->Counter("client_stage2_ms");
+  ASSERT_TRUE(stage1.ok() && stage2.ok());
+  EXPECT_GT(*stage1, 0.0);
+  EXPECT_GE(*stage2, *stage1);
+}
+
+TEST(SmaRefinementTest, ClientChoosesItsCriterionAndANewViewSupersedesRefinement) {
+  auto scene = LoadScene(kScene);
+  ASSERT_TRUE(scene.ok());
+  Service renderer = StartRenderer("options-renderer");
+  Service sma = StartSma({renderer.Address()}, "options-sma");  // refinement off by default here
+  auto c = SmaTestClient::Connect(sma.port);
+  ASSERT_TRUE(c.ok()) << c.error().message;
+  // Out of range: refused, nothing else happens.
+  wire::Envelope bad;
+  bad.mutable_session_options()->set_s_req(7.0f);
+  ASSERT_TRUE(c->Wire().Send(bad));
+  auto error = c->Wire().Receive(5s);
+  ASSERT_TRUE(error.ok() && error->has_error());
+  EXPECT_EQ(error->error().code(), wire::ERROR_CODE_INVALID_REQUEST);
+  EXPECT_FALSE(error->error().fatal());
+
+  wire::Envelope options;
+  options.mutable_session_options()->set_criterion("rnd");
+  options.mutable_session_options()->set_pixel_fraction(0.02f);
+  ASSERT_TRUE(c->Wire().Send(options));
+  // A first view, superseded at once by a second: only the second converges.
+  CameraView first = FrontView(*c, 160, 120);
+  first.pose.eye.x += 0.3f;
+  ASSERT_TRUE(c->SendView(first, 1));
+  ASSERT_TRUE(c->SendView(FrontView(*c, 160, 120), 2));
+  ASSERT_TRUE(c->WaitConverged(2, 180s).ok()) << sma.process.LogTail();
+  ExpectRefinedAndConforming(*c, scene->triangles.size());
 }
 
 }  // namespace

@@ -1,5 +1,7 @@
 #include "support/held_mesh.h"
 
+#include <cmath>
+
 #include <fmt/format.h>
 
 namespace penumbra::testing {
@@ -65,6 +67,25 @@ Status HeldMesh::Apply(const wire::Delta& d) {
   converged_ = d.converged();
   pending_ = d.pending_samples();
   return Status::Ok();
+}
+
+size_t HeldMesh::CountTVertices() const {
+  size_t count = 0;
+  for (const auto& [id, corners] : triangles_) {
+    for (int k = 0; k < 3; ++k) {
+      const Vec3 a = vertices_.at(corners[size_t(k)]).position;
+      const Vec3 b = vertices_.at(corners[size_t((k + 1) % 3)]).position;
+      const Vec3 ab = b - a;
+      const float len2 = glm::dot(ab, ab);
+      if (!(len2 > 0.0f)) continue;
+      for (const auto& [vid, v] : vertices_) {
+        const float t = glm::dot(v.position - a, ab) / len2;
+        if (t <= 1e-4f || t >= 1.0f - 1e-4f) continue;
+        if (glm::length(v.position - (a + t * ab)) < 1e-5f * std::sqrt(len2)) ++count;
+      }
+    }
+  }
+  return count;
 }
 
 }  // namespace penumbra::testing

@@ -33,6 +33,10 @@ class HeldMesh {
   const std::map<uint64_t, Vertex>& Vertices() const { return vertices_; }
   std::set<uint64_t> TriangleIds() const;
 
+  /// Corners of held triangles lying strictly inside an edge of another held
+  /// triangle: T-vertices, which a conforming mesh has none of.
+  size_t CountTVertices() const;
+
   uint64_t LastViewId() const { return viewId_; }
   bool Converged() const { return converged_; }
   uint32_t PendingSamples() const { return pending_; }
