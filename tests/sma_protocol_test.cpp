@@ -32,10 +32,11 @@ Service MustStart(const std::string& exe, const std::vector<std::string>& args, 
   return s.ok() ? std::move(*s) : Service{};
 }
 
-Service StartRenderer(const std::string& tag, int pathsPerSample = 16) {
-  return MustStart(PENUMBRA_RENDERER_EXE,
-                   {"--scene", kScene, "--threads", "1", "--spp", std::to_string(pathsPerSample), "--max-depth", "3"},
-                   tag);
+Service StartRenderer(const std::string& tag, int pathsPerSample = 16, const std::vector<std::string>& extra = {}) {
+  std::vector<std::string> args = {"--scene", kScene, "--threads", "1", "--spp", std::to_string(pathsPerSample),
+                                   "--max-depth", "3"};
+  args.insert(args.end(), extra.begin(), extra.end());
+  return MustStart(PENUMBRA_RENDERER_EXE, args, tag);
 }
 
 // `criterion` "none" unless a test is about refinement: the others compare
@@ -298,6 +299,51 @@ TEST(SmaRendererFailureTest, KillingOneOfTwoRenderersLosesNoSample) {
   auto shaded = c->Counter("cache_shaded");
   ASSERT_TRUE(requested.ok() && shaded.ok());
   EXPECT_EQ(*requested, *shaded);  // every sample asked for is in the cache, none twice
+}
+
+TEST(SmaRendererFailureTest, ARendererThatStopsAnsweringIsDroppedAndItsWorkMoved) {
+  auto scene = LoadScene(kScene);
+  ASSERT_TRUE(scene.ok());
+  // Heartbeats well inside the SMA's renderer timeout, so only the frozen one is dropped.
+  Service r1 = StartRenderer("stall-r1", 3000, {"--heartbeat-ms", "200"});
+  Service r2 = StartRenderer("stall-r2", 3000, {"--heartbeat-ms", "200"});
+  // A short read timeout: a silent renderer is noticed within a second.
+  Service sma = StartSma({r1.Address(), r2.Address()}, "stall-sma",
+                         {"--max-batch", "2", "--credits", "2", "--renderer-read-timeout-ms", "1000", "--heartbeat-ms", "200"});
+  auto c = SmaTestClient::Connect(sma.port);
+  ASSERT_TRUE(c.ok()) << c.error().message;
+  for (int i = 0; i < 200; ++i) {
+    auto n = c->Counter("renderers_connected");
+    ASSERT_TRUE(n.ok());
+    if (*n == 2.0) break;
+    std::this_thread::sleep_for(50ms);
+  }
+  const CameraView view = [&] {
+    for (const auto& p : c->Info().cameras())
+      if (p.name() == "front") return ViewFromPreset(p, kWidth, kHeight);
+    return CameraView{};
+  }();
+  ASSERT_TRUE(c->SendView(view, 1));
+  const std::string key = "renderer." + r2.Address() + ".samples_in_flight";
+  bool busy = false;
+  for (int i = 0; i < 400 && !busy; ++i) {
+    auto n = c->Counter(key);
+    ASSERT_TRUE(n.ok()) << n.error().message;
+    busy = *n > 0.0;
+    if (!busy) std::this_thread::sleep_for(10ms);
+  }
+  ASSERT_TRUE(busy) << "renderer 2 never got work";
+  // Frozen, not dead: its socket stays open but nothing comes out of it.
+  r2.process.Signal(SIGSTOP);
+  ASSERT_TRUE(c->WaitConverged(1, 180s).ok()) << sma.process.LogTail();
+  r2.process.Signal(SIGCONT);
+  ExpectHeldIsVisibleSet(*scene, view, c->Mesh());
+  auto requeued = c->Counter("samples_requeued");
+  ASSERT_TRUE(requeued.ok());
+  EXPECT_GT(*requeued, 0.0);
+  auto failures = c->Counter("renderer." + r2.Address() + ".failures");
+  ASSERT_TRUE(failures.ok());
+  EXPECT_GE(*failures, 1.0);
 }
 
 // --- Refinement (founding paper §4) -------------------------------------------

@@ -24,6 +24,7 @@ int main(int argc, char** argv) {
   uint32_t maxFrameBytes = options.clientConnection.maxFrameBytes;
   int heartbeatMs = int(options.clientConnection.heartbeatInterval.count());
   int readTimeoutMs = int(options.clientConnection.readTimeout.count());
+  int rendererTimeoutMs = int(options.pool.connection.readTimeout.count());
   int statsSeconds = 10;
   int resolveSeconds = int(options.pool.resolveInterval.count() / 1000);
   int batchTimeoutSeconds = int(options.pool.batchTimeout.count() / 1000);
@@ -71,6 +72,9 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(10, 3600000))->capture_default_str();
   app.add_option("--read-timeout-ms", readTimeoutMs, "Silence after which a peer is dropped")
       ->check(CLI::Range(10, 3600000))->capture_default_str();
+  app.add_option("--renderer-read-timeout-ms", rendererTimeoutMs,
+                 "Silence after which a renderer is dropped and its samples go to the others")
+      ->check(CLI::Range(10, 3600000))->capture_default_str();
   app.add_option("--stats-interval", statsSeconds, "Seconds between counter lines in the log")
       ->check(CLI::Range(1, 86400))->capture_default_str();
   app.add_option("--exposure", options.toneMapping.exposure, "Default exposure clients apply before tone mapping")
@@ -117,7 +121,7 @@ int main(int argc, char** argv) {
   options.clientConnection.heartbeatInterval = std::chrono::milliseconds(heartbeatMs);
   options.clientConnection.readTimeout = std::chrono::milliseconds(readTimeoutMs);
   options.pool.connection.heartbeatInterval = std::chrono::milliseconds(heartbeatMs);
-  options.pool.connection.readTimeout = std::chrono::milliseconds(readTimeoutMs);
+  options.pool.connection.readTimeout = std::chrono::milliseconds(rendererTimeoutMs);
   options.pool.resolveInterval = std::chrono::seconds(resolveSeconds);
   options.pool.batchTimeout = std::chrono::seconds(batchTimeoutSeconds);
   options.statsInterval = std::chrono::seconds(statsSeconds);

@@ -1,5 +1,6 @@
 #include "penumbra/sma/server.h"
 
+#include <array>
 #include <csignal>
 #include <mutex>
 #include <shared_mutex>
@@ -124,6 +125,11 @@ class SmaServer::Impl {
   void NotifyArrived(const std::shared_ptr<Session>& session, std::shared_ptr<const std::vector<VertexId>> vertices);
 
   void AddGlobalCounters(wire::StatsReply* reply);
+  // Timings of the views answered since the last stats line (any session).
+  void RecordView(double traceMs, double mapMs, double firstDeltaMs) {
+    std::lock_guard lock(viewTimesMutex_);
+    viewTimes_.push_back({traceMs, mapMs, firstDeltaMs});
+  }
   DragoParams DragoForClients() const {
     return DragoParams{options_.toneMapping.bias, options_.toneMapping.maxDisplayLuminance, options_.toneMapping.exposure};
   }
@@ -151,6 +157,8 @@ class SmaServer::Impl {
   std::atomic<bool> shuttingDown_{false};
   Clock::time_point shutdownDeadline_;
   RendererPoolStats lastStats_;
+  std::mutex viewTimesMutex_;
+  std::vector<std::array<double, 3>> viewTimes_;  // trace, map, view -> first delta (ms)
   std::mutex sessionsMutex_;
   std::unordered_map<uint64_t, std::shared_ptr<Session>> sessions_;
   uint64_t nextSessionId_ = 1;
@@ -433,6 +441,7 @@ void SmaServer::Impl::Session::OnJobDone(uint64_t viewId, bool newView, std::sha
   ApplyVisibility(newView);
   if (firstForView) {
     lastFirstDeltaMs_ = Ms(Clock::now() - viewReceived_);
+    server_.RecordView(timings.traceMs, timings.mapMs, lastFirstDeltaMs_);
     log_->debug("{}: view {}: trace {:.1f} ms, map {:.1f} ms, plan+send {:.1f} ms, view->first delta {:.1f} ms; "
                 "{} visible, {} held, {} pending ({} samples)",
                 connection_->Id(), viewId, timings.traceMs, timings.mapMs, Ms(Clock::now() - planStart),
@@ -868,12 +877,28 @@ void SmaServer::Impl::ArmStats() {
       renderers += fmt::format(" {}{}:{} in flight", r.endpoint, r.connected ? "" : "(down)", r.samplesInFlight);
     std::string clients;
     for (auto& s : Sessions()) clients += fmt::format(" {}:{}B", s->Connection().Id(), s->Connection().BytesSent());
+    std::string views = "none";
+    {
+      std::lock_guard lock(viewTimesMutex_);
+      if (!viewTimes_.empty()) {
+        auto percentile = [&](int column, double p) {
+          std::vector<double> v;
+          for (const auto& t : viewTimes_) v.push_back(t[size_t(column)]);
+          std::sort(v.begin(), v.end());
+          return v[std::min(v.size() - 1, size_t(p * double(v.size() - 1) + 0.5))];
+        };
+        views = fmt::format("{} (trace p50 {:.1f} ms, map p50 {:.1f} ms, view->first delta p50 {:.1f} / p99 {:.1f} ms)",
+                            viewTimes_.size(), percentile(0, 0.5), percentile(1, 0.5), percentile(2, 0.5),
+                            percentile(2, 0.99));
+        viewTimes_.clear();
+      }
+    }
     log_->info("stats: cache {} shaded, hit rate {:.1f}%; {:.0f} requested/s, {:.0f} shaded/s, {} queued; "
-               "renderers:{}; clients:{}",
+               "renderers:{}; clients:{}; views: {}",
                shaded, hits + misses > 0 ? 100.0 * double(hits) / double(hits + misses) : 0.0,
                double(now.requested - lastStats_.requested) / seconds, double(now.shaded - lastStats_.shaded) / seconds,
                now.queuedVisible + now.queuedBackground, renderers.empty() ? " none" : renderers,
-               clients.empty() ? " none" : clients);
+               clients.empty() ? " none" : clients, views);
     lastStats_ = now;
     ArmStats();
   });
