@@ -1,0 +1,38 @@
+# penumbra-client, for headless walkthroughs (scripted camera path,
+# statistics, screenshots) on a machine without a display: OpenGL through
+# Mesa's software rasterizer (llvmpipe). An interactive client runs on the
+# user's own machine, not in a container.
+#
+#   docker build -f deploy/client.Dockerfile -t penumbra-client .    # from the repository root
+#   docker run --rm penumbra-client --headless --sma SMA_HOST:7200 --camera-path walk --until-converged
+#
+# Built as renderer.Dockerfile describes, with the GL client switched on: the
+# build stage adds install-deps.sh's GL development packages, the runtime
+# stage Mesa's drivers, which the GL libraries load at run time (ldd does not
+# list them). tests/deploy/dockerfile_test.sh checks both lists.
+
+FROM debian:12 AS build
+RUN apt-get update \
+ && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
+      cmake g++ make pkg-config ca-certificates \
+      libboost-dev libprotobuf-dev protobuf-compiler libembree-dev libopenimageio-dev \
+      libglm-dev libspdlog-dev libassimp-dev libcli11-dev nlohmann-json3-dev libtbb-dev \
+      libglfw3-dev libepoxy-dev libegl-dev \
+ && rm -rf /var/lib/apt/lists/*
+WORKDIR /src
+COPY . .
+RUN cmake -S . -B build -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+      -DPENUMBRA_BUILD_TESTS=OFF -DPENUMBRA_BUILD_BENCH=OFF -DPENUMBRA_BUILD_CLIENT_GUI=ON
+RUN cmake --build build -j"$(nproc)" --target penumbra-client
+
+FROM debian:12-slim
+RUN apt-get update \
+ && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
+      libprotobuf32 libspdlog1.10 libfmt9 libassimp5 libopenimageio2.4 \
+      libglfw3 libepoxy0 libegl1 libegl-mesa0 libgl1 libglx-mesa0 libgl1-mesa-dri \
+ && rm -rf /var/lib/apt/lists/* \
+ && useradd --system --uid 10001 --create-home --shell /usr/sbin/nologin penumbra
+COPY --from=build /src/build/client/penumbra-client /usr/local/bin/penumbra-client
+USER penumbra
+WORKDIR /home/penumbra
+ENTRYPOINT ["penumbra-client"]

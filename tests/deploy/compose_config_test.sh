@@ -1,0 +1,75 @@
+#!/usr/bin/env bash
+# Validates deploy/docker-compose.yml without a Docker engine:
+# `docker-compose config -q` with the defaults, then with every documented
+# variable overridden, checking in the resolved file that each override
+# reached the place it configures and that each service's Dockerfile exists.
+#
+# Usage: compose_config_test.sh SOURCE_DIR
+# Exit 77 (skipped) only when docker-compose is not installed;
+# scripts/install-deps.sh installs it.
+set -euo pipefail
+
+src="$1"
+compose_file="$src/deploy/docker-compose.yml"
+if ! command -v docker-compose >/dev/null 2>&1; then
+  echo "SKIP: docker-compose is not installed (scripts/install-deps.sh installs it); $compose_file not validated"
+  exit 77
+fi
+
+failures=0
+fail() { echo "FAIL: $*"; failures=$((failures + 1)); }
+work="$(mktemp -d "${TMPDIR:-/tmp}/penumbra-compose-XXXXXX")"
+trap 'rm -rf "$work"' EXIT
+
+# Variables set in the caller's environment must not leak into the defaults.
+unset $(compgen -e | grep '^PENUMBRA_' || true)
+
+if ! docker-compose -f "$compose_file" config -q 2>"$work/errors"; then
+  fail "docker-compose config rejects $compose_file:"
+  cat "$work/errors"
+  exit 1
+fi
+
+docker-compose -f "$compose_file" config >"$work/defaults.yml"
+expect() {  # expect FILE TEXT WHAT: FILE must contain the line TEXT
+  grep -qxF -- "$2" "$1" || fail "$3: no line '$2' in the resolved compose file"
+}
+expect "$work/defaults.yml" "      replicas: 2" "default renderer replicas"
+expect "$work/defaults.yml" "    scale: 2" "default renderer scale (docker-compose v1)"
+expect "$work/defaults.yml" "    - --scene=/scenes/cornell-box.json" "default scene"
+expect "$work/defaults.yml" "      source: $src/scenes" "default scene directory (the repository's scenes/)"
+[ "$(grep -c "^    - read_only: true$" "$work/defaults.yml")" -eq 2 ] || fail "the scene mount of the renderer and the SMA should be read-only"
+expect "$work/defaults.yml" "    - --renderer=renderer:7100" "SMA finds renderers by the service's DNS name"
+expect "$work/defaults.yml" "    - 127.0.0.1:7200:7200/tcp" "SMA port published on loopback only by default"
+expect "$work/defaults.yml" "    - --until-converged" "client job runs until converged"
+[ -f "$src/scenes/cornell-box.json" ] || fail "the default scene scenes/cornell-box.json is missing"
+
+PENUMBRA_RENDERERS=5 PENUMBRA_SCENE=sponza.json PENUMBRA_SCENES_DIR=/srv/scenes PENUMBRA_SPP=256 \
+  PENUMBRA_RENDERER_THREADS=3 PENUMBRA_SMA_PORT=9200 PENUMBRA_SMA_BIND=0.0.0.0 PENUMBRA_RESOLVE_INTERVAL=2 \
+  PENUMBRA_CAMERA_PATH=orbit PENUMBRA_LOG_LEVEL=debug PENUMBRA_TAG=v9 \
+  docker-compose -f "$compose_file" config >"$work/overridden.yml"
+expect "$work/overridden.yml" "      replicas: 5" "PENUMBRA_RENDERERS"
+expect "$work/overridden.yml" "    scale: 5" "PENUMBRA_RENDERERS (scale)"
+expect "$work/overridden.yml" "    - --scene=/scenes/sponza.json" "PENUMBRA_SCENE"
+expect "$work/overridden.yml" "      source: /srv/scenes" "PENUMBRA_SCENES_DIR"
+expect "$work/overridden.yml" "    - --spp=256" "PENUMBRA_SPP"
+expect "$work/overridden.yml" "    - --threads=3" "PENUMBRA_RENDERER_THREADS"
+expect "$work/overridden.yml" "    - 0.0.0.0:9200:7200/tcp" "PENUMBRA_SMA_BIND and PENUMBRA_SMA_PORT"
+expect "$work/overridden.yml" "    - --resolve-interval=2" "PENUMBRA_RESOLVE_INTERVAL"
+expect "$work/overridden.yml" "    - --camera-path=orbit" "PENUMBRA_CAMERA_PATH"
+expect "$work/overridden.yml" "    - --log-level=debug" "PENUMBRA_LOG_LEVEL"
+expect "$work/overridden.yml" "    image: penumbra-renderer:v9" "PENUMBRA_TAG"
+
+# Every service builds from a Dockerfile that exists, with the repository as
+# its context.
+while read -r dockerfile; do
+  [ -f "$src/$dockerfile" ] || fail "a service builds from $dockerfile, which does not exist"
+done < <(awk '$1 == "dockerfile:" {print $2}' "$work/defaults.yml")
+[ "$(grep -c "^      context: $src\$" "$work/defaults.yml")" -eq 3 ] ||
+  fail "every service should build with the repository root as context"
+
+if [ "$failures" -ne 0 ]; then
+  echo "$failures problem(s) in $compose_file"
+  exit 1
+fi
+echo "OK: $compose_file validates; defaults and overrides resolve as documented"
