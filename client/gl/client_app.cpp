@@ -1,0 +1,570 @@
+#include "gl/client_app.h"
+
+#include <algorithm>
+#include <cctype>
+#include <csignal>
+#include <ctime>
+#include <thread>
+
+#include <epoxy/gl.h>
+#define GLFW_INCLUDE_NONE
+#include <GLFW/glfw3.h>
+#include <fmt/format.h>
+
+#include "gl/frame_targets.h"
+#include "gl/hud.h"
+#include "gl/mesh_renderer.h"
+#include "penumbra/client/client_model.h"
+#include "penumbra/client/fly_camera.h"
+#include "penumbra/client/path_player.h"
+#include "penumbra/client/projection.h"
+#include "penumbra/client/session.h"
+#include "penumbra/client/stats_line.h"
+#include "penumbra/common/image_io.h"
+#include "penumbra/common/logging.h"
+
+namespace penumbra::client::gl {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+using Seconds = std::chrono::duration<double>;
+
+volatile std::sig_atomic_t gStopSignal = 0;
+void OnStopSignal(int signal) { gStopSignal = signal; }
+
+constexpr float kTurnRadiansPerPixel = 0.0025f;
+constexpr float kSpeedStep = 1.25f;
+constexpr float kSpeedPerSceneSize = 0.15f;  // default walking speed: scene diagonals per second
+constexpr float kExposureStep = 1.0f / 3.0f;
+constexpr float kGammaStep = 0.1f;
+constexpr double kAdaptationSeconds = 0.5;  // window: time constant of the adaptation to a new view
+constexpr auto kRateWindow = std::chrono::milliseconds(500);
+constexpr auto kNoticeDuration = std::chrono::seconds(4);
+// Headless: after convergence, how long to wait for the SMA's counters (which
+// confirm the client holds what the SMA sent) before finishing without them.
+constexpr auto kCountersGrace = std::chrono::seconds(2);
+const glm::vec4 kWireColour(1.0f, 0.75f, 0.2f, 0.55f);
+
+const char* const kHelp[] = {
+    "W A S D / arrows   move          E Q / PgUp PgDn   up / down",
+    "click or Tab       capture mouse to look; Esc releases (Esc again quits)",
+    "Shift              move 4x faster    [ ] or wheel   speed",
+    "1 .. 9             camera presets    R / Home       back to the first preset",
+    "F                  wireframe (the refinement mesh)",
+    "T                  tone mapping: Drago 2003 / exposure + gamma",
+    "- =                exposure          G / Shift+G    gamma",
+    "P / F12            screenshot: tone-mapped PNG + linear EXR",
+    "H / F1             this help",
+};
+
+Vec3 FromWire(const wire::Vec3& v) { return Vec3(v.x(), v.y(), v.z()); }
+
+bool SameView(const CameraView& a, const CameraView& b) {
+  return a.pose.eye == b.pose.eye && a.pose.target == b.pose.target && a.pose.up == b.pose.up &&
+         a.fovYDeg == b.fovYDeg && a.width == b.width && a.height == b.height;
+}
+
+/// .exr and .hdr screenshots hold linear radiance; others the display image.
+bool IsRadianceFile(const std::filesystem::path& path) {
+  std::string ext = path.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  return ext == ".exr" || ext == ".hdr";
+}
+
+std::string LocalTimestamp() {
+  const std::time_t now = std::time(nullptr);
+  std::tm local{};
+  localtime_r(&now, &local);
+  char text[32];
+  std::strftime(text, sizeof text, "%Y%m%d-%H%M%S", &local);
+  return text;
+}
+
+std::string FormatRate(double bytesPerSecond) {
+  if (bytesPerSecond >= 1e6) return fmt::format("{:.1f} MB/s", bytesPerSecond / 1e6);
+  if (bytesPerSecond >= 1e3) return fmt::format("{:.1f} kB/s", bytesPerSecond / 1e3);
+  return fmt::format("{:.0f} B/s", bytesPerSecond);
+}
+
+Bounds3 SceneBounds(const wire::SceneInfo& info) {
+  Bounds3 bounds;
+  bounds.Extend(FromWire(info.bounds_min()));
+  bounds.Extend(FromWire(info.bounds_max()));
+  return bounds;
+}
+
+DragoParams SceneDrago(const wire::SceneInfo* info) {
+  DragoParams params;
+  if (!info) return params;
+  params.bias = info->tone_mapping().bias();
+  params.exposure = info->tone_mapping().exposure();
+  params.maxDisplayLuminance = info->tone_mapping().max_display_luminance();
+  return params;
+}
+
+}  // namespace
+
+class ClientApp {
+ public:
+  explicit ClientApp(const ClientOptions& options)
+      : options_(options), log_(Logger("client")), tone_(options.tone), start_(Clock::now()) {
+    SessionOptions session;
+    session.sma = options.sma;
+    session_ = std::make_unique<SmaSession>(session);
+  }
+
+  Status Init();
+  int Run();
+
+ private:
+  // Per frame, in order.
+  bool EnsureCamera();
+  void HandleInput(double seconds);
+  void OnKey(const KeyPress& key);
+  std::optional<CameraView> CurrentView(Clock::time_point now) const;
+  void UpdateAdaptation(double seconds);
+  bool HeadlessGoalMet(Clock::time_point now);
+  std::optional<int> HeadlessFailure(Clock::time_point now);
+  void Render();
+  void DrawHud();
+  void UpdateRates(Clock::time_point now);
+  void WriteStats(Clock::time_point now);
+  int Finish();
+
+  void ApplyPreset(int index);
+  Status WriteScreenshot(const std::filesystem::path& path);
+  void SaveInteractiveScreenshot();
+  int Failed(const std::string& message) const;
+
+  const ClientOptions options_;
+  std::shared_ptr<spdlog::logger> log_;
+  std::unique_ptr<SmaSession> session_;
+  ClientModel model_;
+
+  // GL: the context first, so that the objects below are destroyed before it.
+  std::unique_ptr<Context> context_;
+  Window* window_ = nullptr;  // context_, when it is a GLFW window
+  std::optional<MeshRenderer> renderer_;
+  std::optional<ToneMapper> toneMapper_;
+  std::optional<Hud> hud_;
+  FrameTargets targets_;
+  std::optional<StatsLineWriter> stats_;
+
+  // Camera.
+  FlyCamera camera_;
+  bool cameraReady_ = false;
+  float fovYDeg_ = 60.0f;
+  float speed_ = 1.0f;
+  std::optional<PathPlayer> player_;
+  std::optional<Clock::time_point> pathStart_;  // when the first connection came up
+  std::optional<CameraView> sentView_;
+  uint64_t viewSerial_ = 0;
+
+  // Display state.
+  ToneSettings tone_;
+  ViewLuminance adaptation_;
+  bool adapted_ = false;
+  bool wireframe_ = false;
+  bool showHelp_ = false;
+  bool screenshotRequested_ = false;
+  std::string notice_;
+  Clock::time_point noticeUntil_;
+
+  // Counters.
+  const Clock::time_point start_;
+  uint64_t frames_ = 0;
+  std::optional<Clock::time_point> convergedSince_;
+  Clock::time_point rateWindowStart_ = start_;
+  uint64_t rateWindowFrames_ = 0;
+  uint64_t rateWindowBytes_ = 0;
+  double fps_ = 0.0;
+  double bytesPerSecond_ = 0.0;
+};
+
+Status ClientApp::Init() {
+  if (!options_.headless) {
+    auto window = Window::Open(options_.size.x, options_.size.y, "Penumbra", /*visible=*/true);
+    if (!window) return window.error();
+    window_ = window->get();
+    context_ = std::move(*window);
+  } else if (ResolveHeadlessBackend(options_.backend) == HeadlessBackend::kGlfw) {
+    auto window = Window::Open(64, 64, "penumbra-client", /*visible=*/false);
+    if (!window) return Fail(window.error().message + " (without an X server, use --gl egl)");
+    window_ = window->get();
+    context_ = std::move(*window);
+  } else {
+    auto context = CreateSurfacelessContext();
+    if (!context) return context.error();
+    context_ = std::move(*context);
+  }
+  log_->info("OpenGL: {}", context_->Describe());
+  auto renderer = MeshRenderer::Create();
+  if (!renderer) return renderer.error();
+  renderer_.emplace(std::move(*renderer));
+  auto toneMapper = ToneMapper::Create();
+  if (!toneMapper) return toneMapper.error();
+  toneMapper_.emplace(std::move(*toneMapper));
+  if (!options_.headless) {
+    auto hud = Hud::Create();
+    if (!hud) return hud.error();
+    hud_.emplace(std::move(*hud));
+  }
+  if (options_.headless && options_.cameraPath) {
+    player_.emplace(*options_.cameraPath);
+    if (auto ok = targets_.Resize({options_.cameraPath->width, options_.cameraPath->height}); !ok) return ok;
+  }
+  if (!options_.statsPath.empty()) {
+    auto stats = StatsLineWriter::Open(options_.statsPath);
+    if (!stats) return stats.error();
+    stats_.emplace(std::move(*stats));
+  }
+  session_->Start();
+  log_->info("connecting to SMA {}", options_.sma.ToString());
+  return Status::Ok();
+}
+
+int ClientApp::Run() {
+  auto last = Clock::now();
+  while (true) {
+    const auto now = Clock::now();
+    const double seconds = Seconds(now - last).count();
+    last = now;
+    if (gStopSignal) {
+      log_->info("stopping on signal {}", int(gStopSignal));
+      return options_.headless ? 128 + int(gStopSignal) : 0;
+    }
+    if (window_) {
+      window_->PollEvents();
+      if (!options_.headless && window_->ShouldClose()) return 0;
+    }
+    model_.Apply(session_->TakeEvents(), *session_);
+    if (auto ok = renderer_->Sync(model_); !ok) return Failed(ok.error().message);
+    if (!EnsureCamera()) return 1;
+    if (!options_.headless) {
+      HandleInput(seconds);
+      if (auto ok = targets_.Resize(window_->FramebufferSize()); !ok) {
+        // A minimised window has no pixels: draw nothing, keep the session.
+        window_->SwapBuffers();
+        std::this_thread::sleep_for(std::chrono::milliseconds(50));
+        continue;
+      }
+    }
+    if (auto view = CurrentView(now); view && (!sentView_ || !SameView(*view, *sentView_))) {
+      viewSerial_ = session_->SetView(*view);
+      sentView_ = view;
+    }
+    UpdateAdaptation(seconds);
+    const bool finishing = options_.headless && HeadlessGoalMet(now);
+    if (auto failure = HeadlessFailure(now)) return *failure;
+
+    Render();
+    if (screenshotRequested_) SaveInteractiveScreenshot();
+    if (window_ && !options_.headless) {
+      DrawHud();
+      targets_.BlitToDefault(window_->FramebufferSize());
+      window_->SwapBuffers();
+    }
+    ++frames_;
+    UpdateRates(now);
+    WriteStats(now);
+    if (finishing) return Finish();
+
+    const double maxFps = options_.maxFps > 0.0 ? options_.maxFps : (options_.headless ? 30.0 : 60.0);
+    std::this_thread::sleep_until(now + std::chrono::duration_cast<Clock::duration>(Seconds(1.0 / maxFps)));
+  }
+}
+
+// Places the camera once the first SceneInfo names the presets. Returns false
+// (after logging why) when a headless run asked for a preset the SMA lacks.
+bool ClientApp::EnsureCamera() {
+  const wire::SceneInfo* info = model_.SceneInfo();
+  if (!info) return true;
+  if (!pathStart_ && model_.Online()) pathStart_ = Clock::now();
+  if (cameraReady_ || (options_.headless && player_)) return true;
+
+  int preset = 0;
+  if (!options_.cameraPreset.empty()) {
+    preset = -1;
+    std::string names;
+    for (int i = 0; i < info->cameras_size(); ++i) {
+      if (info->cameras(i).name() == options_.cameraPreset) preset = i;
+      names += (names.empty() ? "" : ", ") + info->cameras(i).name();
+    }
+    if (preset < 0) {
+      if (options_.headless) {
+        Failed(fmt::format("the SMA's scene has no camera preset '{}' (it has: {})", options_.cameraPreset, names));
+        return false;
+      }
+      log_->warn("no camera preset '{}' (the scene has: {}); starting at the first", options_.cameraPreset, names);
+      preset = 0;
+    }
+  }
+  if (options_.headless) {
+    if (info->cameras_size() == 0) {
+      Failed("the SMA's scene has no camera preset; give --camera-path");
+      return false;
+    }
+    player_.emplace(StillPath(info->cameras(preset), options_.size.x, options_.size.y));
+    if (auto ok = targets_.Resize(options_.size); !ok) {
+      Failed(ok.error().message);
+      return false;
+    }
+    return true;
+  }
+  const Vec3 lo = FromWire(info->bounds_min()), hi = FromWire(info->bounds_max());
+  speed_ = std::max(kSpeedPerSceneSize * glm::length(hi - lo), 0.01f);
+  if (info->cameras_size() > 0) {
+    ApplyPreset(preset);
+  } else {
+    // No preset: look at the middle of the scene from outside its bounds.
+    const Vec3 centre = 0.5f * (lo + hi);
+    camera_.SetPose(CameraPose{centre + Vec3(0.0f, 0.0f, glm::length(hi - lo)), centre, Vec3(0.0f, 1.0f, 0.0f)});
+  }
+  cameraReady_ = true;
+  window_->SetTitle(fmt::format("Penumbra - {}", info->name()));
+  return true;
+}
+
+void ClientApp::ApplyPreset(int index) {
+  const wire::SceneInfo* info = model_.SceneInfo();
+  if (!info || index < 0 || index >= info->cameras_size()) return;
+  const auto& preset = info->cameras(index);
+  camera_.SetPose(CameraPose{FromWire(preset.eye()), FromWire(preset.target()), FromWire(preset.up())});
+  fovYDeg_ = preset.fov_y_deg();
+}
+
+void ClientApp::HandleInput(double seconds) {
+  for (const KeyPress& key : window_->TakeKeyPresses()) OnKey(key);
+  if (window_->TakeClick() && !window_->CursorCaptured()) window_->SetCursorCaptured(true);
+  speed_ *= std::pow(kSpeedStep, float(window_->TakeScroll()));
+  const glm::vec2 motion = window_->TakeMouseMotion();
+  if (!cameraReady_) return;
+  camera_.Turn(motion.x, motion.y, kTurnRadiansPerPixel);
+  auto axis = [&](std::initializer_list<int> plus, std::initializer_list<int> minus) {
+    float value = 0.0f;
+    for (int k : plus) value += window_->KeyHeld(k) ? 1.0f : 0.0f;
+    for (int k : minus) value -= window_->KeyHeld(k) ? 1.0f : 0.0f;
+    return std::clamp(value, -1.0f, 1.0f);
+  };
+  MoveInput move;
+  move.forward = axis({GLFW_KEY_W, GLFW_KEY_UP}, {GLFW_KEY_S, GLFW_KEY_DOWN});
+  move.right = axis({GLFW_KEY_D, GLFW_KEY_RIGHT}, {GLFW_KEY_A, GLFW_KEY_LEFT});
+  move.up = axis({GLFW_KEY_E, GLFW_KEY_PAGE_UP}, {GLFW_KEY_Q, GLFW_KEY_PAGE_DOWN});
+  const bool fast = window_->KeyHeld(GLFW_KEY_LEFT_SHIFT) || window_->KeyHeld(GLFW_KEY_RIGHT_SHIFT);
+  camera_.Move(move, speed_ * (fast ? 4.0f : 1.0f), float(seconds));
+}
+
+void ClientApp::OnKey(const KeyPress& key) {
+  switch (key.key) {
+    case GLFW_KEY_ESCAPE:
+      if (window_->CursorCaptured())
+        window_->SetCursorCaptured(false);
+      else
+        window_->RequestClose();
+      return;
+    case GLFW_KEY_TAB: window_->SetCursorCaptured(!window_->CursorCaptured()); return;
+    case GLFW_KEY_R:
+    case GLFW_KEY_HOME: ApplyPreset(0); return;
+    case GLFW_KEY_F: wireframe_ = !wireframe_; return;
+    case GLFW_KEY_T:
+      tone_.op = tone_.op == ToneOperator::kDrago ? ToneOperator::kExposureGamma : ToneOperator::kDrago;
+      return;
+    case GLFW_KEY_MINUS:
+    case GLFW_KEY_KP_SUBTRACT: tone_.exposureStops -= kExposureStep; return;
+    case GLFW_KEY_EQUAL:
+    case GLFW_KEY_KP_ADD: tone_.exposureStops += kExposureStep; return;
+    case GLFW_KEY_G:
+      tone_.gamma = std::clamp(tone_.gamma + ((key.mods & GLFW_MOD_SHIFT) ? -kGammaStep : kGammaStep), 1.0f, 3.0f);
+      return;
+    case GLFW_KEY_LEFT_BRACKET: speed_ /= kSpeedStep; return;
+    case GLFW_KEY_RIGHT_BRACKET: speed_ *= kSpeedStep; return;
+    case GLFW_KEY_P:
+    case GLFW_KEY_F12: screenshotRequested_ = true; return;
+    case GLFW_KEY_H:
+    case GLFW_KEY_F1: showHelp_ = !showHelp_; return;
+    default:
+      if (key.key >= GLFW_KEY_1 && key.key <= GLFW_KEY_9) ApplyPreset(key.key - GLFW_KEY_1);
+  }
+}
+
+std::optional<CameraView> ClientApp::CurrentView(Clock::time_point now) const {
+  if (options_.headless) {
+    if (!player_ || !pathStart_) return std::nullopt;
+    return player_->ViewAt(now - *pathStart_);
+  }
+  if (!cameraReady_) return std::nullopt;
+  return CameraView{camera_.Pose(), fovYDeg_, targets_.Size().x, targets_.Size().y};
+}
+
+void ClientApp::UpdateAdaptation(double seconds) {
+  if (model_.Mesh().VertexCount() == 0) return;  // keep the last adaptation while nothing is held
+  const ViewLuminance target = model_.Mesh().HeldLuminance();
+  // Headless images adapt at once, so that a screenshot does not depend on timing.
+  if (!adapted_ || options_.headless) {
+    adaptation_ = target;
+    adapted_ = true;
+    return;
+  }
+  const float a = float(1.0 - std::exp(-seconds / kAdaptationSeconds));
+  auto blend = [a](float from, float to) { return std::exp(glm::mix(std::log(from), std::log(to), a)); };
+  adaptation_.max = blend(adaptation_.max, target.max);
+  adaptation_.logAverage = blend(adaptation_.logAverage, target.logAverage);
+}
+
+bool ClientApp::HeadlessGoalMet(Clock::time_point now) {
+  switch (options_.stopWhen) {
+    case ClientOptions::StopWhen::kFrames: return frames_ + 1 >= options_.frames;
+    case ClientOptions::StopWhen::kSeconds: return Seconds(now - start_).count() >= options_.seconds;
+    case ClientOptions::StopWhen::kConverged: break;
+  }
+  if (!player_ || !pathStart_ || !player_->Finished(now - *pathStart_) || !model_.Converged(viewSerial_)) {
+    convergedSince_.reset();
+    return false;
+  }
+  if (!convergedSince_) convergedSince_ = now;
+  const auto& report = model_.LastSmaReport();
+  const bool reportCurrent = report && report->atSequence == model_.Mesh().LastSequence();
+  return reportCurrent || now - *convergedSince_ >= kCountersGrace;
+}
+
+std::optional<int> ClientApp::HeadlessFailure(Clock::time_point now) {
+  if (!options_.headless) return std::nullopt;
+  const SessionStatus status = session_->Status();
+  if (status.state != ConnectionState::kConnected && now - status.disconnectedSince > options_.connectTimeout)
+    return Failed(fmt::format("no connection to the SMA at {} for {} s (last error: {})", options_.sma.ToString(),
+                              options_.connectTimeout.count(),
+                              status.lastError.empty() ? "none" : status.lastError));
+  if (options_.stopWhen == ClientOptions::StopWhen::kConverged && now - start_ > options_.convergeTimeout)
+    return Failed(fmt::format("the view did not converge within {} s ({} samples pending, {} triangles held)",
+                              options_.convergeTimeout.count(), model_.Mesh().PendingSamples(),
+                              model_.Mesh().TriangleCount()));
+  return std::nullopt;
+}
+
+void ClientApp::Render() {
+  if (targets_.Size().x == 0) return;
+  const wire::SceneInfo* info = model_.SceneInfo();
+  const std::optional<glm::mat4> worldToClip =
+      sentView_ && info ? std::optional(WorldToClip(*sentView_, SceneBounds(*info))) : std::nullopt;
+  targets_.BeginRadiance();
+  if (worldToClip) renderer_->DrawRadiance(*worldToClip);
+  targets_.BeginDisplay();
+  toneMapper_->Draw(targets_.RadianceTexture(), adaptation_, SceneDrago(info), tone_);
+  if (wireframe_ && worldToClip) renderer_->DrawWireframe(*worldToClip, kWireColour);
+}
+
+void ClientApp::DrawHud() {
+  const SessionStatus status = session_->Status();
+  const wire::SceneInfo* info = model_.SceneInfo();
+  const MeshStore& mesh = model_.Mesh();
+  std::vector<std::string> lines;
+  std::string state = ToString(status.state);
+  if (status.state == ConnectionState::kWaiting) state = "reconnecting (" + status.lastError + ")";
+  lines.push_back(fmt::format("Penumbra  {}  SMA {}  {}", info ? info->name() : "-", options_.sma.ToString(), state));
+  lines.push_back(fmt::format("{:.1f} fps   {} triangles   {} vertices", fps_, mesh.TriangleCount(), mesh.VertexCount()));
+  lines.push_back(fmt::format("samples pending {}   {}", mesh.PendingSamples(),
+                              model_.Converged(viewSerial_) ? "converged" : "refinement pending"));
+  lines.push_back(fmt::format("received {}   view to first delta {}", FormatRate(bytesPerSecond_),
+                              status.viewToFirstDeltaMs ? fmt::format("{:.0f} ms", *status.viewToFirstDeltaMs) : "-"));
+  lines.push_back(fmt::format("tone {} {:+.2f} EV{}   speed {:.2f}/s{}",
+                              tone_.op == ToneOperator::kDrago ? "Drago" : "exposure+gamma", tone_.exposureStops,
+                              tone_.op == ToneOperator::kDrago ? "" : fmt::format(" gamma {:.1f}", tone_.gamma),
+                              speed_, wireframe_ ? "   wireframe" : ""));
+  if (!notice_.empty() && Clock::now() < noticeUntil_) lines.push_back(notice_);
+  if (showHelp_)
+    lines.insert(lines.end(), std::begin(kHelp), std::end(kHelp));
+  else
+    lines.push_back("H or F1: help");
+  const glm::ivec2 size = targets_.Size();
+  hud_->Draw(lines, size, size.y >= 700 ? 2 : 1);
+}
+
+void ClientApp::UpdateRates(Clock::time_point now) {
+  ++rateWindowFrames_;
+  const double elapsed = Seconds(now - rateWindowStart_).count();
+  if (now - rateWindowStart_ < kRateWindow && fps_ > 0.0) return;
+  const uint64_t bytes = session_->Status().bytesReceived;
+  if (elapsed > 0.0) {
+    fps_ = double(rateWindowFrames_) / elapsed;
+    bytesPerSecond_ = double(bytes - std::min(bytes, rateWindowBytes_)) / elapsed;
+  }
+  rateWindowStart_ = now;
+  rateWindowFrames_ = 0;
+  rateWindowBytes_ = bytes;
+}
+
+void ClientApp::WriteStats(Clock::time_point now) {
+  if (!stats_) return;
+  const SessionStatus status = session_->Status();
+  const MeshStore& mesh = model_.Mesh();
+  FrameStats s;
+  s.frame = frames_;
+  s.timeSeconds = Seconds(now - start_).count();
+  s.trianglesHeld = mesh.TriangleCount();
+  s.verticesHeld = mesh.VertexCount();
+  s.bytesReceived = status.bytesReceived;
+  s.samplesPending = mesh.PendingSamples();
+  s.converged = model_.Converged(viewSerial_);
+  s.viewToFirstDeltaMs = status.viewToFirstDeltaMs;
+  s.fps = fps_;
+  s.memory = ReadProcessMemory();
+  s.connection = ToString(status.state);
+  s.connections = status.connections;
+  s.sma = model_.LastSmaReport();
+  if (auto ok = stats_->Write(s); !ok) {
+    log_->error("{}; no more statistics lines", ok.error().message);
+    stats_.reset();
+  }
+}
+
+int ClientApp::Finish() {
+  if (!options_.screenshot.empty()) {
+    if (auto ok = WriteScreenshot(options_.screenshot); !ok) return Failed(ok.error().message);
+  }
+  const MeshStore& mesh = model_.Mesh();
+  log_->info("done after {} frames: {} triangles and {} vertices held{}", frames_, mesh.TriangleCount(),
+             mesh.VertexCount(), options_.screenshot.empty() ? "" : "; wrote " + options_.screenshot.string());
+  return 0;
+}
+
+Status ClientApp::WriteScreenshot(const std::filesystem::path& path) {
+  const glm::ivec2 size = targets_.Size();
+  const std::vector<float> pixels = IsRadianceFile(path) ? targets_.ReadRadiance() : targets_.ReadDisplay();
+  return WriteImage(path, size.x, size.y, pixels);
+}
+
+void ClientApp::SaveInteractiveScreenshot() {
+  screenshotRequested_ = false;
+  const std::string stem = fmt::format("penumbra-{}-{}", model_.SceneInfo() ? model_.SceneInfo()->name() : "empty",
+                                       LocalTimestamp());
+  const auto png = options_.screenshotDir / (stem + ".png");
+  const auto exr = options_.screenshotDir / (stem + ".exr");
+  Status ok = WriteScreenshot(png);
+  if (ok) ok = WriteScreenshot(exr);
+  notice_ = ok ? fmt::format("saved {} and {}", png.string(), exr.string()) : ok.error().message;
+  noticeUntil_ = Clock::now() + kNoticeDuration;
+  if (ok)
+    log_->info("{}", notice_);
+  else
+    log_->error("screenshot: {}", notice_);
+}
+
+int ClientApp::Failed(const std::string& message) const {
+  log_->error("{}", message);
+  return 1;
+}
+
+int RunClient(const ClientOptions& options) {
+  gStopSignal = 0;
+  std::signal(SIGINT, OnStopSignal);
+  std::signal(SIGTERM, OnStopSignal);
+  ClientApp app(options);
+  if (auto ok = app.Init(); !ok) {
+    Logger("client")->error("{}", ok.error().message);
+    return 1;
+  }
+  return app.Run();
+}
+
+}  // namespace penumbra::client::gl

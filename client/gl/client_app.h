@@ -1,0 +1,64 @@
+#pragma once
+// penumbra-client's main loop: the session's events are applied between
+// frames, the GPU copy is synced, the camera (keys and mouse, or a scripted
+// path) is sent when it changes, and the frame is drawn: radiance, tone
+// mapping, wireframe, HUD. The same loop runs in a window and headless.
+//
+// Threads: RunClient runs on the main thread (GLFW's requirement) and is
+// the render thread; the SmaSession it owns runs the network thread.
+
+#include <chrono>
+#include <cstdint>
+#include <filesystem>
+#include <string>
+
+#include <optional>
+
+#include <glm/vec2.hpp>
+
+#include "gl/context.h"
+#include "gl/tone_mapper.h"
+#include "penumbra/common/camera.h"
+#include "penumbra/common/endpoint.h"
+
+namespace penumbra::client::gl {
+
+struct ClientOptions {
+  HostPort sma;
+  bool headless = false;
+  HeadlessBackend backend = HeadlessBackend::kAuto;
+  /// Headless: the camera path to play (its size is the image's); none: a
+  /// still view from the SMA's camera preset `cameraPreset` at `size`.
+  std::optional<CameraPath> cameraPath;
+  /// Preset to start from (window) or to show (headless); empty: the first.
+  std::string cameraPreset;
+  glm::ivec2 size{1280, 720};  // window size, or a headless still view's
+  /// Headless: written when the run ends; .exr/.hdr hold linear radiance,
+  /// .png/.jpg the tone-mapped image. Empty: none.
+  std::filesystem::path screenshot;
+  /// One JSON line per frame (stats_line.h). Empty: none.
+  std::filesystem::path statsPath;
+  enum class StopWhen { kConverged, kFrames, kSeconds };
+  StopWhen stopWhen = StopWhen::kConverged;  // headless only
+  uint64_t frames = 0;
+  double seconds = 0.0;
+  /// Headless: give up when no connection has existed for this long.
+  std::chrono::seconds connectTimeout{15};
+  /// Headless, kConverged: give up when not converged this long after start.
+  std::chrono::seconds convergeTimeout{600};
+  /// Frame-rate cap; 0: 60 in a window (plus vsync), 30 headless, so a
+  /// headless client leaves the CPU to the renderers it shares a host with.
+  double maxFps = 0.0;
+  ToneSettings tone;
+  /// Where the screenshot key writes its PNG and EXR.
+  std::filesystem::path screenshotDir = ".";
+};
+
+/// Runs the client; returns the process exit code: 0 done (window closed,
+/// or the headless goal met and the screenshot written), 1 failure (no
+/// connection within the timeout, no convergence within the timeout, a GL
+/// or file error; one clear line is logged), 128 + signal when a headless
+/// run is interrupted (an interrupted window just closes: 0).
+int RunClient(const ClientOptions& options);
+
+}  // namespace penumbra::client::gl

@@ -1,0 +1,140 @@
+// penumbra-client: the walkthrough client. Connects to an SMA, shows what it
+// streams in a window (or renders it headless along a camera path), and
+// keeps the SMA informed of the camera. See client/README.md.
+
+#include <cstdio>
+#include <cstdlib>
+
+#include <CLI/CLI.hpp>
+
+#include "gl/client_app.h"
+#include "penumbra/client/path_player.h"
+#include "penumbra/common/logging.h"
+
+namespace {
+
+int Usage(const std::string& message) {
+  std::fprintf(stderr, "penumbra-client: %s (see --help)\n", message.c_str());
+  return 2;
+}
+
+bool ParseSize(const std::string& text, glm::ivec2* size) {
+  int w = 0, h = 0;
+  char x = 0, extra = 0;
+  if (std::sscanf(text.c_str(), "%d%c%d%c", &w, &x, &h, &extra) != 3 || (x != 'x' && x != 'X')) return false;
+  if (w < 1 || h < 1 || w > 16384 || h > 16384) return false;
+  *size = {w, h};
+  return true;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  using namespace penumbra;
+  using namespace penumbra::client;
+  using gl::ClientOptions;
+
+  CLI::App app{"penumbra-client: walk through a scene an SMA streams, shaded by Penumbra's renderers"};
+  ClientOptions options;
+  std::string connect;
+  std::string backend = "auto";
+  std::string cameraPath;
+  std::string size;
+  std::string tone = "drago";
+  std::string logLevel = "info";
+  bool untilConverged = false;
+  int connectTimeout = int(options.connectTimeout.count());
+  int convergeTimeout = int(options.convergeTimeout.count());
+  std::string screenshot, stats, screenshotDir = options.screenshotDir.string();
+
+  app.add_option("--connect", connect, "SMA address, HOST:PORT")->required();
+  app.add_option("--camera", options.cameraPreset,
+                 "Camera preset of the scene to start from (window) or to show (headless); default: the first");
+  app.add_option("--size", size, "Window size, or a headless still view's image size, WxH (default 1280x720)");
+  app.add_option("--tone", tone, "Tone mapping: drago (Drago 2003) or exposure (exposure + gamma)")
+      ->check(CLI::IsMember({"drago", "exposure"}))
+      ->capture_default_str();
+  app.add_option("--exposure", options.tone.exposureStops, "Exposure in stops added to the scene's")
+      ->capture_default_str();
+  app.add_option("--gamma", options.tone.gamma, "Gamma of the exposure + gamma tone mapping")
+      ->check(CLI::Range(1.0f, 3.0f))
+      ->capture_default_str();
+  app.add_option("--stats", stats, "Write one JSON line of statistics per frame to this file");
+  app.add_option("--screenshot-dir", screenshotDir, "Where the screenshot key writes its PNG and EXR")
+      ->capture_default_str();
+  app.add_option("--max-fps", options.maxFps, "Frame-rate cap (0: 60 in a window, 30 headless)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
+  app.add_option("--log-level", logLevel, "trace, debug, info, warn, error, critical or off")->capture_default_str();
+
+  auto* headless = app.add_flag("--headless", options.headless, "Render offscreen, without a window");
+  auto* glOption = app.add_option("--gl", backend, "Headless OpenGL: auto (GLFW if DISPLAY is set, else EGL), glfw or egl")
+                       ->check(CLI::IsMember({"auto", "glfw", "egl"}))
+                       ->capture_default_str();
+  auto* pathOption = app.add_option(
+      "--camera-path", cameraPath,
+      "Headless: camera path JSON (common/camera.h), or SCENE.json#NAME for a scene file's path; default: the "
+      "--camera preset as a still view at --size");
+  auto* screenshotOption = app.add_option(
+      "--screenshot", screenshot, "Headless: image written at the end; .png tone-mapped, .exr linear radiance");
+  auto* convergedFlag =
+      app.add_flag("--until-converged", untilConverged,
+                   "Headless: play the path, then stop once the SMA reports the final view converged (default)");
+  auto* framesOption = app.add_option("--frames", options.frames, "Headless: stop after N frames")
+                           ->check(CLI::PositiveNumber);
+  auto* secondsOption = app.add_option("--seconds", options.seconds, "Headless: stop after S seconds")
+                            ->check(CLI::PositiveNumber);
+  convergedFlag->excludes(framesOption)->excludes(secondsOption);
+  framesOption->excludes(secondsOption);
+  auto* connectTimeoutOption =
+      app.add_option("--connect-timeout", connectTimeout, "Headless: fail after S seconds without a connection")
+          ->check(CLI::Range(1, 86400))
+          ->capture_default_str();
+  auto* timeoutOption =
+      app.add_option("--timeout", convergeTimeout, "Headless, --until-converged: fail after S seconds")
+          ->check(CLI::Range(1, 86400))
+          ->capture_default_str();
+  for (CLI::Option* o : {glOption, pathOption, screenshotOption, convergedFlag, framesOption, secondsOption,
+                         connectTimeoutOption, timeoutOption})
+    o->needs(headless);
+
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::CallForHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    return Usage(e.what());
+  }
+
+  if (!SetupLogging(logLevel)) return Usage("unknown --log-level '" + logLevel + "'");
+  auto sma = ParseHostPort(connect);
+  if (!sma) return Usage("--connect: " + sma.error().message);
+  options.sma = *sma;
+  if (!size.empty() && !ParseSize(size, &options.size)) return Usage("--size must be WxH, 1..16384 each: " + size);
+  options.tone.op = tone == "drago" ? gl::ToneOperator::kDrago : gl::ToneOperator::kExposureGamma;
+  options.backend = backend == "glfw" ? gl::HeadlessBackend::kGlfw
+                    : backend == "egl" ? gl::HeadlessBackend::kEgl
+                                       : gl::HeadlessBackend::kAuto;
+  options.screenshot = screenshot;
+  options.statsPath = stats;
+  options.screenshotDir = screenshotDir;
+  options.connectTimeout = std::chrono::seconds(connectTimeout);
+  options.convergeTimeout = std::chrono::seconds(convergeTimeout);
+  if (framesOption->count() > 0) options.stopWhen = ClientOptions::StopWhen::kFrames;
+  if (secondsOption->count() > 0) options.stopWhen = ClientOptions::StopWhen::kSeconds;
+  if (!cameraPath.empty()) {
+    auto path = LoadCameraPathSpec(cameraPath);
+    if (!path) return Usage("--camera-path: " + path.error().message);
+    options.cameraPath = std::move(*path);
+  }
+
+  const char* display = std::getenv("DISPLAY");
+  if (!options.headless && !(display && *display)) {
+    std::fprintf(stderr,
+                 "penumbra-client: no display (DISPLAY is not set), so no window; render headless instead:\n"
+                 "  %s --connect %s --headless --until-converged --screenshot penumbra.png\n",
+                 argv[0], connect.c_str());
+    return 1;
+  }
+  return gl::RunClient(options);
+}

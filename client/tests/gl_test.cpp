@@ -1,0 +1,213 @@
+// The client's GL code on a real OpenGL implementation (Mesa, EGL
+// surfaceless: no X server needed): the tone-mapping shader against
+// common/tonemap.h, and the mesh renderer against what the store holds,
+// including removals, slot reuse, upload sizes and textures.
+
+#include <cmath>
+
+#include <gtest/gtest.h>
+
+#include "gl/context.h"
+#include "gl/frame_targets.h"
+#include "gl/mesh_renderer.h"
+#include "gl/tone_mapper.h"
+#include "penumbra/client/client_model.h"
+#include "penumbra/client/projection.h"
+#include "support/delta_builder.h"
+#include "support/fake_sma.h"
+
+namespace penumbra::client::gl {
+namespace {
+
+using testing::DeltaBuilder;
+
+struct IgnoredRequests : SessionRequests {
+  void RequestTexture(uint64_t, uint32_t texture) override { requested.push_back(texture); }
+  void AbandonConnection(uint64_t, const std::string& reason) override { ADD_FAILURE() << "abandoned: " << reason; }
+  std::vector<uint32_t> requested;
+};
+
+class GlTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    auto context = CreateSurfacelessContext();
+    ASSERT_TRUE(context.ok()) << context.error().message;
+    context_ = std::move(*context);
+  }
+  std::unique_ptr<Context> context_;
+};
+
+Rgb PixelAt(const std::vector<float>& rgb, int width, int x, int y) {
+  const size_t i = (size_t(y) * size_t(width) + size_t(x)) * 3;
+  return Rgb(rgb[i], rgb[i + 1], rgb[i + 2]);
+}
+
+void ExpectRgbNear(const Rgb& got, const Rgb& expected, float tolerance, const std::string& where) {
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(got[c], expected[c], tolerance) << where << " channel " << c;
+}
+
+TEST_F(GlTest, ToneMappingShaderMirrorsTheCpuCode) {
+  const std::vector<Rgb> radiance = {Rgb(0.0f),          Rgb(1e-4f),           Rgb(0.01f),
+                                     Rgb(0.1f),          Rgb(0.5f, 0.1f, 0.05f), Rgb(1.0f),
+                                     Rgb(2.0f, 1.0f, 3.0f), Rgb(5.0f, 3.0f, 1.0f), Rgb(100.0f),
+                                     Rgb(1000.0f, 900.0f, 800.0f), Rgb(0.0f, 0.0f, 0.3f), Rgb(0.02f, 0.3f, 0.01f)};
+  const int width = int(radiance.size()) + 1;  // the last pixel is background
+  FrameTargets targets;
+  ASSERT_TRUE(targets.Resize({width, 1}).ok());
+  std::vector<float> rgba;
+  for (const Rgb& r : radiance) rgba.insert(rgba.end(), {r.r, r.g, r.b, 1.0f});
+  rgba.insert(rgba.end(), {0.0f, 0.0f, 0.0f, 0.0f});
+  glBindTexture(GL_TEXTURE_2D, targets.RadianceTexture());
+  glTexSubImage2D(GL_TEXTURE_2D, 0, 0, 0, width, 1, GL_RGBA, GL_FLOAT, rgba.data());
+  auto toneMapper = ToneMapper::Create();
+  ASSERT_TRUE(toneMapper.ok()) << toneMapper.error().message;
+
+  const ViewLuminance view = MeasureLuminance(radiance);
+  const DragoParams scene{0.85f, 100.0f, 1.5f};
+  auto encoded = [](const std::vector<float>& linear, int i) {
+    return Rgb(LinearToSrgb(linear[size_t(3 * i)]), LinearToSrgb(linear[size_t(3 * i + 1)]),
+               LinearToSrgb(linear[size_t(3 * i + 2)]));
+  };
+  const float oneLevel = 1.01f / 255.0f;  // the display image has 8 bits per channel
+
+  ToneSettings drago;
+  drago.exposureStops = 0.5f;
+  targets.BeginDisplay();
+  toneMapper->Draw(targets.RadianceTexture(), view, scene, drago);
+  std::vector<float> display = targets.ReadDisplay();
+  DragoParams scaled = scene;
+  scaled.exposure *= std::exp2(0.5f);
+  for (size_t i = 0; i < radiance.size(); ++i) {
+    const Rgb cpu = ToneMapDrago(radiance[i], view, scaled);
+    const Rgb expected(LinearToSrgb(cpu.r), LinearToSrgb(cpu.g), LinearToSrgb(cpu.b));
+    ExpectRgbNear(encoded(display, int(i)), expected, oneLevel, "Drago, pixel " + std::to_string(i));
+  }
+  const Rgb background(kBackgroundDisplay[0], kBackgroundDisplay[1], kBackgroundDisplay[2]);
+  ExpectRgbNear(encoded(display, width - 1), background, oneLevel, "background");
+
+  ToneSettings simple;
+  simple.op = ToneOperator::kExposureGamma;
+  simple.exposureStops = -1.0f;
+  simple.gamma = 2.0f;
+  toneMapper->Draw(targets.RadianceTexture(), view, scene, simple);
+  display = targets.ReadDisplay();
+  const float exposure = std::exp2(-1.0f) * 0.18f / view.logAverage;
+  for (size_t i = 0; i < radiance.size(); ++i) {
+    const Rgb cpu = ToneMapExposure(radiance[i], exposure);
+    const Rgb expected(std::sqrt(cpu.r), std::sqrt(cpu.g), std::sqrt(cpu.b));
+    ExpectRgbNear(encoded(display, int(i)), expected, oneLevel, "exposure+gamma, pixel " + std::to_string(i));
+  }
+}
+
+class MeshRendererTest : public GlTest {
+ protected:
+  static constexpr int kSize = 64;
+
+  void SetUp() override {
+    GlTest::SetUp();
+    auto renderer = MeshRenderer::Create();
+    ASSERT_TRUE(renderer.ok()) << renderer.error().message;
+    renderer_.emplace(std::move(*renderer));
+    ASSERT_TRUE(targets_.Resize({kSize, kSize}).ok());
+    Connected connected;
+    connected.connection = 1;
+    connected.welcome.set_scene_hash(1);
+    connected.sceneInfo = testing::UnitSquareSceneInfo();
+    Apply(std::move(connected));
+  }
+
+  void Apply(SessionEvent event) {
+    std::vector<SessionEvent> events;
+    events.push_back(std::move(event));
+    model_.Apply(std::move(events), requests_);
+    const auto ok = renderer_->Sync(model_);
+    ASSERT_TRUE(ok.ok()) << ok.error().message;
+  }
+  void ApplyDelta(const DeltaBuilder& d) { Apply(DeltaReceived{1, 1, d.Delta()}); }
+
+  // The unit square seen from +z fills the middle of the image: pixel
+  // (x, y) looks at world (x', y') with x' growing right and y' growing up.
+  std::vector<float> Draw() {
+    CameraView view;
+    view.pose = CameraPose{Vec3(0.5f, 0.5f, 2.0f), Vec3(0.5f, 0.5f, 0.0f), Vec3(0, 1, 0)};
+    view.width = view.height = kSize;
+    Bounds3 bounds;
+    bounds.Extend(Vec3(0, 0, 0));
+    bounds.Extend(Vec3(1, 1, 0));
+    targets_.BeginRadiance();
+    renderer_->DrawRadiance(WorldToClip(view, bounds));
+    return targets_.ReadRadiance();
+  }
+
+  std::optional<MeshRenderer> renderer_;
+  FrameTargets targets_;
+  ClientModel model_;
+  IgnoredRequests requests_;
+};
+
+// Pixels inside the lower-right half (x' > y') and the upper-left half of the square.
+constexpr int kLowerRightX = 40, kLowerRightY = 40;
+constexpr int kUpperLeftX = 24, kUpperLeftY = 24;
+
+TEST_F(MeshRendererTest, DrawsTheHeldTrianglesAndNothingInRemovedSlots) {
+  const Rgb grey(0.5f, 0.25f, 0.125f);
+  DeltaBuilder quad(1, 1);
+  quad.Vertex(1, Vec3(0, 0, 0), grey).Vertex(2, Vec3(1, 0, 0), grey).Vertex(3, Vec3(1, 1, 0), grey);
+  quad.Vertex(4, Vec3(0, 1, 0), grey);
+  quad.Triangle(10, {1, 2, 3}).Triangle(11, {1, 3, 4});
+  // Far off screen, so that the store is much larger than what later changes.
+  for (uint64_t i = 0; i < 2000; ++i) {
+    const float x = 100.0f + float(i);
+    quad.Vertex(100 + 3 * i, Vec3(x, 0, 0), grey).Vertex(101 + 3 * i, Vec3(x + 0.5f, 0, 0), grey);
+    quad.Vertex(102 + 3 * i, Vec3(x, 0.5f, 0), grey).Triangle(1000 + i, {100 + 3 * i, 101 + 3 * i, 102 + 3 * i});
+  }
+  ApplyDelta(quad);
+  const size_t firstUpload = renderer_->LastUploadBytes();
+  std::vector<float> image = Draw();
+  ExpectRgbNear(PixelAt(image, kSize, kLowerRightX, kLowerRightY), grey, 1e-6f, "lower right");
+  ExpectRgbNear(PixelAt(image, kSize, kUpperLeftX, kUpperLeftY), grey, 1e-6f, "upper left");
+  ExpectRgbNear(PixelAt(image, kSize, 1, 1), Rgb(0.0f), 0.0f, "background");
+
+  // Removing triangle 10 empties its slot on the GPU.
+  ApplyDelta(DeltaBuilder(2, 1, wire::DELTA_KIND_REMOVED).Remove(10));
+  image = Draw();
+  ExpectRgbNear(PixelAt(image, kSize, kLowerRightX, kLowerRightY), Rgb(0.0f), 0.0f, "removed");
+  ExpectRgbNear(PixelAt(image, kSize, kUpperLeftX, kUpperLeftY), grey, 1e-6f, "kept");
+
+  // A new triangle reuses the slot; only the changed slots are uploaded.
+  const Rgb blue(0.1f, 0.2f, 0.9f);
+  DeltaBuilder refill(3, 1, wire::DELTA_KIND_SHADED);
+  refill.Vertex(5, Vec3(0, 0, 0), blue).Vertex(6, Vec3(1, 0, 0), blue).Vertex(7, Vec3(1, 1, 0), blue);
+  refill.Triangle(12, {5, 6, 7});
+  ApplyDelta(refill);
+  EXPECT_GT(renderer_->LastUploadBytes(), 0u);
+  EXPECT_LT(renderer_->LastUploadBytes(), firstUpload / 50) << "uploads follow the change, not the store";
+  image = Draw();
+  ExpectRgbNear(PixelAt(image, kSize, kLowerRightX, kLowerRightY), blue, 1e-6f, "refilled");
+}
+
+TEST_F(MeshRendererTest, TexturedTrianglesShowTextureTimesIrradianceOnceItArrives) {
+  // Material 1 has albedo 1 and texture 0; irradiance pi gives radiance = texture.
+  const Rgb vertexRadiance(0.3f);
+  const Rgb irradiance(kPi);
+  DeltaBuilder d(1, 1);
+  d.Vertex(1, Vec3(0, 0, 0), vertexRadiance, irradiance).Vertex(2, Vec3(1, 0, 0), vertexRadiance, irradiance);
+  d.Vertex(3, Vec3(1, 1, 0), vertexRadiance, irradiance);
+  d.Triangle(10, {1, 2, 3}, 1, std::array<float, 6>{0.25f, 0.25f, 0.75f, 0.25f, 0.75f, 0.75f});
+  ApplyDelta(d);
+  ASSERT_EQ(requests_.requested, std::vector<uint32_t>{0});
+  ExpectRgbNear(PixelAt(Draw(), kSize, kLowerRightX, kLowerRightY), vertexRadiance, 1e-6f, "before the texture");
+
+  TextureReceived texture;
+  texture.connection = 1;
+  texture.texture.set_texture(0);
+  texture.texture.set_width(1);
+  texture.texture.set_height(1);
+  texture.texture.set_rgb8(std::string("\x80\x40\xff", 3));
+  Apply(std::move(texture));
+  const Rgb expected(SrgbToLinear(128.0f / 255.0f), SrgbToLinear(64.0f / 255.0f), 1.0f);
+  ExpectRgbNear(PixelAt(Draw(), kSize, kLowerRightX, kLowerRightY), expected, 2e-3f, "textured");
+}
+
+}  // namespace
+}  // namespace penumbra::client::gl
