@@ -44,7 +44,7 @@ ChildProcess::ChildProcess(ChildProcess&& other) noexcept
 
 ChildProcess& ChildProcess::operator=(ChildProcess&& other) noexcept {
   if (this != &other) {
-    this->~ChildProcess();
+    ChildProcess previous(std::move(*this));  // killed and reaped as it goes out of scope
     pid_ = other.pid_;
     exitCode_ = other.exitCode_;
     logPath_ = std::move(other.logPath_);
@@ -110,6 +110,37 @@ std::string MakeTempDir(const std::string& prefix) {
   std::string pattern = (std::filesystem::temp_directory_path() / (prefix + "-XXXXXX")).string();
   if (::mkdtemp(pattern.data()) == nullptr) return std::filesystem::temp_directory_path().string();
   return pattern;
+}
+
+std::optional<std::string> FindExecutable(const std::string& name) {
+  const char* path = std::getenv("PATH");
+  std::stringstream dirs(std::string(path ? path : "") + ":/usr/sbin:/sbin:/usr/bin:/bin");
+  for (std::string dir; std::getline(dirs, dir, ':');) {
+    const std::filesystem::path candidate = std::filesystem::path(dir) / name;
+    if (!dir.empty() && ::access(candidate.c_str(), X_OK) == 0) return candidate.string();
+  }
+  return std::nullopt;
+}
+
+Expected<std::string> RunCommand(const std::string& exe, const std::vector<std::string>& args,
+                                 std::chrono::milliseconds timeout) {
+  std::string command = exe;
+  for (const auto& a : args) command += " " + a;
+  const std::string dir = MakeTempDir("penumbra-command");
+  std::string output;
+  std::optional<int> code;
+  {
+    auto process = ChildProcess::Spawn(exe, args, dir + "/output");
+    if (!process) return process.error();
+    code = process->WaitExit(timeout);
+    output = process->LogTail(size_t(1) << 24);
+  }  // a process still running is killed here
+  std::error_code ec;
+  std::filesystem::remove_all(dir, ec);
+  if (code == 0) return output;
+  while (!output.empty() && output.back() == '\n') output.pop_back();
+  return Fail(code ? fmt::format("`{}` failed ({}): {}", command, *code, output)
+                   : fmt::format("`{}` did not finish in {} ms", command, timeout.count()));
 }
 
 }  // namespace penumbra::testing

@@ -52,4 +52,13 @@ Expected<uint16_t> WaitForPortFile(ChildProcess& process, const std::string& por
 /// A fresh directory under the system temp dir for one test's files.
 std::string MakeTempDir(const std::string& prefix);
 
+/// The path of executable `name` on PATH or in the system directories root's
+/// tools live in (/usr/sbin, /sbin), or nullopt.
+std::optional<std::string> FindExecutable(const std::string& name);
+
+/// Runs `exe args...` to the end and returns its output (stdout and stderr);
+/// fails, with that output, when it exits non-zero or outlives `timeout`.
+Expected<std::string> RunCommand(const std::string& exe, const std::vector<std::string>& args,
+                                 std::chrono::milliseconds timeout = std::chrono::seconds(30));
+
 }  // namespace penumbra::testing

@@ -1,5 +1,7 @@
 #include "support/sma_client.h"
 
+#include <algorithm>
+
 #include <fmt/format.h>
 
 #include "penumbra/common/messages.h"
@@ -7,9 +9,14 @@
 namespace penumbra::testing {
 
 using Clock = std::chrono::steady_clock;
+constexpr std::chrono::seconds kHeartbeatInterval{5};  // docs/protocol.md, connection life cycle
 
 Expected<SmaTestClient> SmaTestClient::Connect(uint16_t port, const std::string& name) {
-  auto wire = WireClient::Connect("127.0.0.1", port);
+  return Connect("127.0.0.1", port, name);
+}
+
+Expected<SmaTestClient> SmaTestClient::Connect(const std::string& host, uint16_t port, const std::string& name) {
+  auto wire = WireClient::Connect(host, port);
   if (!wire) return wire.error();
   SmaTestClient client(std::move(*wire));
   auto welcome = client.wire_.Handshake(wire::ROLE_CLIENT, 0, 0, name);
@@ -37,6 +44,7 @@ bool SmaTestClient::SendView(const CameraView& view, uint64_t viewId) {
   v->set_fov_y_deg(view.fovYDeg);
   v->set_width(uint32_t(view.width));
   v->set_height(uint32_t(view.height));
+  lastSent_ = Clock::now();
   return wire_.Send(e);
 }
 
@@ -56,7 +64,17 @@ Status SmaTestClient::WaitConverged(uint64_t viewId, std::chrono::milliseconds t
     if (left.count() <= 0)
       return Fail(fmt::format("view {} not converged in {} ms (last delta: view {}, {} pending)", viewId,
                               timeout.count(), mesh_.LastViewId(), mesh_.PendingSamples()));
-    auto e = wire_.Receive(left);
+    if (Clock::now() - lastSent_ >= kHeartbeatInterval) {
+      wire::Envelope heartbeat;
+      heartbeat.mutable_heartbeat()->set_sent_unix_ms(uint64_t(std::chrono::duration_cast<std::chrono::milliseconds>(
+          std::chrono::system_clock::now().time_since_epoch()).count()));
+      if (!wire_.Send(heartbeat)) return Fail("send failed");
+      lastSent_ = Clock::now();
+    }
+    const auto untilHeartbeat =
+        std::chrono::duration_cast<std::chrono::milliseconds>(lastSent_ + kHeartbeatInterval - Clock::now());
+    auto e = wire_.Receive(std::clamp(untilHeartbeat, std::chrono::milliseconds(1), left));
+    if (!e && e.error().message == "timeout") continue;
     if (!e) return e.error();
     if (auto ok = Apply(*e); !ok) return ok;
   }
@@ -68,6 +86,7 @@ Expected<double> SmaTestClient::Counter(const std::string& name) {
   wire::Envelope request;
   request.mutable_stats_request()->set_request_id(id);
   if (!wire_.Send(request)) return Fail("send failed");
+  lastSent_ = Clock::now();
   const auto deadline = Clock::now() + std::chrono::seconds(10);
   while (Clock::now() < deadline) {
     auto e = wire_.Receive(std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now()));

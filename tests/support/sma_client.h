@@ -19,6 +19,8 @@ class SmaTestClient {
  public:
   /// Connects and handshakes (Hello -> Welcome, SceneInfo).
   static Expected<SmaTestClient> Connect(uint16_t port, const std::string& name = "test-client");
+  /// The same with an SMA on another host.
+  static Expected<SmaTestClient> Connect(const std::string& host, uint16_t port, const std::string& name);
 
   const wire::Welcome& Welcome() const { return welcome_; }
   const wire::SceneInfo& Info() const { return info_; }
@@ -29,6 +31,9 @@ class SmaTestClient {
   bool SendView(const CameraView& view, uint64_t viewId);
 
   /// Receives and applies deltas until one for `viewId` reports convergence.
+  /// Sends a Heartbeat whenever it has sent nothing for 5 s, as the protocol
+  /// asks of a waiting client, so that waits longer than the SMA's read
+  /// timeout keep the connection.
   Status WaitConverged(uint64_t viewId, std::chrono::milliseconds timeout = std::chrono::seconds(60));
 
   /// Asks the SMA for a counter, applying deltas that arrive meanwhile.
@@ -56,6 +61,7 @@ class SmaTestClient {
   HeldMesh mesh_;
   std::vector<DeltaRecord> log_;
   uint64_t nextStatsId_ = 1;
+  std::chrono::steady_clock::time_point lastSent_ = std::chrono::steady_clock::now();
 };
 
 /// A CameraView from a SceneInfo preset, at the given resolution.
