@@ -151,7 +151,7 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
   void AbandonConnection(uint64_t connection, const std::string& reason) {
     asio::post(io_, [self = shared_from_this(), connection, reason] {
       if (!self->ready_ || connection != self->connectionNumber_) return;
-      self->log_->error("SMA {} broke the protocol: {}; dropping the connection", self->address_, reason);
+      self->log_->debug("abandoning connection {} to SMA {}: {}", connection, self->address_, reason);
       self->connection_->FailAndClose(MakeError(0, wire::ERROR_CODE_INVALID_REQUEST, reason, true), reason);
     });
   }

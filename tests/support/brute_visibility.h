@@ -5,6 +5,7 @@
 
 #include <cstdint>
 #include <set>
+#include <vector>
 
 #include "penumbra/common/camera.h"
 #include "penumbra/common/scene.h"
@@ -19,5 +20,11 @@ struct BruteVisibility {
 /// `tieBary`: a hit whose smallest barycentric is below it, or whose
 /// distance is within a relative 1e-5 of another triangle's, is a tie.
 BruteVisibility BruteForceVisibleTriangles(const Scene& scene, const CameraView& view, double tieBary = 1e-4);
+
+/// What each pixel centre's ray hits, by the same rules, for image checks.
+inline constexpr int64_t kPixelMiss = -1;  // no triangle, not even within tieBary of an edge
+inline constexpr int64_t kPixelTie = -2;   // a hit near an edge or between near-equal distances
+/// Row-major, row 0 at the top: the triangle hit, kPixelMiss or kPixelTie.
+std::vector<int64_t> BruteForcePixelHits(const Scene& scene, const CameraView& view, double tieBary = 1e-4);
 
 }  // namespace penumbra::testing

@@ -1,0 +1,419 @@
+// penumbra-client as a process, against real renderer and SMA processes (and
+// a scripted fake SMA), headless on both OpenGL paths: EGL surfaceless with
+// no X server, and GLFW on a private Xvfb. The images it writes are checked
+// against an independent brute-force ray cast of the scene (which wall is
+// where, the light brightest, no holes), its statistics against the SMA's
+// own counters, and its behaviour when the SMA dies or breaks the protocol.
+
+#include <signal.h>
+
+#include <cstdlib>
+#include <fstream>
+#include <thread>
+
+#include <fmt/format.h>
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "penumbra/common/image_io.h"
+#include "penumbra/common/scene.h"
+#include "support/brute_visibility.h"
+#include "support/delta_builder.h"
+#include "support/fake_sma.h"
+#include "support/service.h"
+#include "support/xvfb.h"
+
+namespace penumbra::testing {
+namespace {
+
+using namespace std::chrono_literals;
+using Json = nlohmann::json;
+using Clock = std::chrono::steady_clock;
+
+const std::string kScene = std::string(PENUMBRA_SOURCE_DIR) + "/scenes/cornell-box.json";
+constexpr int kWidth = 320;
+constexpr int kHeight = 240;
+
+// --- Running the client ---------------------------------------------------------
+
+// DISPLAY as the client process will see it (children inherit the environment).
+void SetDisplay(const std::string& display) {
+  if (display.empty())
+    ::unsetenv("DISPLAY");
+  else
+    ::setenv("DISPLAY", display.c_str(), 1);
+}
+
+ChildProcess StartClient(const std::vector<std::string>& args, const std::string& logPath) {
+  auto client = ChildProcess::Spawn(PENUMBRA_CLIENT_EXE, args, logPath);
+  EXPECT_TRUE(client.ok()) << client.error().message;
+  return client.ok() ? std::move(*client) : ChildProcess{};
+}
+
+std::vector<Json> ReadStatsLines(const std::string& path) {
+  std::vector<Json> lines;
+  std::ifstream in(path);
+  std::string line;
+  while (std::getline(in, line)) {
+    Json j = Json::parse(line, nullptr, /*allow_exceptions=*/false);
+    if (!j.is_discarded()) lines.push_back(std::move(j));  // the last line may be half written
+  }
+  return lines;
+}
+
+// The first statistics line (from the newest back) that satisfies `wanted`,
+// or failure when the client exits or the time runs out.
+Expected<Json> WaitForStats(ChildProcess& client, const std::string& path, const std::function<bool(const Json&)>& wanted,
+                            std::chrono::seconds timeout, const std::string& what) {
+  const auto deadline = Clock::now() + timeout;
+  while (Clock::now() < deadline) {
+    const auto lines = ReadStatsLines(path);
+    for (auto it = lines.rbegin(); it != lines.rend(); ++it)
+      if (wanted(*it)) return *it;
+    if (!client.Running()) return Fail(fmt::format("client exited waiting for {}:\n{}", what, client.LogTail()));
+    std::this_thread::sleep_for(100ms);
+  }
+  return Fail(fmt::format("no statistics line with {} within {} s:\n{}", what, timeout.count(), client.LogTail()));
+}
+
+bool Converged(const Json& line) { return line["converged"].get<bool>(); }
+
+std::string WritePathFile(const std::string& dir, const CameraPreset& preset) {
+  const std::string path = dir + "/" + preset.name + ".json";
+  const auto& p = preset.pose;
+  std::ofstream(path) << fmt::format(
+      R"({{"fov_y_deg": {}, "width": {}, "height": {}, "keyframes": [{{"t": 0, "eye": [{}, {}, {}], )"
+      R"("target": [{}, {}, {}], "up": [{}, {}, {}]}}]}})",
+      preset.fovYDeg, kWidth, kHeight, p.eye.x, p.eye.y, p.eye.z, p.target.x, p.target.y, p.target.z, p.up.x, p.up.y,
+      p.up.z);
+  return path;
+}
+
+// --- Image checks ----------------------------------------------------------------
+
+struct PixelClasses {
+  std::vector<size_t> red, green, light, other, miss;  // pixel indices by what the brute-force ray hits
+};
+
+// Classifies every pixel by the material of the triangle its centre's ray
+// certainly hits; pixels near edges (ties) are left out.
+PixelClasses ClassifyPixels(const Scene& scene, const CameraView& view) {
+  PixelClasses classes;
+  const std::vector<int64_t> hits = BruteForcePixelHits(scene, view);
+  for (size_t i = 0; i < hits.size(); ++i) {
+    if (hits[i] == kPixelMiss) classes.miss.push_back(i);
+    if (hits[i] < 0) continue;
+    const Material& m = scene.MaterialOf(uint32_t(hits[i]));
+    if (m.IsEmissive())
+      classes.light.push_back(i);
+    else if (m.albedo.r > 2.0f * m.albedo.g)
+      classes.red.push_back(i);
+    else if (m.albedo.g > 2.0f * m.albedo.r)
+      classes.green.push_back(i);
+    else
+      classes.other.push_back(i);
+  }
+  return classes;
+}
+
+Rgb PixelOf(const Image& image, size_t i) { return Rgb(image.rgb[3 * i], image.rgb[3 * i + 1], image.rgb[3 * i + 2]); }
+
+// Red wall pixels are red and on the left, green ones green and on the
+// right, and every light pixel is brighter than every other surface pixel.
+void ExpectCornellBox(const Image& image, const PixelClasses& classes) {
+  ASSERT_FALSE(classes.red.empty());
+  ASSERT_FALSE(classes.green.empty());
+  ASSERT_FALSE(classes.light.empty());
+  double redX = 0.0, greenX = 0.0;
+  for (size_t i : classes.red) {
+    const Rgb c = PixelOf(image, i);
+    EXPECT_GT(c.r, 1.5f * c.g) << "red wall pixel " << i;
+    redX += double(i % size_t(image.width));
+  }
+  for (size_t i : classes.green) {
+    const Rgb c = PixelOf(image, i);
+    EXPECT_GT(c.g, 1.2f * c.r) << "green wall pixel " << i;
+    greenX += double(i % size_t(image.width));
+  }
+  EXPECT_LT(redX / double(classes.red.size()), 0.3 * image.width) << "the red wall is on the left";
+  EXPECT_GT(greenX / double(classes.green.size()), 0.7 * image.width) << "the green wall is on the right";
+  float dimmestLight = std::numeric_limits<float>::max(), brightestSurface = 0.0f;
+  for (size_t i : classes.light) dimmestLight = std::min(dimmestLight, Luminance(PixelOf(image, i)));
+  for (const auto* set : {&classes.red, &classes.green, &classes.other})
+    for (size_t i : *set) brightestSurface = std::max(brightestSurface, Luminance(PixelOf(image, i)));
+  EXPECT_GT(dimmestLight, brightestSurface) << "the light is the brightest region";
+}
+
+// --- Fixture -----------------------------------------------------------------------
+
+class ClientTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    auto scene = LoadScene(kScene);
+    ASSERT_TRUE(scene.ok()) << scene.error().message;
+    scene_ = new Scene(std::move(*scene));
+    auto renderer = StartService(PENUMBRA_RENDERER_EXE, {"--scene", kScene, "--threads", "2", "--spp", "32"}, "renderer");
+    ASSERT_TRUE(renderer.ok()) << renderer.error().message;
+    renderer_ = new Service(std::move(*renderer));
+  }
+  static void TearDownTestSuite() {
+    delete renderer_;
+    delete scene_;
+  }
+  void SetUp() override {
+    dir_ = MakeTempDir("penumbra-client-test");
+    savedDisplay_ = std::getenv("DISPLAY") ? std::getenv("DISPLAY") : "";
+  }
+  void TearDown() override {
+    SetDisplay(savedDisplay_);
+    ASSERT_TRUE(renderer_->process.Running()) << renderer_->process.LogTail();
+  }
+
+  static Service StartSma(const std::vector<std::string>& extra = {}) {
+    std::vector<std::string> args = {"--scene", kScene, "--renderer", renderer_->Address()};
+    args.insert(args.end(), extra.begin(), extra.end());
+    auto sma = StartService(PENUMBRA_SMA_EXE, args, "sma");
+    EXPECT_TRUE(sma.ok()) << sma.error().message;
+    return sma.ok() ? std::move(*sma) : Service{};
+  }
+  static CameraView FrontView() {
+    const CameraPreset* front = scene_->FindCamera("front");
+    EXPECT_NE(front, nullptr);
+    return CameraView{front->pose, front->fovYDeg, kWidth, kHeight};
+  }
+  std::string FrontPathFile() const { return WritePathFile(dir_, *scene_->FindCamera("front")); }
+
+  static Scene* scene_;
+  static Service* renderer_;
+  std::string dir_;
+  std::string savedDisplay_;
+};
+Scene* ClientTest::scene_ = nullptr;
+Service* ClientTest::renderer_ = nullptr;
+
+// EGL surfaceless, no X server: linear radiance at exactly the path's size,
+// the box where the ray cast puts it, no holes, and exactly what the SMA sent.
+TEST_F(ClientTest, HeadlessWithoutXWritesTheRadianceOfExactlyWhatTheSmaSees) {
+  Service sma = StartSma({"--criterion", "none"});  // held triangles are then base triangles
+  SetDisplay("");
+  const std::string exr = dir_ + "/front.exr", stats = dir_ + "/stats.jsonl";
+  ChildProcess client = StartClient({"--connect", sma.Address(), "--headless", "--camera-path", FrontPathFile(),
+                                     "--until-converged", "--screenshot", exr, "--stats", stats},
+                                    dir_ + "/client.log");
+  const auto exit = client.WaitExit(120s);
+  ASSERT_TRUE(exit.has_value()) << client.LogTail();
+  ASSERT_EQ(*exit, 0) << client.LogTail();
+  EXPECT_NE(client.LogTail().find("EGL surfaceless"), std::string::npos) << "chose EGL without DISPLAY";
+
+  auto image = ReadImage(exr);
+  ASSERT_TRUE(image.ok()) << image.error().message;
+  EXPECT_TRUE(image->storedAsFloat);
+  ASSERT_EQ(image->width, kWidth);
+  ASSERT_EQ(image->height, kHeight);
+  const PixelClasses classes = ClassifyPixels(*scene_, FrontView());
+  ExpectCornellBox(*image, classes);
+  // Background is exactly zero radiance; every surface pixel has some.
+  size_t holes = 0, strays = 0;
+  for (const auto* set : {&classes.red, &classes.green, &classes.light, &classes.other})
+    for (size_t i : *set) holes += Luminance(PixelOf(*image, i)) > 0.0f ? 0 : 1;
+  for (size_t i : classes.miss) strays += PixelOf(*image, i) == Rgb(0.0f) ? 0 : 1;
+  EXPECT_EQ(holes, 0u) << "pixels inside the box's silhouette with nothing drawn";
+  EXPECT_EQ(strays, 0u) << "pixels drawn where the ray cast hits nothing";
+
+  const auto lines = ReadStatsLines(stats);
+  ASSERT_FALSE(lines.empty());
+  const Json& last = lines.back();
+  EXPECT_TRUE(last["converged"].get<bool>());
+  EXPECT_EQ(last["samples_pending"].get<int>(), 0);
+  EXPECT_TRUE(last["sma_agrees"].get<bool>()) << last.dump();
+  EXPECT_EQ(last["triangles_held"], last["sma_triangles_held"]);
+  EXPECT_EQ(last["vertices_held"], last["sma_vertices_held"]);
+  EXPECT_GT(last["bytes_received"].get<uint64_t>(), 0u);
+  EXPECT_FALSE(last["view_to_first_delta_ms"].is_null());
+  EXPECT_GT(last["peak_rss_bytes"].get<uint64_t>(), 0u);
+  const BruteVisibility visible = BruteForceVisibleTriangles(*scene_, FrontView());
+  const auto held = last["triangles_held"].get<size_t>();
+  EXPECT_GE(held, visible.certain.size());
+  EXPECT_LE(held, visible.certain.size() + visible.ties.size());
+}
+
+// GLFW with a hidden window on a private Xvfb: the tone-mapped PNG shows the
+// box, and nothing inside it is background. (Refinement stays off in the
+// image tests: the SMA's refined meshes can hold T-junctions where a split
+// meets a crease, and their one-pixel cracks are not the client's to judge.)
+TEST_F(ClientTest, HeadlessUnderXvfbWritesTheToneMappedImage) {
+  auto xvfb = XvfbServer::Start(dir_);
+  ASSERT_TRUE(xvfb.ok()) << xvfb.error().message;
+  SetDisplay(xvfb->Display());
+  Service sma = StartSma({"--criterion", "none"});
+  const std::string png = dir_ + "/front.png", stats = dir_ + "/stats.jsonl";
+  ChildProcess client = StartClient({"--connect", sma.Address(), "--headless", "--camera-path", FrontPathFile(),
+                                     "--screenshot", png, "--stats", stats},
+                                    dir_ + "/client.log");
+  const auto exit = client.WaitExit(240s);
+  ASSERT_TRUE(exit.has_value()) << client.LogTail();
+  ASSERT_EQ(*exit, 0) << client.LogTail();
+  EXPECT_NE(client.LogTail().find("GLFW window"), std::string::npos) << "chose GLFW with DISPLAY set";
+
+  auto image = ReadImage(png);
+  ASSERT_TRUE(image.ok()) << image.error().message;
+  ASSERT_EQ(image->width, kWidth);
+  ASSERT_EQ(image->height, kHeight);
+  const PixelClasses classes = ClassifyPixels(*scene_, FrontView());
+  ExpectCornellBox(*image, classes);
+  // The background's display colour (0.06, 0.06, 0.08) only where nothing is hit.
+  auto isBackground = [&](size_t i) {
+    const Rgb c = PixelOf(*image, i);
+    return std::abs(c.r - 0.06f) < 0.01f && std::abs(c.g - 0.06f) < 0.01f && std::abs(c.b - 0.08f) < 0.01f;
+  };
+  size_t holes = 0, background = 0;
+  for (const auto* set : {&classes.red, &classes.green, &classes.light, &classes.other})
+    for (size_t i : *set) holes += isBackground(i) ? 1 : 0;
+  for (size_t i : classes.miss) background += isBackground(i) ? 1 : 0;
+  EXPECT_EQ(holes, 0u);
+  EXPECT_EQ(background, classes.miss.size());
+  const auto lines = ReadStatsLines(stats);
+  ASSERT_FALSE(lines.empty());
+  EXPECT_TRUE(lines.back()["sma_agrees"].get<bool>()) << lines.back().dump();
+}
+
+// The SMA is killed: the client says so, retries with back-off, and when a
+// new SMA listens on the same port it reconnects and converges again.
+TEST_F(ClientTest, SurvivesTheSmaGoingAwayAndConvergesWithTheNextOne) {
+  SetDisplay("");
+  Service first = StartSma();
+  const uint16_t port = first.port;
+  const std::string stats = dir_ + "/stats.jsonl";
+  ChildProcess client = StartClient({"--connect", first.Address(), "--headless", "--camera-path", FrontPathFile(),
+                                     "--seconds", "600", "--connect-timeout", "120", "--stats", stats},
+                                    dir_ + "/client.log");
+  auto converged = WaitForStats(client, stats, Converged, 120s, "convergence");
+  ASSERT_TRUE(converged.ok()) << converged.error().message;
+
+  first.process.Signal(SIGKILL);
+  ASSERT_TRUE(first.process.WaitExit(10s).has_value());
+  auto waiting = WaitForStats(
+      client, stats, [](const Json& j) { return j["connection"] != "connected"; }, 30s, "a lost connection");
+  ASSERT_TRUE(waiting.ok()) << waiting.error().message;
+  std::this_thread::sleep_for(1500ms);  // a few failed attempts
+  const std::string log = client.LogTail(20000);
+  EXPECT_NE(log.find(fmt::format("lost connection 1 to SMA 127.0.0.1:{}", port)), std::string::npos) << log;
+  EXPECT_NE(log.find("retrying in"), std::string::npos) << log;
+
+  const std::string portFile = dir_ + "/second.port";
+  auto second = ChildProcess::Spawn(PENUMBRA_SMA_EXE,
+                                    {"--scene", kScene, "--renderer", renderer_->Address(), "--listen",
+                                     fmt::format("127.0.0.1:{}", port), "--port-file", portFile},
+                                    dir_ + "/second-sma.log");
+  ASSERT_TRUE(second.ok()) << second.error().message;
+  ASSERT_TRUE(WaitForPortFile(*second, portFile, 60s).ok()) << second->LogTail();
+  auto again = WaitForStats(
+      client, stats,
+      [](const Json& j) { return j["connections"] == 2 && Converged(j) && j["sma_agrees"] == true; }, 120s,
+      "convergence on the second connection");
+  ASSERT_TRUE(again.ok()) << again.error().message;
+  EXPECT_GT(again->at("triangles_held").get<int>(), 0);
+
+  client.Signal(SIGTERM);
+  const auto exit = client.WaitExit(10s);
+  ASSERT_TRUE(exit.has_value()) << client.LogTail();
+  EXPECT_EQ(*exit, 128 + SIGTERM) << "an interrupted headless run says so in its exit code";
+}
+
+// A fake SMA sends a delta whose second triangle uses a vertex never sent:
+// the client reports the violation, drops the connection, and on the next
+// connection starts from an empty mesh (re-adding triangle 10 is accepted).
+TEST_F(ClientTest, AMalformedDeltaIsReportedAndTheClientReconnectsWithAnEmptyMesh) {
+  SetDisplay("");
+  auto listener = WireListener::Listen();
+  ASSERT_TRUE(listener.ok()) << listener.error().message;
+  const std::string stats = dir_ + "/stats.jsonl";
+  ChildProcess client = StartClient({"--connect", fmt::format("127.0.0.1:{}", listener->Port()), "--headless",
+                                     "--camera", "front", "--size", "64x48", "--seconds", "600", "--stats", stats},
+                                    dir_ + "/client.log");
+  auto grey = [](DeltaBuilder& d) {
+    d.Vertex(1, Vec3(0, 0, 0), Rgb(0.5f)).Vertex(2, Vec3(1, 0, 0), Rgb(0.5f)).Vertex(3, Vec3(1, 1, 0), Rgb(0.5f));
+    d.Triangle(10, {1, 2, 3});
+  };
+  {
+    auto sma = listener->Accept(30s);
+    ASSERT_TRUE(sma.ok()) << sma.error().message << client.LogTail();
+    ASSERT_TRUE(ServeClientHandshake(*sma, UnitSquareSceneInfo()).ok());
+    auto view = ReceiveView(*sma);
+    ASSERT_TRUE(view.ok()) << view.error().message;
+    DeltaBuilder bad(1, view->view_id());
+    grey(bad);
+    bad.Triangle(11, {1, 3, 99});
+    ASSERT_TRUE(sma->Send(bad.Envelope()));
+    bool reported = false;
+    for (int i = 0; i < 10 && !reported; ++i) {
+      auto e = sma->Receive(5s);
+      if (!e) break;
+      reported = e->has_error() && e->error().fatal() && e->error().message().find("vertex 99") != std::string::npos;
+    }
+    EXPECT_TRUE(reported) << "the client tells the SMA what was wrong";
+    EXPECT_TRUE(sma->WaitClosed());
+  }
+  auto sma = listener->Accept(30s);
+  ASSERT_TRUE(sma.ok()) << sma.error().message << client.LogTail();
+  ASSERT_TRUE(ServeClientHandshake(*sma, UnitSquareSceneInfo()).ok());
+  auto view = ReceiveView(*sma);
+  ASSERT_TRUE(view.ok()) << view.error().message;
+  EXPECT_EQ(view->view_id(), 1u);
+  DeltaBuilder good(1, view->view_id());
+  grey(good);
+  good.Converged();
+  ASSERT_TRUE(sma->Send(good.Envelope()));
+  auto held = WaitForStats(
+      client, stats, [](const Json& j) { return j["connections"] == 2 && Converged(j); }, 30s,
+      "the second connection's delta applied");
+  ASSERT_TRUE(held.ok()) << held.error().message;
+  EXPECT_EQ(held->at("triangles_held").get<int>(), 1) << "nothing of the first connection's mesh remains";
+  EXPECT_EQ(held->at("vertices_held").get<int>(), 3);
+  const std::string log = client.LogTail(20000);
+  EXPECT_NE(log.find("[error]"), std::string::npos) << log;
+  EXPECT_NE(log.find("triangle 11 uses vertex 99"), std::string::npos) << log;
+  EXPECT_TRUE(client.Running());
+  client.Signal(SIGTERM);
+  EXPECT_TRUE(client.WaitExit(10s).has_value());
+}
+
+// Exit codes and their one-line explanations.
+TEST_F(ClientTest, FailuresEndWithOneClearLineAndAnExitCode) {
+  auto run = [&](const std::vector<std::string>& args, const std::string& name) {
+    ChildProcess client = StartClient(args, dir_ + "/" + name + ".log");
+    const auto exit = client.WaitExit(30s);
+    EXPECT_TRUE(exit.has_value()) << name;
+    return std::make_pair(exit.value_or(-1), client.LogTail());
+  };
+  SetDisplay("");
+  uint16_t unused = 0;
+  {
+    auto probe = WireListener::Listen();
+    ASSERT_TRUE(probe.ok());
+    unused = probe->Port();
+  }
+  const std::string nobody = fmt::format("127.0.0.1:{}", unused);
+
+  auto [code, log] = run({"--connect", nobody, "--headless", "--connect-timeout", "2"}, "no-sma");
+  EXPECT_EQ(code, 1);
+  EXPECT_NE(log.find(fmt::format("no connection to the SMA at {} for 2 s", nobody)), std::string::npos) << log;
+
+  std::tie(code, log) = run({"--connect", nobody}, "no-display");
+  EXPECT_EQ(code, 1);
+  EXPECT_NE(log.find("no display"), std::string::npos) << log;
+  EXPECT_NE(log.find("--headless"), std::string::npos) << "suggests the headless command: " << log;
+
+  std::tie(code, log) = run({"--connect", nobody, "--headless", "--camera-path", dir_ + "/missing.json"}, "bad-path");
+  EXPECT_EQ(code, 2);
+  EXPECT_NE(log.find("missing.json"), std::string::npos) << log;
+
+  std::tie(code, log) = run({"--connect", nobody, "--frames", "3"}, "frames-without-headless");
+  EXPECT_EQ(code, 2) << log;
+
+  std::tie(code, log) = run({"--connect", "nowhere"}, "bad-address");
+  EXPECT_EQ(code, 2) << log;
+}
+
+}  // namespace
+}  // namespace penumbra::testing
