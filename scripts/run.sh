@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Builds Penumbra and runs the whole stack locally -- renderer pool, SMA and
-# client -- on the default scene (scenes/cornell-box.json) until Ctrl-C.
+# the client window in the foreground -- on the default scene
+# (scenes/cornell-box.json). Closing the window or Ctrl-C stops everything.
+# Without a display the stack runs alone and the headless client command is printed.
 # Usage: scripts/run.sh [--scene FILE] [--renderers N] [--spp N]
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
@@ -12,7 +14,7 @@ while [ $# -gt 0 ]; do
     --scene) scene="$2"; shift 2 ;;
     --renderers) renderers="$2"; shift 2 ;;
     --spp) spp="$2"; shift 2 ;;
-    -h|--help) sed -n '2,4p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,6p' "$0"; exit 0 ;;
     *) echo "run.sh: unknown option $1" >&2; exit 2 ;;
   esac
 done
@@ -50,5 +52,16 @@ done
 pids+=("$!")
 sma_port="$(wait_port "$logs/sma.port" sma)"
 echo "run.sh: SMA on 127.0.0.1:$sma_port (logs in $logs)"
-echo "run.sh: stack running; Ctrl-C stops it"
+
+client=("$build_dir/client/penumbra-client" --connect "127.0.0.1:$sma_port")
+if [ -n "${DISPLAY:-}" ]; then
+  echo "run.sh: opening the client window (H or F1 in it lists the keys); closing it stops the stack"
+  # In the foreground, so that Ctrl-C reaches it; the EXIT trap then stops the rest.
+  "${client[@]}" 2>&1 | tee "$logs/client.log"
+  exit 0
+fi
+echo "run.sh: no display (DISPLAY is not set), so no client window. The stack keeps running;"
+echo "run.sh: render the default view headless from another terminal with:"
+echo "  ${client[*]} --headless --until-converged --screenshot penumbra.png"
+echo "run.sh: Ctrl-C stops the stack"
 wait -n "${pids[@]}"
