@@ -4,7 +4,8 @@
 # user's own machine, not in a container.
 #
 #   docker build -f deploy/client.Dockerfile -t penumbra-client .    # from the repository root
-#   docker run --rm penumbra-client --headless --sma SMA_HOST:7200 --camera-path walk --until-converged
+#   docker run --rm -v "$PWD/scenes:/scenes:ro" penumbra-client --connect SMA_HOST:7200 --headless --gl egl \
+#     --camera-path /scenes/cornell-box.json#walk --until-converged --screenshot /out/penumbra.png
 #
 # Built as renderer.Dockerfile describes, with the GL client switched on: the
 # build stage adds install-deps.sh's GL development packages, the runtime
@@ -33,6 +34,9 @@ RUN apt-get update \
  && rm -rf /var/lib/apt/lists/* \
  && useradd --system --uid 10001 --create-home --shell /usr/sbin/nologin penumbra
 COPY --from=build /src/build/client/penumbra-client /usr/local/bin/penumbra-client
+# Screenshots and statistics go here (a volume in deploy/docker-compose.yml;
+# a new named volume takes this directory's owner).
+RUN install -d -o penumbra -g penumbra /out
 USER penumbra
-WORKDIR /home/penumbra
+WORKDIR /out
 ENTRYPOINT ["penumbra-client"]

@@ -38,15 +38,18 @@ expect "$work/defaults.yml" "      replicas: 2" "default renderer replicas"
 expect "$work/defaults.yml" "    scale: 2" "default renderer scale (docker-compose v1)"
 expect "$work/defaults.yml" "    - --scene=/scenes/cornell-box.json" "default scene"
 expect "$work/defaults.yml" "      source: $src/scenes" "default scene directory (the repository's scenes/)"
-[ "$(grep -c "^    - read_only: true$" "$work/defaults.yml")" -eq 2 ] || fail "the scene mount of the renderer and the SMA should be read-only"
+[ "$(grep -c "^    - read_only: true$" "$work/defaults.yml")" -eq 3 ] ||
+  fail "the scene directory should be mounted read-only into the renderer, the SMA and the client"
 expect "$work/defaults.yml" "    - --renderer=renderer:7100" "SMA finds renderers by the service's DNS name"
 expect "$work/defaults.yml" "    - 127.0.0.1:7200:7200/tcp" "SMA port published on loopback only by default"
 expect "$work/defaults.yml" "    - --until-converged" "client job runs until converged"
+expect "$work/defaults.yml" "    - --camera-path=/scenes/cornell-box.json#walk" "client job walks the scene's path"
+expect "$work/defaults.yml" "    - --connect=sma:7200" "client job connects to the SMA service"
 [ -f "$src/scenes/cornell-box.json" ] || fail "the default scene scenes/cornell-box.json is missing"
 
 PENUMBRA_RENDERERS=5 PENUMBRA_SCENE=sponza.json PENUMBRA_SCENES_DIR=/srv/scenes PENUMBRA_SPP=256 \
   PENUMBRA_RENDERER_THREADS=3 PENUMBRA_SMA_PORT=9200 PENUMBRA_SMA_BIND=0.0.0.0 PENUMBRA_RESOLVE_INTERVAL=2 \
-  PENUMBRA_CAMERA_PATH=orbit PENUMBRA_LOG_LEVEL=debug PENUMBRA_TAG=v9 \
+  PENUMBRA_CAMERA_PATH=orbit PENUMBRA_CLIENT_TIMEOUT=60 PENUMBRA_LOG_LEVEL=debug PENUMBRA_TAG=v9 \
   docker-compose -f "$compose_file" config >"$work/overridden.yml"
 expect "$work/overridden.yml" "      replicas: 5" "PENUMBRA_RENDERERS"
 expect "$work/overridden.yml" "    scale: 5" "PENUMBRA_RENDERERS (scale)"
@@ -56,7 +59,8 @@ expect "$work/overridden.yml" "    - --spp=256" "PENUMBRA_SPP"
 expect "$work/overridden.yml" "    - --threads=3" "PENUMBRA_RENDERER_THREADS"
 expect "$work/overridden.yml" "    - 0.0.0.0:9200:7200/tcp" "PENUMBRA_SMA_BIND and PENUMBRA_SMA_PORT"
 expect "$work/overridden.yml" "    - --resolve-interval=2" "PENUMBRA_RESOLVE_INTERVAL"
-expect "$work/overridden.yml" "    - --camera-path=orbit" "PENUMBRA_CAMERA_PATH"
+expect "$work/overridden.yml" "    - --camera-path=/scenes/sponza.json#orbit" "PENUMBRA_CAMERA_PATH"
+expect "$work/overridden.yml" "    - --timeout=60" "PENUMBRA_CLIENT_TIMEOUT"
 expect "$work/overridden.yml" "    - --log-level=debug" "PENUMBRA_LOG_LEVEL"
 expect "$work/overridden.yml" "    image: penumbra-renderer:v9" "PENUMBRA_TAG"
 
