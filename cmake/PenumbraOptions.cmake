@@ -42,7 +42,11 @@ function(penumbra_add_gtest name)
   if(ARG_LABEL STREQUAL "integration")
     set(serial TRUE)
   endif()
+  set(environment "")
+  if(PENUMBRA_ENABLE_TSAN)
+    set(environment "TSAN_OPTIONS=suppressions=${PROJECT_SOURCE_DIR}/cmake/tsan.supp halt_on_error=1")
+  endif()
   gtest_discover_tests(${name}
-    PROPERTIES LABELS ${ARG_LABEL} TIMEOUT ${ARG_TIMEOUT} RUN_SERIAL ${serial}
+    PROPERTIES LABELS ${ARG_LABEL} TIMEOUT ${ARG_TIMEOUT} RUN_SERIAL ${serial} ENVIRONMENT "${environment}"
     DISCOVERY_TIMEOUT 60)
 endfunction()

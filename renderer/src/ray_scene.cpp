@@ -180,17 +180,6 @@ size_t RayScene::TraceRaw(std::span<const Ray> rays, RayQuery query) const {
   return hits;
 }
 
-#if defined(__SANITIZE_THREAD__)
-// Embree builds its BVH on its own TBB worker threads, which synchronise in
-// uninstrumented code, so ThreadSanitizer sees the main thread freeing
-// memory those workers allocated as a race. Linked into every binary that
-// builds a RayScene.
-extern "C" const char* __tsan_default_suppressions() {
-  return "race:libembree3.so\n"
-         "race:libtbb.so\n";
-}
-#endif
-
 void EnableFlushToZero() {
   _MM_SET_FLUSH_ZERO_MODE(_MM_FLUSH_ZERO_ON);
   _MM_SET_DENORMALS_ZERO_MODE(_MM_DENORMALS_ZERO_ON);
