@@ -223,6 +223,7 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
     delta.set_pending_samples(uint32_t(waiting_.size() + refinementPending_.size()));
     const bool converged = last && Converged();
     delta.set_converged(converged);
+    delta.set_refining(Stage1Done() && !converged && params_.criterion != Criterion::kNone);
     if (converged && stage2Ms_ < 0.0) stage2Ms_ = Ms(Clock::now() - viewReceived_);
   }
   // Stage 1 (paper §5): every initially visible triangle of the view shaded.
@@ -566,6 +567,8 @@ void SmaServer::Impl::Session::NoteStage1() {
     stage1Ms_ = Ms(Clock::now() - viewReceived_);
     log_->debug("{}: view {}: stage 1 in {:.0f} ms, {} triangles", connection_->Id(), appliedViewId_, stage1Ms_,
                 mirror_.TriangleCount());
+    // Tell the client at once that stage 2 (refinement) has begun.
+    if (params_.criterion != Criterion::kNone) SendStatus();
   }
 }
 
