@@ -50,7 +50,7 @@ void LogDeviceError(void* /*userPtr*/, RTCError code, const char* message) {
 // Embree asks for flush-to-zero and denormals-are-zero on every thread that
 // traces. TBB's threads also run the rest of the SMA, so a task sets the two
 // MXCSR bits for its own duration and then puts the register back: two
-// register writes per tile.
+// register writes per task of a few tiles.
 class ScopedFlushToZero {
  public:
   ScopedFlushToZero() : saved_(_mm_getcsr()) { _mm_setcsr(saved_ | kFlushToZero | kDenormalsAreZero); }
