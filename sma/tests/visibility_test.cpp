@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <limits>
 #include <map>
 #include <random>
 #include <tuple>
@@ -22,8 +23,8 @@ Scene Finish(SceneBuilder& b) {
   return s;
 }
 
-// `count` triangles of random size and orientation in [-1, 1]^3, facing
-// every which way; optionally inside a closed room, so nothing is background.
+// `count` triangles of random size and orientation, centred in [-1, 1]^3,
+// facing every which way; optionally inside a closed room, so nothing is background.
 Scene FloatingTriangles(uint32_t seed, int count, bool inRoom) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<float> u(-1.0f, 1.0f);
@@ -115,7 +116,7 @@ ReferenceHit BruteForceHit(const Scene& s, const Vec3& originF, const Vec3& dire
     if (dist > 0.0) candidates.push_back({dist, b1, b2, std::min({1.0 - b1 - b2, b1, b2}), t});
   }
   ReferenceHit hit;
-  double closest = INFINITY;
+  double closest = std::numeric_limits<double>::infinity();
   for (const Candidate& c : candidates) {
     if (c.minBary >= 0.0 && c.t < closest) {
       closest = c.t;
@@ -205,7 +206,7 @@ ReferenceNode BruteForceNode(const Hierarchy& h, const Scene& s, const PixelHit&
   while (!h.GetNode(ref.node).IsLeaf() && descend(h.GetNode(ref.node), context)) {
     const Node& n = h.GetNode(ref.node);
     NodeId best = kNoNode;
-    double bestBary = -INFINITY;
+    double bestBary = -std::numeric_limits<double>::infinity();
     for (NodeId child = n.firstChild; child < n.firstChild + n.childCount; ++child) {
       const double bary = MinBaryInNode(h, child, p);
       if (bary > bestBary) std::tie(best, bestBary) = std::tuple(child, bary);
