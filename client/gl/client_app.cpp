@@ -109,7 +109,7 @@ class ClientApp {
  public:
   explicit ClientApp(const ClientOptions& options)
       : options_(options), log_(Logger("client")), tone_(options.tone), start_(Clock::now()) {
-    SessionOptions session;
+    SmaSessionOptions session;
     session.sma = options.sma;
     session_ = std::make_unique<SmaSession>(session);
   }

@@ -73,7 +73,7 @@ const char* ToString(ConnectionState state) {
 // Everything below the public methods runs on the network thread.
 class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
  public:
-  explicit Impl(SessionOptions options)
+  explicit Impl(SmaSessionOptions options)
       : options_(std::move(options)),
         work_(asio::make_work_guard(io_)),
         resolver_(io_),
@@ -416,7 +416,7 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
     status_.lastError = reason;
   }
 
-  SessionOptions options_;
+  SmaSessionOptions options_;
   asio::io_context io_;
   asio::executor_work_guard<asio::io_context::executor_type> work_;
   tcp::resolver resolver_;
@@ -453,7 +453,7 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
   std::shared_ptr<net::Connection> statusConnection_;  // for its byte counter
 };
 
-SmaSession::SmaSession(SessionOptions options) : impl_(std::make_shared<Impl>(std::move(options))) {}
+SmaSession::SmaSession(SmaSessionOptions options) : impl_(std::make_shared<Impl>(std::move(options))) {}
 SmaSession::~SmaSession() { Stop(); }
 void SmaSession::Start() { impl_->Start(); }
 void SmaSession::Stop() { impl_->Stop(); }

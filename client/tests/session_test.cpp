@@ -34,7 +34,7 @@ class SessionTest : public ::testing::Test {
     auto listener = WireListener::Listen();
     ASSERT_TRUE(listener.ok()) << listener.error().message;
     listener_ = std::make_unique<WireListener>(std::move(*listener));
-    SessionOptions options;
+    SmaSessionOptions options;
     options.sma = HostPort{"127.0.0.1", listener_->Port()};
     options.reconnectMin = 50ms;
     options.reconnectMax = 200ms;
@@ -184,7 +184,7 @@ TEST(SessionRetryTest, KeepsTryingUntilAnSmaListens) {
     ASSERT_TRUE(probe.ok());
     port = probe->Port();
   }  // nobody listens there now
-  SessionOptions options;
+  SmaSessionOptions options;
   options.sma = HostPort{"127.0.0.1", port};
   options.reconnectMin = 20ms;
   options.reconnectMax = 100ms;

@@ -104,7 +104,7 @@ struct SessionStatus {
   std::chrono::steady_clock::time_point disconnectedSince;
 };
 
-struct SessionOptions {
+struct SmaSessionOptions {
   HostPort sma;
   std::string clientName = "penumbra-client";
   net::ConnectionOptions connection{.maxFrameBytes = 256u << 20};  // textures arrive whole
@@ -122,7 +122,7 @@ struct SessionOptions {
 
 class SmaSession final : public SessionRequests {
  public:
-  explicit SmaSession(SessionOptions options);
+  explicit SmaSession(SmaSessionOptions options);
   /// Stops the network thread (Stop()).
   ~SmaSession() override;
   SmaSession(const SmaSession&) = delete;
