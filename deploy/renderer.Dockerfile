@@ -34,9 +34,12 @@ RUN apt-get update \
 COPY --from=build /src/build/renderer/penumbra-renderer /usr/local/bin/penumbra-renderer
 USER penumbra
 EXPOSE 7100
-# Listening means the scene is loaded and its BVH built. A large scene takes
-# a while to load: the start period covers it.
+# Healthy = listening on port 7100 (hex 1BBC; state 0A is LISTEN in
+# /proc/net/tcp), which the renderer does only once the scene is loaded and
+# its BVH built; a large scene takes a while, which the start period covers.
+# Reading /proc rather than connecting keeps a session open/close out of the
+# log at every check.
 HEALTHCHECK --interval=15s --timeout=3s --start-period=120s --retries=3 \
-  CMD ["bash", "-c", "exec 3<>/dev/tcp/127.0.0.1/7100"]
+  CMD ["awk", "$4 == \"0A\" && $2 ~ /:1BBC$/ {up = 1} END {exit !up}", "/proc/net/tcp"]
 ENTRYPOINT ["penumbra-renderer"]
 CMD ["--scene", "/scenes/cornell-box.json", "--listen", "0.0.0.0:7100"]

@@ -34,8 +34,10 @@ RUN apt-get update \
 COPY --from=build /src/build/sma/penumbra-sma /usr/local/bin/penumbra-sma
 USER penumbra
 EXPOSE 7200
-# Listening means the scene is loaded and the SMA takes clients; it answers
-# them even while no renderer is connected yet (views then wait for shading).
+# Healthy = listening on port 7200 (hex 1C20; state 0A is LISTEN in
+# /proc/net/tcp, read rather than connected to, to keep the log clean): the
+# scene is loaded and the SMA takes clients, even while no renderer is
+# connected yet (views then wait for shading).
 HEALTHCHECK --interval=15s --timeout=3s --start-period=120s --retries=3 \
-  CMD ["bash", "-c", "exec 3<>/dev/tcp/127.0.0.1/7200"]
+  CMD ["awk", "$4 == \"0A\" && $2 ~ /:1C20$/ {up = 1} END {exit !up}", "/proc/net/tcp"]
 ENTRYPOINT ["penumbra-sma"]

@@ -3,7 +3,8 @@
 # mirrors:
 #  1. its shape: a `debian:12 AS build` stage and a `debian:12-slim` runtime
 #     stage, a non-root USER, ENTRYPOINT in exec form naming the executable the
-#     build stage builds and copies, a HEALTHCHECK unless --no-healthcheck;
+#     build stage builds and copies, unless --no-healthcheck a HEALTHCHECK
+#     that looks for a listener on the EXPOSEd port;
 #  2. every package the build stage installs is one scripts/install-deps.sh
 #     installs (so the image builds with what the project is tested with);
 #  3. the build context that /.dockerignore lets through is enough: the build
@@ -63,7 +64,15 @@ entrypoint="$(grep -E '^ENTRYPOINT ' "$work/runtime" | sed -e 's/^ENTRYPOINT //'
 grep -qE "^COPY --from=build /src/build/[a-z]+/$target /usr/local/bin/$target\$" "$work/runtime" ||
   fail "runtime stage does not COPY --from=build the built $target to /usr/local/bin"
 if [ "$want_healthcheck" -eq 1 ]; then
-  grep -qE '^HEALTHCHECK .*CMD \[' "$work/runtime" || fail "no HEALTHCHECK in exec form"
+  healthcheck="$(grep -E '^HEALTHCHECK ' "$work/runtime" || true)"
+  [[ "$healthcheck" == *" CMD ["* ]] || fail "no HEALTHCHECK in exec form"
+  port="$(grep -E '^EXPOSE ' "$work/runtime" | awk '{print $2}' | head -n 1)"
+  if [ -z "$port" ]; then
+    fail "runtime stage EXPOSEs no port"
+  else  # the health check reads /proc/net/tcp, where ports are 4 hex digits
+    hex="$(printf '%04X' "$port")"
+    [[ "$healthcheck" == *":$hex\$"* ]] || fail "HEALTHCHECK does not look for a listener on the EXPOSEd port $port ($hex)"
+  fi
 fi
 
 # apt-get install package lists of a stage.
