@@ -54,7 +54,11 @@ void ClientModel::OnConnected(Connected&& event) {
 }
 
 void ClientModel::OnDelta(const DeltaReceived& event, SessionRequests& requests) {
-  if (auto ok = mesh_.Apply(event.delta); !ok) return Abandon(ok.error().message, requests);
+  const wire::Delta& d = event.delta;
+  if (auto ok = mesh_.Apply(d); !ok) return Abandon(ok.error().message, requests);
+  log_->debug("delta {} ({}) for view {}: -{} +{} triangles, +{} vertices; {} held, {} samples pending{}", d.sequence(),
+              wire::DeltaKind_Name(d.kind()), d.view_id(), d.removed_triangles_size(), d.triangle_ids_size(),
+              d.vertex_ids_size(), mesh_.TriangleCount(), d.pending_samples(), d.converged() ? ", converged" : "");
   deltaViewSerial_ = event.viewSerial;
   RequestNeededTextures(requests);
 }
@@ -69,6 +73,7 @@ void ClientModel::OnTexture(TextureReceived&& event, SessionRequests& requests) 
                                t.rgb8().size()),
                    requests);
   texturesReceived_.insert(t.texture());
+  log_->debug("texture {} received: {}x{}", t.texture(), t.width(), t.height());
   texturesToUpload_.push_back(
       ReceivedTexture{t.texture(), int(t.width()), int(t.height()), std::move(*event.texture.mutable_rgb8())});
 }
@@ -101,8 +106,10 @@ void ClientModel::Abandon(const std::string& reason, SessionRequests& requests) 
 void ClientModel::RequestNeededTextures(SessionRequests& requests) {
   for (const TriangleGroup& group : mesh_.Groups()) {
     if (group.texture < 0 || group.allocator.Live() == 0) continue;
-    if (texturesRequested_.insert(uint32_t(group.texture)).second)
+    if (texturesRequested_.insert(uint32_t(group.texture)).second) {
+      log_->debug("requesting texture {}", group.texture);
       requests.RequestTexture(connection_, uint32_t(group.texture));
+    }
   }
 }
 
