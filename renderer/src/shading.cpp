@@ -273,12 +273,23 @@ ShadeOutput Shader::Shade(const ShadeInput& in, int paths, ShadeCounters* counte
   Pcg32 rng = Pcg32::ForSample(s.settings.seed, in.sampleId);
   ShadeCounters work;
   Rgb sum(0.0f);
-  for (int p = 0; p < pathCount; ++p) sum += s.TracePath(start, rng, work);
+  double luminanceSquares = 0.0;
+  for (int p = 0; p < pathCount; ++p) {
+    const Rgb estimate = s.TracePath(start, rng, work);
+    sum += estimate;
+    const double l = Luminance(estimate);
+    luminanceSquares += l * l;
+  }
   work.paths = uint64_t(pathCount);
   if (counters) *counters += work;
 
   ShadeOutput out;
   out.irradiance = sum / float(pathCount);
+  if (pathCount > 1) {
+    const double mean = Luminance(out.irradiance);
+    const double variance = std::max(0.0, (luminanceSquares / pathCount - mean * mean) * pathCount / (pathCount - 1));
+    out.irradianceStdErr = float(std::sqrt(variance / pathCount));
+  }
   const Rgb emitted = frontSide ? s.scene.MaterialOf(in.triangle).emission : Rgb(0.0f);
   out.radiance = emitted + s.scene.AlbedoAt(in.triangle, in.b1, in.b2) * kInvPi * out.irradiance;
   return out;

@@ -7,6 +7,7 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <cstring>
 #include <string>
 #include <thread>
@@ -343,6 +344,42 @@ TEST(ShadingTest, TexturedAlbedoIsReadAtTheSampleUv) {
     const auto e = EstimateOutput(shader, SampleAt(t.scene, p, kUp), 2, 8, &ShadeOutput::radiance);
     EXPECT_TRUE(Agrees(e, 0.8f * c.texel * sky, 0.0f)) << "uv (" << c.uv.x << ", " << c.uv.y << ")";
   }
+}
+
+// --- Standard error -------------------------------------------------------------
+
+// The reported standard error must describe the estimate's actual spread:
+// over K independent sample ids, the standard deviation of the estimates
+// should match the mean reported error. With K = 64 the sample standard
+// deviation is itself known to about 1/sqrt(2K) = 9%; 4 of those bound the
+// ratio.
+TEST(ShadingTest, StandardErrorMatchesTheSpreadOfIndependentEstimates) {
+  const AreaLightScene s = MakeAreaLightScene(0.0f);
+  const Shader shader(s.t.scene, *s.t.rays, DirectOnly());
+  ShadeInput in = SampleAt(s.t.scene, Vec3(0.6f, 0.0f, 0.3f), kUp);
+  constexpr int kIds = 64;
+  double sum = 0.0, sumSquares = 0.0, reported = 0.0;
+  for (int k = 0; k < kIds; ++k) {
+    in.sampleId = 1000 + uint64_t(k);
+    const ShadeOutput out = shader.Shade(in, 64, nullptr);
+    const double l = Luminance(out.irradiance);
+    sum += l;
+    sumSquares += l * l;
+    reported += out.irradianceStdErr;
+  }
+  const double mean = sum / kIds;
+  const double spread = std::sqrt((sumSquares / kIds - mean * mean) * kIds / (kIds - 1));
+  const double ratio = (reported / kIds) / spread;
+  EXPECT_GT(ratio, 1.0 - 4.0 / std::sqrt(2.0 * kIds)) << "reported " << reported / kIds << ", observed " << spread;
+  EXPECT_LT(ratio, 1.0 + 4.0 / std::sqrt(2.0 * kIds)) << "reported " << reported / kIds << ", observed " << spread;
+}
+
+TEST(ShadingTest, StandardErrorIsZeroWhenEveryPathAgrees) {
+  // Every cosine-sampled path escapes to a uniform sky and reads pi L.
+  const TestScene t = PlaneUnderSky(UniformSky(Rgb(0.7f)));
+  const Shader shader(t.scene, *t.rays, DirectOnly());
+  const ShadeOutput out = shader.Shade(SampleAt(t.scene, Vec3(0.0f), kUp), 32, nullptr);
+  EXPECT_NEAR(out.irradianceStdErr, 0.0f, 1e-5f);
 }
 
 // --- Determinism ----------------------------------------------------------------

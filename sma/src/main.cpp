@@ -63,6 +63,9 @@ int main(int argc, char** argv) {
   app.add_option("--max-depth", maxDepth, "Deepest level a leaf is split from")->capture_default_str();
   app.add_option("--pixel-fraction", refine.pixelFraction, "NLD_IS / RND budget as a fraction of the image's pixels")
       ->capture_default_str();
+  app.add_option("--noise-z", refine.noiseZ,
+                 "Luminance differences within this many standard errors count as noise (0: the paper's S)")
+      ->capture_default_str();
   app.add_option("--io-threads", options.ioThreads, "Network threads")->check(CLI::Range(1, 64))->capture_default_str();
   app.add_option("--view-threads", options.viewThreads, "Visibility job threads")
       ->check(CLI::Range(1, 64))->capture_default_str();

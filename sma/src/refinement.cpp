@@ -37,6 +37,7 @@ Status RefinementParams::Validate() const {
   if (!(aspectThreshold > 0.0f && std::isfinite(aspectThreshold))) return bad("aspect_threshold", aspectThreshold);
   if (maxDepth < 1 || maxDepth > 20) return bad("max_depth", maxDepth);
   if (!(pixelFraction > 0.0f && pixelFraction <= 1.0f)) return bad("pixel_fraction", pixelFraction);
+  if (!(noiseZ >= 0.0f && noiseZ <= 10.0f)) return bad("noise_z", noiseZ);
   return Status::Ok();
 }
 
@@ -50,11 +51,20 @@ RefineOptions RefinementParams::ToRefineOptions() const {
 }
 
 float NormalizedLuminanceDifference(std::span<const float> l, float lMax) {
+  return NoiseAwareLuminanceDifference(l, {}, 0.0f, lMax);
+}
+
+float NoiseAwareLuminanceDifference(std::span<const float> l, std::span<const float> sigma, float z, float lMax) {
   const size_t n = l.size();
   if (n < 2 || !(lMax > 0.0f)) return 0.0f;
+  const bool noisy = z > 0.0f && sigma.size() == n;
   double sum = 0.0;
   for (size_t i = 0; i + 1 < n; ++i)
-    for (size_t j = i + 1; j < n; ++j) sum += double(l[i] - l[j]) * double(l[i] - l[j]);
+    for (size_t j = i + 1; j < n; ++j) {
+      double d = std::abs(double(l[i]) - double(l[j]));
+      if (noisy) d = std::max(0.0, d - double(z) * std::sqrt(double(sigma[i]) * sigma[i] + double(sigma[j]) * sigma[j]));
+      sum += d * d;
+    }
   const double denominator = double((n * n) / 4) * double(lMax) * double(lMax);
   return float(std::sqrt(sum / denominator));
 }
@@ -71,11 +81,17 @@ Rgb VertexLuminance::UntexturedRadiance(const Hierarchy& hierarchy, const Sample
   return m.emission + m.albedo * cache.Irradiance(v) * kInvPi;
 }
 
-float VertexLuminance::operator()(VertexId v) {
-  if (!cache_.IsShaded(v)) return 0.0f;
-  auto [it, inserted] = memo_.try_emplace(v, 0.0f);
-  if (inserted)
-    it->second = DragoDisplayLuminance(Luminance(UntexturedRadiance(hierarchy_, cache_, v)), view_, params_);
+const VertexLuminance::Value& VertexLuminance::Get(VertexId v) {
+  auto [it, inserted] = memo_.try_emplace(v);
+  if (!inserted || !cache_.IsShaded(v)) return it->second;
+  const float lw = Luminance(UntexturedRadiance(hierarchy_, cache_, v));
+  // The renderer's error on E, as an error on Le + Kd E / pi, then through
+  // the tone curve by its slope over +-1 standard error.
+  const Material& m = hierarchy_.GetScene().MaterialOf(hierarchy_.GetVertex(v).baseTriangle);
+  const float sigmaW = Luminance(m.albedo) * kInvPi * cache_.IrradianceStdErr(v);
+  it->second.luminance = DragoDisplayLuminance(lw, view_, params_);
+  it->second.sigma = 0.5f * (DragoDisplayLuminance(lw + sigmaW, view_, params_) -
+                             DragoDisplayLuminance(std::max(0.0f, lw - sigmaW), view_, params_));
   return it->second;
 }
 
@@ -181,7 +197,8 @@ std::vector<NodeId> Refiner::SelectObjectSpace(const Hierarchy& h, const SampleC
     const bool large = float(coverage) > params_.largeFraction * pixels;
     const Node& n = h.GetNode(id);
     const float l[3] = {lum(n.v[0]), lum(n.v[1]), lum(n.v[2])};
-    const float s = NormalizedLuminanceDifference(l, lMax);
+    const float sigma[3] = {lum.Sigma(n.v[0]), lum.Sigma(n.v[1]), lum.Sigma(n.v[2])};
+    const float s = NoiseAwareLuminanceDifference(l, sigma, params_.noiseZ, lMax);
     // Large leaves first (they may hide anything), then by S.
     if (large) candidates.push_back(Candidate{2.0f + float(coverage) / pixels, id});
     else if (s > params_.sReq) candidates.push_back(Candidate{s, id});
@@ -203,21 +220,32 @@ std::vector<NodeId> Refiner::SelectImageSpace(const Hierarchy& h, const SampleCa
     quadrantsSeeded_ = true;
   }
   const double budget = double(params_.pixelFraction) * double(width) * double(height);
-  // Luminance interpolated over the displayed leaf under a pixel centre.
-  auto luminanceAt = [&](int x, int y) -> float {
+  // Luminance, and its standard error, interpolated over the displayed leaf
+  // under a pixel centre.
+  struct Interpolated {
+    float luminance = 0.0f;
+    float sigma = 0.0f;
+  };
+  auto luminanceAt = [&](int x, int y) -> Interpolated {
     const size_t p = size_t(y) * size_t(width) + size_t(x);
     const NodeId id = visible.pixelNode[p];
-    if (id == kNoNode) return 0.0f;
+    if (id == kNoNode) return {};
     const Node& n = h.GetNode(id);
     const PixelHit& hit = hits.hits[p];
     // Node-local barycentrics of the hit: solve hit = c0 + l1 (c1 - c0) + l2 (c2 - c0)
     // in the base triangle's barycentric plane.
     const Vec2 p0 = n.bary[0], e1 = n.bary[1] - p0, e2 = n.bary[2] - p0, d = Vec2(hit.b1, hit.b2) - p0;
     const float det = e1.x * e2.y - e1.y * e2.x;
-    if (std::abs(det) < 1e-30f) return lum(n.v[0]);
+    if (std::abs(det) < 1e-30f) return {lum(n.v[0]), lum.Sigma(n.v[0])};
     const float l1 = (d.x * e2.y - d.y * e2.x) / det;
     const float l2 = (e1.x * d.y - e1.y * d.x) / det;
-    return (1.0f - l1 - l2) * lum(n.v[0]) + l1 * lum(n.v[1]) + l2 * lum(n.v[2]);
+    const float w[3] = {1.0f - l1 - l2, l1, l2};
+    Interpolated out;
+    for (int k = 0; k < 3; ++k) {
+      out.luminance += w[k] * lum(n.v[k]);
+      out.sigma += w[k] * lum.Sigma(n.v[k]);
+    }
+    return out;
   };
   std::vector<NodeId> chosen;
   std::unordered_set<NodeId> taken;
@@ -238,9 +266,11 @@ std::vector<NodeId> Refiner::SelectImageSpace(const Hierarchy& h, const SampleCa
     int best = 0;
     for (int c = 0; c < 4; ++c) {
       const Quadrant& r = children[c];
-      const float corners[4] = {luminanceAt(r.x0, r.y0), luminanceAt(r.x1, r.y0), luminanceAt(r.x0, r.y1),
-                                luminanceAt(r.x1, r.y1)};
-      const float s = NormalizedLuminanceDifference(corners, lMax);
+      const Interpolated at[4] = {luminanceAt(r.x0, r.y0), luminanceAt(r.x1, r.y0), luminanceAt(r.x0, r.y1),
+                                  luminanceAt(r.x1, r.y1)};
+      const float corners[4] = {at[0].luminance, at[1].luminance, at[2].luminance, at[3].luminance};
+      const float sigma[4] = {at[0].sigma, at[1].sigma, at[2].sigma, at[3].sigma};
+      const float s = NoiseAwareLuminanceDifference(corners, sigma, params_.noiseZ, lMax);
       if (s > bestS) {
         bestS = s;
         best = c;

@@ -365,7 +365,7 @@ void RendererPool::OnReply(const std::shared_ptr<Link>& link, const wire::ShadeR
     }
     Batch& batch = it->second;
     const int n = reply.sample_ids_size();
-    if (reply.radiance_size() != 3 * n || reply.irradiance_size() != 3 * n) {
+    if (reply.radiance_size() != 3 * n || reply.irradiance_size() != 3 * n || reply.irradiance_stderr_size() != n) {
       ++link->failures;
       return FailLinkLocked(*link, fmt::format("reply for batch {} has inconsistent arrays", batch.id));
     }
@@ -380,8 +380,13 @@ void RendererPool::OnReply(const std::shared_ptr<Link>& link, const wire::ShadeR
         ++link->failures;
         return FailLinkLocked(*link, fmt::format("reply for batch {} has a bad sample (id {})", batch.id, id));
       }
+      const float stdErr = reply.irradiance_stderr(i);
+      if (!(stdErr >= 0.0f) || !std::isfinite(stdErr)) {
+        ++link->failures;
+        return FailLinkLocked(*link, fmt::format("reply for batch {} has a bad standard error (id {})", batch.id, id));
+      }
       e->second.state = EntryState::kAnswered;
-      results.push_back(ShadedSample{VertexId(id), radiance, irradiance});
+      results.push_back(ShadedSample{VertexId(id), radiance, irradiance, stdErr});
     }
     batch.answered += size_t(n);
     link->samplesInFlight -= size_t(n);

@@ -7,6 +7,7 @@ void SampleCache::Reserve(size_t vertexCount) {
   shaded_.resize(vertexCount, 0);
   radiance_.resize(vertexCount, Rgb(0.0f));
   irradiance_.resize(vertexCount, Rgb(0.0f));
+  irradianceStdErr_.resize(vertexCount, 0.0f);
 }
 
 size_t SampleCache::Store(std::span<const ShadedSample> samples) {
@@ -18,6 +19,7 @@ size_t SampleCache::Store(std::span<const ShadedSample> samples) {
     shaded_[s.vertex] = 1;
     radiance_[s.vertex] = s.radiance;
     irradiance_[s.vertex] = s.irradiance;
+    irradianceStdErr_[s.vertex] = s.irradianceStdErr;
     ++added;
   }
   shadedCount_ += added;

@@ -646,9 +646,13 @@ void SmaServer::Impl::Session::OnRefineStepDone(const std::shared_ptr<Refiner>& 
   if (exhausted) {
     refinementDone_ = true;
     if (Converged()) SendStatus();
+    return;
   }
-  // Otherwise samples are on their way; their arrival re-maps the view and
-  // the next step follows.
+  // Nothing to split now. If samples are still on their way, or a re-map is
+  // due or running, its completion starts the next step. If all of that
+  // happened while this step ran (its trigger found a step running), look
+  // again now, or refinement would never be woken.
+  if (refinementPending_.empty() && !refreshWanted_ && !refreshArmed_ && !jobRunning_) MaybeRefine();
 }
 
 void SmaServer::Impl::Session::SendStatus() {
@@ -680,6 +684,7 @@ void SmaServer::Impl::Session::OnSessionOptions(const wire::SessionOptions& o) {
   if (o.has_large_fraction()) p.largeFraction = o.large_fraction();
   if (o.has_aspect_threshold()) p.aspectThreshold = o.aspect_threshold();
   if (o.has_pixel_fraction()) p.pixelFraction = o.pixel_fraction();
+  if (o.has_noise_z()) p.noiseZ = o.noise_z();
   if (o.has_max_depth()) p.maxDepth = uint8_t(std::clamp<uint32_t>(o.max_depth(), 0, 255));
   if (auto ok = o.has_max_depth() && o.max_depth() > 20 ? Status(Fail(fmt::format("max_depth = {} is out of range", o.max_depth())))
                                                         : p.Validate();
@@ -688,8 +693,8 @@ void SmaServer::Impl::Session::OnSessionOptions(const wire::SessionOptions& o) {
     return;
   }
   params_ = p;
-  log_->info("{}: refinement {} (S_req {}, R {}, min {} px)", connection_->Id(), CriterionName(p.criterion), p.sReq,
-             p.batch, p.minPixels);
+  log_->info("{}: refinement {} (S_req {}, noise z {}, R {}, min {} px)", connection_->Id(), CriterionName(p.criterion),
+             p.sReq, p.noiseZ, p.batch, p.minPixels);
   RestartRefinement();
   MaybeRefine();
   if (Converged()) SendStatus();

@@ -100,6 +100,21 @@ TEST(NldMetricTest, MatchesEquationOne) {
   EXPECT_EQ(NormalizedLuminanceDifference(flat, 1.0f), 0.0f);
 }
 
+TEST(NldMetricTest, NoiseAwareDifferenceDiscountsWhatNoiseExplains) {
+  const float l[] = {0.0f, 0.0f, 1.0f};
+  const float small[] = {0.01f, 0.01f, 0.01f};
+  // z = 0 is the plain metric.
+  EXPECT_FLOAT_EQ(NoiseAwareLuminanceDifference(l, small, 0.0f, 1.0f), NormalizedLuminanceDifference(l, 1.0f));
+  // Each difference of 1 loses 2 * sqrt(2) * 0.01.
+  const double d = 1.0 - 2.0 * std::sqrt(2.0) * 0.01;
+  EXPECT_NEAR(NoiseAwareLuminanceDifference(l, small, 2.0f, 1.0f), std::sqrt(2.0 * d * d / 2.0), 1e-6);
+  // Differences within the noise count for nothing.
+  const float close[] = {0.50f, 0.52f, 0.49f};
+  const float noisy[] = {0.05f, 0.05f, 0.05f};
+  EXPECT_EQ(NoiseAwareLuminanceDifference(close, noisy, 2.0f, 1.0f), 0.0f);
+  EXPECT_GT(NormalizedLuminanceDifference(close, 1.0f), 0.0f);
+}
+
 TEST(CriterionTest, ParsesNames) {
   for (const char* name : {"none", "nld_os", "nld_is", "rnd", "nld_os_rnd"}) {
     auto c = ParseCriterion(name);
@@ -191,6 +206,35 @@ TEST(NldOsTest, RefinesDownToTheEdgeAndLeavesTheRestAlone) {
       EXPECT_TRUE(f.hierarchy.GetNode(root).IsLeaf()) << root;
     }
   }
+}
+
+TEST(NldOsTest, NoiseAwareMetricSplitsTheEdgeAndNotTheNoise) {
+  Fixture f;
+  // Re-shade with noise: a random relative error of up to 20% on every
+  // vertex, reported as such.
+  SampleCache noisy;
+  Pcg32 rng(9, 9);
+  std::vector<ShadedSample> samples;
+  for (VertexId v = 0; v < f.hierarchy.VertexCount(); ++v) {
+    const float e = (f.hierarchy.GetVertex(v).position.x < kShadowEdgeX ? 1.0f : 0.01f) *
+                    (0.8f + 0.4f * rng.NextFloat());
+    samples.push_back(ShadedSample{v, Rgb(0.5f * e * kInvPi), Rgb(e), 0.2f * e / std::sqrt(3.0f)});
+  }
+  noisy.Store(samples);
+  RefinementParams p;
+  p.largeFraction = 1.0f;
+  p.batch = 1000;
+  p.noiseZ = 0.0f;
+  Refiner plain(p);
+  const auto plainChoice = plain.Select(f.hierarchy, noisy, f.hits, f.visible, DragoParams{}, false);
+  p.noiseZ = 2.0f;
+  Refiner aware(p);
+  const auto awareChoice = aware.Select(f.hierarchy, noisy, f.hits, f.visible, DragoParams{}, false);
+  size_t plainOffEdge = 0;
+  for (NodeId id : plainChoice) plainOffEdge += !f.Straddles(id);
+  EXPECT_GT(plainOffEdge, 0u) << "the plain metric should be fooled by the noise";
+  ASSERT_FALSE(awareChoice.empty());
+  for (NodeId id : awareChoice) EXPECT_TRUE(f.Straddles(id)) << "leaf " << id << " is off the edge";
 }
 
 TEST(RndTest, SpendsItsPixelBudgetAndStops) {

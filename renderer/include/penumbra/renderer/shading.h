@@ -74,6 +74,10 @@ struct ShadeInput {
 struct ShadeOutput {
   Rgb radiance{0.0f};    // L_out: emitted + reflected, linear RGB
   Rgb irradiance{0.0f};  // E, linear RGB
+  /// Standard error of Luminance(irradiance), from the spread of the paths'
+  /// estimates: how far this sample may be from the true value by noise
+  /// alone (0 when every path agrees, e.g. an unoccluded uniform sky).
+  float irradianceStdErr = 0.0f;
 };
 
 /// Work done, for statistics and benchmarks.

@@ -13,6 +13,14 @@
 // modulates the texture by interpolated irradiance), so texture variation
 // between vertices must not look like a shadow edge.
 //
+// Noise. Samples are Monte Carlo estimates; two neighbours may differ by
+// noise alone, and the plain metric then splits where nothing is there (on
+// a path tracer's samples far more than on the paper's Radiance, whose
+// irradiance cache smooths them). With noiseZ > 0 every pairwise difference
+// is first reduced by noiseZ standard errors of that difference -- each
+// sample's error comes from the renderer, carried through the tone mapping
+// -- and only what noise cannot explain counts. noiseZ = 0 is the paper's S.
+//
 // Criteria:
 //  * NLD_OS (object space): every visible leaf with S over its three corners
 //    > S_req and covering >= minPixels pixels is split; a leaf covering more
@@ -70,11 +78,12 @@ struct RefinementParams {
   float aspectThreshold = 1.2f;   // propagation: slim neighbours split 1 -> 2 (RefineOptions)
   uint8_t maxDepth = 12;          // leaves this deep are not split
   float pixelFraction = 0.1f;     // NLD_IS, RND: budget as a fraction of the image's pixels
+  float noiseZ = 2.0f;            // differences within this many standard errors are noise; 0: the paper's S
   uint64_t seed = 1;              // RND's random stream
 
   /// Checks ranges: sReq in [0, 1], batch in [1, 1e6], minPixels >= 0,
   /// largeFraction in (0, 1], aspectThreshold > 0, maxDepth in [1, 20],
-  /// pixelFraction in (0, 1].
+  /// pixelFraction in (0, 1], noiseZ in [0, 10].
   Status Validate() const;
   RefineOptions ToRefineOptions() const;
 };
@@ -82,13 +91,21 @@ struct RefinementParams {
 /// The metric S (eq. 1) over tone-mapped luminances `l`, normalised by `lMax`.
 float NormalizedLuminanceDifference(std::span<const float> l, float lMax);
 
+/// S with each difference |l_i - l_j| reduced (not below 0) by
+/// z * sqrt(sigma_i^2 + sigma_j^2), sigma being the standard errors of `l`.
+/// z = 0 gives NormalizedLuminanceDifference.
+float NoiseAwareLuminanceDifference(std::span<const float> l, std::span<const float> sigma, float z, float lMax);
+
 /// Tone-mapped luminance of vertices, memoised, for one view's statistics.
 class VertexLuminance {
  public:
   VertexLuminance(const Hierarchy& hierarchy, const SampleCache& cache, const ViewLuminance& view,
                   const DragoParams& params);
   /// L(v) in [0, 1]; 0 for an unshaded vertex.
-  float operator()(VertexId v);
+  float operator()(VertexId v) { return Get(v).luminance; }
+  /// Standard error of L(v), from the renderer's error carried through the
+  /// tone mapping.
+  float Sigma(VertexId v) { return Get(v).sigma; }
 
   /// The statistics of the untextured radiance of every corner of `nodes`.
   static ViewLuminance Measure(const Hierarchy& hierarchy, const SampleCache& cache, std::span<const NodeId> nodes);
@@ -96,11 +113,17 @@ class VertexLuminance {
   static Rgb UntexturedRadiance(const Hierarchy& hierarchy, const SampleCache& cache, VertexId v);
 
  private:
+  struct Value {
+    float luminance = 0.0f;
+    float sigma = 0.0f;
+  };
+  const Value& Get(VertexId v);
+
   const Hierarchy& hierarchy_;
   const SampleCache& cache_;
   ViewLuminance view_;
   DragoParams params_;
-  std::unordered_map<VertexId, float> memo_;
+  std::unordered_map<VertexId, Value> memo_;
 };
 
 /// One client view's refinement. Reset() on every new view; Select() once

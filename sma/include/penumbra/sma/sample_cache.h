@@ -21,6 +21,7 @@ struct ShadedSample {
   VertexId vertex = kNoVertex;
   Rgb radiance{0.0f};
   Rgb irradiance{0.0f};
+  float irradianceStdErr = 0.0f;  // standard error of Luminance(irradiance), from the renderer
 };
 
 class SampleCache {
@@ -32,6 +33,7 @@ class SampleCache {
   bool IsShaded(VertexId v) const { return v < shaded_.size() && shaded_[v] != 0; }
   const Rgb& Radiance(VertexId v) const { return radiance_[v]; }
   const Rgb& Irradiance(VertexId v) const { return irradiance_[v]; }
+  float IrradianceStdErr(VertexId v) const { return irradianceStdErr_[v]; }
   /// Luminance of the shaded radiance (0 when unshaded).
   float Luminance(VertexId v) const { return IsShaded(v) ? penumbra::Luminance(radiance_[v]) : 0.0f; }
 
@@ -55,6 +57,7 @@ class SampleCache {
   std::vector<uint8_t> shaded_;
   std::vector<Rgb> radiance_;
   std::vector<Rgb> irradiance_;
+  std::vector<float> irradianceStdErr_;
   size_t shadedCount_ = 0;
   mutable std::atomic<uint64_t> hits_{0};
   mutable std::atomic<uint64_t> misses_{0};
