@@ -375,10 +375,10 @@ TEST(SmaRefinementTest, NldOsRefinesTheViewAndConverges) {
   auto scene = LoadScene(kScene);
   ASSERT_TRUE(scene.ok());
   Service renderer = StartRenderer("refine-renderer");
-  Service sma = StartSma({renderer.Address()}, "refine-sma", {}, "nld_os");
+  Service sma = StartSma({renderer.Address()}, "refine-sma", {"--noise-z", "0"}, "nld_os");
   auto c = SmaTestClient::Connect(sma.port);
   ASSERT_TRUE(c.ok()) << c.error().message;
-  ASSERT_TRUE(c->SendView(FrontView(*c, 160, 120), 1));
+  ASSERT_TRUE(c->SendView(FrontView(*c, 320, 240), 1));
   ASSERT_TRUE(c->WaitConverged(1, 180s).ok()) << sma.process.LogTail();
   ExpectRefinedAndConforming(*c, scene->triangles.size());
   auto stage1 = c->Counter("client_stage1_ms");

@@ -7,6 +7,7 @@
 #include <cstring>
 #include <numeric>
 #include <unordered_map>
+#include <unordered_set>
 
 #include <fmt/format.h>
 
@@ -241,6 +242,15 @@ PositionKey KeyOf(const Vec3& p) {
   return k;
 }
 
+// A triangle's three welded corner positions, in a canonical rotation.
+struct CornerTriple {
+  uint32_t a, b, c;
+  bool operator==(const CornerTriple&) const = default;
+};
+struct CornerTripleHash {
+  size_t operator()(const CornerTriple& t) const { return size_t(HashCombine(HashCombine(Mix64(t.a), t.b), t.c)); }
+};
+
 // Union-find over the corners incident to one welded position.
 struct DisjointSets {
   std::vector<uint32_t> parent;
@@ -255,7 +265,7 @@ struct DisjointSets {
 }  // namespace
 
 Status SceneBuilder::BuildInto(Scene& scene) {
-  const size_t triangleCount = corners_.size() / 3;
+  size_t triangleCount = corners_.size() / 3;
   if (triangleCount == 0) {
     const std::string where = scene.sourcePath.empty() ? scene.name : scene.sourcePath.string();
     return Fail(degenerate_ > 0
@@ -273,6 +283,37 @@ Status SceneBuilder::BuildInto(Scene& scene) {
     auto [it, inserted] = positionIndex.try_emplace(KeyOf(corners_[c].position), uint32_t(positions.size()));
     if (inserted) positions.push_back(corners_[c].position);
     positionOfCorner[c] = it->second;
+  }
+
+  // 1b. A triangle whose welded corners repeat an earlier one's in the same
+  // cyclic order is the same surface listed twice (the Cornell box's tall box
+  // lists its front face twice). Keep the first: two coincident copies would
+  // each be refined, and visibility would show pieces of both, leaving
+  // T-vertices between them; they would also count twice in vertex normals.
+  {
+    std::unordered_set<CornerTriple, CornerTripleHash> seen;
+    seen.reserve(triangleCount);
+    size_t kept = 0;
+    for (size_t t = 0; t < triangleCount; ++t) {
+      const uint32_t* p = &positionOfCorner[3 * t];
+      // Rotate so the smallest index leads: the same cyclic order (the same
+      // orientation) gives the same key, the reverse order does not.
+      const int first = p[0] <= p[1] && p[0] <= p[2] ? 0 : (p[1] <= p[2] ? 1 : 2);
+      if (!seen.insert(CornerTriple{p[first], p[(first + 1) % 3], p[(first + 2) % 3]}).second) {
+        ++duplicates_;
+        continue;
+      }
+      for (int c = 0; c < 3; ++c) {
+        corners_[3 * kept + c] = corners_[3 * t + c];
+        positionOfCorner[3 * kept + c] = positionOfCorner[3 * t + c];
+      }
+      materialOf_[kept] = materialOf_[t];
+      ++kept;
+    }
+    triangleCount = kept;
+    corners_.resize(3 * kept);
+    positionOfCorner.resize(3 * kept);
+    materialOf_.resize(kept);
   }
 
   // 2. Face normals, and the interior angle at every corner (the weight of

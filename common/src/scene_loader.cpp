@@ -39,7 +39,8 @@ CameraPreset FramingCamera(const Bounds3& bounds) {
   return camera;
 }
 
-Expected<Scene> Load(const fs::path& path, const SceneLoadOptions& options, size_t& degenerateTriangles) {
+Expected<Scene> Load(const fs::path& path, const SceneLoadOptions& options, size_t& degenerateTriangles,
+                     size_t& duplicateTriangles) {
   std::optional<SceneDescription> description;
   fs::path meshPath = path;
   float creaseAngleDeg = options.creaseAngleDeg;
@@ -70,6 +71,7 @@ Expected<Scene> Load(const fs::path& path, const SceneLoadOptions& options, size
   if (auto ok = builder.BuildInto(scene); !ok) return ok.error();
   if (scene.cameras.empty()) scene.cameras.push_back(FramingCamera(scene.bounds));
   degenerateTriangles = builder.DegenerateTriangles();
+  duplicateTriangles = builder.DuplicateTriangles();
   return scene;
 }
 
@@ -78,10 +80,11 @@ Expected<Scene> Load(const fs::path& path, const SceneLoadOptions& options, size
 Expected<Scene> LoadScene(const fs::path& path, const SceneLoadOptions& options) {
   const auto start = std::chrono::steady_clock::now();
   size_t degenerateTriangles = 0;
+  size_t duplicateTriangles = 0;
   Expected<Scene> scene = [&]() -> Expected<Scene> {
     // Assimp, OpenImageIO and the allocator may throw; no exception leaves here.
     try {
-      return Load(path, options, degenerateTriangles);
+      return Load(path, options, degenerateTriangles, duplicateTriangles);
     } catch (const std::exception& e) {
       return Fail(fmt::format("{}: cannot load: {}", path.string(), io::OneLine(e.what())));
     } catch (...) {
@@ -92,9 +95,10 @@ Expected<Scene> LoadScene(const fs::path& path, const SceneLoadOptions& options)
 
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   Logger("scene")->info(
-      "loaded '{}' from {}: {} triangles ({} degenerate dropped), {} vertices after crease splitting, "
+      "loaded '{}' from {}: {} triangles ({} degenerate and {} duplicate dropped), {} vertices after crease splitting, "
       "{} materials, {} textures, {} emissive triangles{}{} in {:.2f} s",
-      scene->name, path.string(), scene->triangles.size(), degenerateTriangles, scene->vertices.size(),
+      scene->name, path.string(), scene->triangles.size(), degenerateTriangles, duplicateTriangles,
+      scene->vertices.size(),
       scene->materials.size(), scene->textures.size(), scene->emissiveTriangles.size(), scene->sun ? ", sun" : "",
       scene->sky ? ", sky" : "", seconds);
   return scene;

@@ -68,6 +68,23 @@ TEST(SceneBuilderTest, OppositeSheetsDoNotShareVertices) {
   EXPECT_EQ(s.vertices.size(), 8u);
 }
 
+TEST(SceneBuilderTest, ASurfaceListedTwiceIsKeptOnce) {
+  SceneBuilder b;
+  const uint32_t m = White(b);
+  b.AddQuad(Vec3(0), Vec3(1, 0, 0), Vec3(0, 0, -1), m);
+  // The same two triangles again, one of them starting at another corner.
+  b.AddTriangle({Vec3(0), Vec3(1, 0, 0), Vec3(1, 0, -1)}, m);
+  b.AddTriangle({Vec3(1, 0, -1), Vec3(0, 0, -1), Vec3(0)}, m);
+  // The reverse orientation is another surface (its back), not a duplicate.
+  b.AddTriangle({Vec3(0), Vec3(1, 0, -1), Vec3(1, 0, 0)}, m);
+  Scene s;
+  ASSERT_TRUE(b.BuildInto(s).ok());
+  EXPECT_EQ(b.DuplicateTriangles(), 2u);
+  EXPECT_EQ(s.triangles.size(), 3u);
+  // The kept pair still shares its diagonal's vertices.
+  EXPECT_EQ(s.vertices.size(), 4u + 3u);
+}
+
 TEST(SceneBuilderTest, EmptyAndDegenerateMeshesAreErrors) {
   {
     SceneBuilder b;

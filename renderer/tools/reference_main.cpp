@@ -98,7 +98,7 @@ int main(int argc, char** argv) {
   ShadeCounters work;
   Image image = RenderReference(shader, **rays, view, workers, &work);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  Logger("reference")->info("{}x{} at {} paths/pixel in {:.1f} s ({:.2f} Mrays/s, {} thread(s))", view.width,
+  Logger("reference")->info("{}x{} at {} paths/pixel in {:.3f} s ({:.2f} Mrays/s, {} thread(s))", view.width,
                             view.height, shading.pathsPerSample, seconds, double(work.rays) / seconds * 1e-6, workers);
 
   const float scale = std::exp2(exposureStops);

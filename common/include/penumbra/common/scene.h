@@ -142,6 +142,9 @@ class SceneBuilder {
   /// file's overrides) before BuildInto.
   std::span<Material> Materials() { return materials_; }
   size_t DegenerateTriangles() const { return degenerate_; }
+  /// Triangles dropped by BuildInto because they repeat an earlier triangle's
+  /// corners in the same cyclic order (the same surface listed twice).
+  size_t DuplicateTriangles() const { return duplicates_; }
   size_t TriangleCount() const { return corners_.size() / 3; }
 
   /// Moves the geometry, materials and textures into `scene` (its lights and
@@ -159,6 +162,7 @@ class SceneBuilder {
   std::vector<Material> materials_;
   std::vector<Texture> textures_;
   size_t degenerate_ = 0;
+  size_t duplicates_ = 0;
 };
 
 struct SceneLoadOptions {
