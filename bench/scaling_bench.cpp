@@ -25,7 +25,10 @@
 // the renderers actually got (their CPU time / wall time) tells a tier that
 // does not scale from a machine that had no second core to give, and samples
 // per renderer CPU second (ideal: the same with 2 as with 1) is the scaling
-// that load from other processes does not distort.
+// that load from other processes does not distort. The machine's own
+// baseline is measured in each round too: the cores k busy threads get for a
+// second (on a shared virtual machine, two often get much less than 2), so
+// the ratio is also given against what the machine could give.
 //
 //   scaling_bench [--scene scenes/sponza.json --camera atrium --spp 256] [--width 1280 --height 720] [--rounds 3]
 //                 [--criterion none]
@@ -33,6 +36,7 @@
 // Without ../shared (Sponza) it uses the Cornell box at many paths per sample.
 
 #include <sys/types.h>
+#include <time.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -122,7 +126,28 @@ std::string LoadAverage() {
   return oneMinute.empty() ? "?" : oneMinute;
 }
 
+// Cores that `k` busy threads get on this machine now: their CPU time over
+// `duration` of wall time.
+double BusyThreadCores(int k, std::chrono::milliseconds duration) {
+  std::vector<double> cpu(size_t(k), 0.0);
+  std::vector<std::thread> threads;
+  const auto end = Clock::now() + duration;
+  for (int i = 0; i < k; ++i) {
+    threads.emplace_back([&cpu, end, i] {
+      for (volatile uint64_t spin = 0; Clock::now() < end;) spin = spin + 1;
+      timespec t{};
+      ::clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+      cpu[size_t(i)] = double(t.tv_sec) + 1e-9 * double(t.tv_nsec);
+    });
+  }
+  for (auto& t : threads) t.join();
+  double sum = 0;
+  for (double c : cpu) sum += c;
+  return sum / std::chrono::duration<double>(duration).count();
+}
+
 struct Round {
+  double machineCores = 0;  // what `renderers` busy threads got just before the round
   double samples = 0;
   double seconds = 0;
   double smaCpu = 0;       // seconds
@@ -166,6 +191,7 @@ Expected<Round> RunRound(const Options& o, const CameraView& view, int renderers
     return s;
   };
   Round round;
+  round.machineCores = BusyThreadCores(renderers, std::chrono::seconds(1));
   const double smaCpu0 = CpuSeconds(sma->process.Pid());
   const double rendererCpu0 = rendererCpu();
   auto bytes0 = SocketBytes(ports);
@@ -250,6 +276,7 @@ int Run(Options o) {
   };
   const double rate1 = median(1, [](const Round& r) { return r.SamplesPerSecond(); });
   const double rendererUs1 = median(1, [](const Round& r) { return 1e6 * r.rendererCpu / r.samples; });
+  const double machineCores1 = median(1, [](const Round& r) { return r.machineCores; });
   for (int k = 1; k <= o.maxRenderers; ++k) {
     const double rate = median(k, [](const Round& r) { return r.SamplesPerSecond(); });
     const double samples = median(k, [](const Round& r) { return r.samples; });
@@ -261,9 +288,11 @@ int Run(Options o) {
     const double fromR = median(k, [](const Round& r) { return r.fromRenderers / r.samples; });
     const double toC = median(k, [](const Round& r) { return r.toClient / r.samples; });
     const double rendererCores = median(k, [](const Round& r) { return r.rendererCpu / r.seconds; });
-    std::printf("%d renderer(s): %.0f samples/s (median) = %.2f x 1 renderer [ideal %d.00]; %.0f samples per view; "
-                "the renderers got %.2f of %d cores\n",
-                k, rate, rate / rate1, k, samples, rendererCores, k);
+    const double machineCores = median(k, [](const Round& r) { return r.machineCores; });
+    std::printf("%d renderer(s): %.0f samples/s (median) = %.2f x 1 renderer [ideal %d.00; %.2f by what the machine "
+                "gave %d busy thread(s): %.2f cores]\n",
+                k, rate, rate / rate1, k, machineCores / machineCores1, k, machineCores);
+    std::printf("    %.0f samples per view; the renderers got %.2f of %d cores\n", samples, rendererCores, k);
     std::printf("    per renderer CPU second: %.0f samples = %.2f x 1 renderer's [ideal 1.00]\n", 1e6 / rendererUs,
                 rendererUs1 / rendererUs);
     std::printf("    SMA CPU %.1f us/sample = %.4f x renderer CPU (%.0f us/sample); of which per view %.0f ms "
