@@ -52,6 +52,7 @@ const char* const kHelp[] = {
     "Shift              move 4x faster    [ ] or wheel   speed",
     "1 .. 9             camera presets    R / Home       back to the first preset",
     "F                  wireframe (the refinement mesh)",
+    "C                  refinement criterion: NLD_OS, NLD_IS, RND, NLD_OS+RND, none",
     "T                  tone mapping: Drago 2003 / exposure + gamma",
     "- =                exposure          G / Shift+G    gamma",
     "P / F12            screenshot: tone-mapped PNG + linear EXR",
@@ -134,6 +135,8 @@ class ClientApp {
 
   void ApplyPreset(int index);
   Status WriteScreenshot(const std::filesystem::path& path);
+  void CycleCriterion();
+  void MaybeWriteSnapshot(Clock::time_point now);
   void SaveInteractiveScreenshot();
   int Failed(const std::string& message) const;
 
@@ -166,6 +169,9 @@ class ClientApp {
   ViewLuminance adaptation_;
   bool adapted_ = false;
   bool wireframe_ = false;
+  std::string criterion_;  // the refinement criterion asked of the SMA; empty: its default
+  std::optional<wire::SessionOptions> refinement_;  // what the SMA session was last asked for
+  bool snapshotsFailed_ = false;
   bool showHelp_ = false;
   bool screenshotRequested_ = false;
   std::string notice_;
@@ -175,6 +181,8 @@ class ClientApp {
   const Clock::time_point start_;
   uint64_t frames_ = 0;
   std::optional<Clock::time_point> convergedSince_;
+  std::optional<Clock::time_point> lastSnapshot_;
+  uint64_t snapshotSequence_ = 0;  // the mesh's delta sequence at the last snapshot
   Clock::time_point rateWindowStart_ = start_;
   uint64_t rateWindowFrames_ = 0;
   uint64_t rateWindowBytes_ = 0;
@@ -218,6 +226,11 @@ Status ClientApp::Init() {
     auto stats = StatsLineWriter::Open(options_.statsPath);
     if (!stats) return stats.error();
     stats_.emplace(std::move(*stats));
+  }
+  refinement_ = options_.refinement;
+  if (refinement_) {
+    criterion_ = refinement_->criterion();
+    session_->SetSessionOptions(*refinement_);
   }
   session_->Start();
   log_->info("connecting to SMA {}", options_.sma.ToString());
@@ -266,6 +279,7 @@ int ClientApp::Run() {
       window_->SwapBuffers();
     }
     ++frames_;
+    MaybeWriteSnapshot(now);
     UpdateRates(now);
     WriteStats(now);
     if (finishing) return Finish();
@@ -367,6 +381,7 @@ void ClientApp::OnKey(const KeyPress& key) {
     case GLFW_KEY_R:
     case GLFW_KEY_HOME: ApplyPreset(0); return;
     case GLFW_KEY_F: wireframe_ = !wireframe_; return;
+    case GLFW_KEY_C: CycleCriterion(); return;
     case GLFW_KEY_T:
       tone_.op = tone_.op == ToneOperator::kDrago ? ToneOperator::kExposureGamma : ToneOperator::kDrago;
       return;
@@ -463,8 +478,11 @@ void ClientApp::DrawHud() {
   if (status.state == ConnectionState::kWaiting) state = "reconnecting (" + status.lastError + ")";
   lines.push_back(fmt::format("Penumbra  {}  SMA {}  {}", info ? info->name() : "-", options_.sma.ToString(), state));
   lines.push_back(fmt::format("{:.1f} fps   {} triangles   {} vertices", fps_, mesh.TriangleCount(), mesh.VertexCount()));
-  lines.push_back(fmt::format("samples pending {}   {}", mesh.PendingSamples(),
-                              model_.Converged(viewSerial_) ? "converged" : "refinement pending"));
+  lines.push_back(fmt::format("samples pending {}   refinement {}: {}", mesh.PendingSamples(),
+                              criterion_.empty() ? "(SMA default)" : criterion_,
+                              model_.Converged(viewSerial_) ? "converged"
+                              : mesh.Refining()             ? "refining (stage 2)"
+                                                            : "shading the view (stage 1)"));
   lines.push_back(fmt::format("received {}   view to first delta {}", FormatRate(bytesPerSecond_),
                               status.viewToFirstDeltaMs ? fmt::format("{:.0f} ms", *status.viewToFirstDeltaMs) : "-"));
   lines.push_back(fmt::format("tone {} {:+.2f} EV{}   speed {:.2f}/s{}",
@@ -506,6 +524,8 @@ void ClientApp::WriteStats(Clock::time_point now) {
   s.bytesReceived = status.bytesReceived;
   s.samplesPending = mesh.PendingSamples();
   s.converged = model_.Converged(viewSerial_);
+  s.refining = mesh.Refining();
+  s.trianglesAdded = mesh.TrianglesAdded();
   s.viewToFirstDeltaMs = status.viewToFirstDeltaMs;
   s.fps = fps_;
   s.memory = ReadProcessMemory();
@@ -516,6 +536,34 @@ void ClientApp::WriteStats(Clock::time_point now) {
     log_->error("{}; no more statistics lines", ok.error().message);
     stats_.reset();
   }
+}
+
+void ClientApp::CycleCriterion() {
+  static constexpr const char* kCriteria[] = {"nld_os", "nld_is", "rnd", "nld_os_rnd", "none"};
+  size_t next = 0;
+  for (size_t i = 0; i < std::size(kCriteria); ++i)
+    if (criterion_ == kCriteria[i]) next = (i + 1) % std::size(kCriteria);
+  criterion_ = kCriteria[next];
+  if (!refinement_) refinement_.emplace();
+  refinement_->set_criterion(criterion_);
+  session_->SetSessionOptions(*refinement_);
+  notice_ = "refinement criterion: " + criterion_;
+  noticeUntil_ = Clock::now() + std::chrono::seconds(3);
+}
+
+void ClientApp::MaybeWriteSnapshot(Clock::time_point now) {
+  if (!options_.headless || options_.snapshotEvery <= 0.0 || snapshotsFailed_) return;
+  const MeshStore& mesh = model_.Mesh();
+  if (mesh.TriangleCount() == 0 || mesh.LastSequence() == snapshotSequence_) return;
+  if (lastSnapshot_ && now - *lastSnapshot_ < Seconds(options_.snapshotEvery)) return;
+  const auto path = options_.snapshotPrefix.string() + fmt::format("_{:06}.exr", frames_);
+  if (auto ok = WriteScreenshot(path); !ok) {
+    log_->error("snapshot: {}; no more snapshots", ok.error().message);
+    snapshotsFailed_ = true;
+    return;
+  }
+  lastSnapshot_ = now;
+  snapshotSequence_ = mesh.LastSequence();
 }
 
 int ClientApp::Finish() {

@@ -20,6 +20,7 @@
 #include "gl/tone_mapper.h"
 #include "penumbra/common/camera.h"
 #include "penumbra/common/endpoint.h"
+#include "penumbra/wire.pb.h"
 
 namespace penumbra::client::gl {
 
@@ -52,6 +53,14 @@ struct ClientOptions {
   ToneSettings tone;
   /// Where the screenshot key writes its PNG and EXR.
   std::filesystem::path screenshotDir = ".";
+  /// Headless: every this many seconds, when the image has changed, write
+  /// the linear radiance to <snapshotPrefix>_<frame>.exr, the frame being the
+  /// stats line's (experiments measure convergence from these). 0: none.
+  double snapshotEvery = 0.0;
+  std::filesystem::path snapshotPrefix;
+  /// Refinement settings for the SMA session (criterion, S_req, ...); none:
+  /// the SMA's defaults. In a window, R cycles the criterion.
+  std::optional<wire::SessionOptions> refinement;
 };
 
 /// Runs the client; returns the process exit code: 0 done (window closed,

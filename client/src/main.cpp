@@ -46,6 +46,11 @@ int main(int argc, char** argv) {
   int connectTimeout = int(options.connectTimeout.count());
   int convergeTimeout = int(options.convergeTimeout.count());
   std::string screenshot, stats, screenshotDir = options.screenshotDir.string();
+  std::string snapshotPrefix;
+  // Refinement settings for this client's SMA session; unset: the SMA's.
+  std::string criterion;
+  std::optional<float> sReq, noiseZ, minPixels, pixelFraction;
+  std::optional<uint32_t> refineBatch;
 
   app.add_option("--connect", connect, "SMA address, HOST:PORT")->required();
   app.add_option("--camera", options.cameraPreset,
@@ -67,6 +72,13 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--log-level", logLevel, "trace, debug, info, warn, error, critical or off")->capture_default_str();
 
+  app.add_option("--criterion", criterion, "Refinement criterion for this client: nld_os, nld_is, rnd, nld_os_rnd or none (default: the SMA's)")
+      ->check(CLI::IsMember({"nld_os", "nld_is", "rnd", "nld_os_rnd", "none"}));
+  app.add_option("--s-req", sReq, "Refinement: S_req (default: the SMA's)");
+  app.add_option("--noise-z", noiseZ, "Refinement: differences within this many standard errors are noise (0: the paper's S)");
+  app.add_option("--min-pixels", minPixels, "Refinement: leaves covering fewer pixels are not split");
+  app.add_option("--pixel-fraction", pixelFraction, "Refinement: NLD_IS / RND budget as a fraction of the pixels");
+  app.add_option("--refine-batch", refineBatch, "Refinement: R, leaves chosen per step");
   auto* headless = app.add_flag("--headless", options.headless, "Render offscreen, without a window");
   auto* glOption = app.add_option("--gl", backend, "Headless OpenGL: auto (GLFW if DISPLAY is set, else EGL), glfw or egl")
                        ->check(CLI::IsMember({"auto", "glfw", "egl"}))
@@ -94,8 +106,13 @@ int main(int argc, char** argv) {
       app.add_option("--timeout", convergeTimeout, "Headless, --until-converged: fail after S seconds")
           ->check(CLI::Range(1, 86400))
           ->capture_default_str();
+  auto* snapshotOption = app.add_option("--snapshot-every", options.snapshotEvery,
+                                        "Headless: every S seconds, when the image changed, write the linear "
+                                        "radiance to PREFIX_<frame>.exr (frame as in --stats)");
+  auto* prefixOption = app.add_option("--snapshot-prefix", snapshotPrefix, "Headless: path prefix of --snapshot-every's files");
+  snapshotOption->needs(prefixOption);
   for (CLI::Option* o : {glOption, pathOption, screenshotOption, convergedFlag, framesOption, secondsOption,
-                         connectTimeoutOption, timeoutOption})
+                         connectTimeoutOption, timeoutOption, snapshotOption, prefixOption})
     o->needs(headless);
 
   try {
@@ -118,6 +135,18 @@ int main(int argc, char** argv) {
   options.screenshot = screenshot;
   options.statsPath = stats;
   options.screenshotDir = screenshotDir;
+  options.snapshotPrefix = snapshotPrefix;
+  if (!criterion.empty() || sReq || noiseZ || minPixels || pixelFraction || refineBatch) {
+    // The SMA validates the ranges and answers out-of-range values with an error.
+    wire::SessionOptions refinement;
+    refinement.set_criterion(criterion);
+    if (sReq) refinement.set_s_req(*sReq);
+    if (noiseZ) refinement.set_noise_z(*noiseZ);
+    if (minPixels) refinement.set_min_pixels(*minPixels);
+    if (pixelFraction) refinement.set_pixel_fraction(*pixelFraction);
+    if (refineBatch) refinement.set_batch(*refineBatch);
+    options.refinement = refinement;
+  }
   options.connectTimeout = std::chrono::seconds(connectTimeout);
   options.convergeTimeout = std::chrono::seconds(convergeTimeout);
   if (framesOption->count() > 0) options.stopWhen = ClientOptions::StopWhen::kFrames;

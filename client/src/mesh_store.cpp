@@ -39,6 +39,8 @@ void MeshStore::Reset(std::span<const int32_t> materialTextures, uint32_t textur
   sequence_ = viewId_ = 0;
   pendingSamples_ = 0;
   converged_ = false;
+  refining_ = false;
+  trianglesAdded_ = 0;
   luminanceCount_ = 0;
   logLuminanceSum_ = 0.0;
   maxLuminance_ = 0.0f;
@@ -109,6 +111,8 @@ Status MeshStore::Apply(const wire::Delta& d) {
   viewId_ = d.view_id();
   pendingSamples_ = d.pending_samples();
   converged_ = d.converged();
+  refining_ = d.refining();
+  trianglesAdded_ += uint64_t(d.triangle_ids_size());
   return Status::Ok();
 }
 

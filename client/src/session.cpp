@@ -115,6 +115,13 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
     return serial;
   }
 
+  void SetSessionOptions(const wire::SessionOptions& options) {
+    asio::post(io_, [self = shared_from_this(), options] {
+      self->sessionOptions_ = options;
+      if (self->ready_) self->SendSessionOptions();
+    });
+  }
+
   std::vector<SessionEvent> TakeEvents() {
     std::vector<SessionEvent> taken;
     bool resume = false;
@@ -331,8 +338,15 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
     log_->info("connected to SMA {} ('{}'), scene '{}' (connection {})", address_, welcome_.server_name(), info.name(),
                connectionNumber_);
     Push(Connected{connectionNumber_, welcome_, std::move(info)});
+    if (sessionOptions_) SendSessionOptions();
     if (view_) SendView();
     ArmCountersTimer();
+  }
+
+  void SendSessionOptions() {
+    wire::Envelope e;
+    *e.mutable_session_options() = *sessionOptions_;
+    connection_->Send(e);  // if closing, the next connection sends it
   }
 
   void SendView() {
@@ -432,6 +446,7 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
   std::shared_ptr<net::Connection> connection_;  // the current one, from connect to close
   bool welcomed_ = false;
   bool ready_ = false;  // SceneInfo received on connection_
+  std::optional<wire::SessionOptions> sessionOptions_;  // sent on every connection
   wire::Welcome welcome_;
   uint64_t connectionNumber_ = 0;
   std::chrono::milliseconds backoff_;
@@ -458,6 +473,7 @@ SmaSession::~SmaSession() { Stop(); }
 void SmaSession::Start() { impl_->Start(); }
 void SmaSession::Stop() { impl_->Stop(); }
 uint64_t SmaSession::SetView(const CameraView& view) { return impl_->SetView(view); }
+void SmaSession::SetSessionOptions(const wire::SessionOptions& options) { impl_->SetSessionOptions(options); }
 std::vector<SessionEvent> SmaSession::TakeEvents() { return impl_->TakeEvents(); }
 SessionStatus SmaSession::Status() const { return impl_->Status(); }
 void SmaSession::RequestTexture(uint64_t connection, uint32_t texture) { impl_->RequestTexture(connection, texture); }

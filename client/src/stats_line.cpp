@@ -29,6 +29,8 @@ std::string FormatStatsLine(const FrameStats& s) {
   j["bytes_received"] = s.bytesReceived;
   j["samples_pending"] = s.samplesPending;
   j["converged"] = s.converged;
+  j["refining"] = s.refining;
+  j["triangles_added"] = s.trianglesAdded;
   j["view_to_first_delta_ms"] = s.viewToFirstDeltaMs ? nlohmann::json(*s.viewToFirstDeltaMs) : nlohmann::json();
   j["fps"] = s.fps;
   j["rss_bytes"] = s.memory.residentBytes;

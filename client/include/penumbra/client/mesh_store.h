@@ -88,6 +88,11 @@ class MeshStore {
   uint64_t LastViewId() const { return viewId_; }
   uint32_t PendingSamples() const { return pendingSamples_; }
   bool Converged() const { return converged_; }
+  /// The SMA is refining the view: stage 1 is done, stage 2 runs.
+  bool Refining() const { return refining_; }
+  /// Triangles added over every delta applied since the last reset (the
+  /// paper's Delta_total: what had to be sent, refined-away ones included).
+  uint64_t TrianglesAdded() const { return trianglesAdded_; }
 
   /// MeasureLuminance (common/tonemap.h) of the held vertices' radiance,
   /// maintained incrementally: O(1) per added or removed vertex, plus a scan
@@ -135,6 +140,8 @@ class MeshStore {
   uint64_t viewId_ = 0;
   uint32_t pendingSamples_ = 0;
   bool converged_ = false;
+  bool refining_ = false;
+  uint64_t trianglesAdded_ = 0;
 
   size_t luminanceCount_ = 0;
   double logLuminanceSum_ = 0.0;

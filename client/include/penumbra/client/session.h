@@ -138,6 +138,11 @@ class SmaSession final : public SessionRequests {
   /// view's serial (1, 2, ...), which DeltaReceived::viewSerial refers to.
   uint64_t SetView(const CameraView& view);
 
+  /// Refinement settings for this client's session on the SMA (founding
+  /// paper §4). Sent at once when connected, and again after every
+  /// reconnection, before the view.
+  void SetSessionOptions(const wire::SessionOptions& options);
+
   /// Every event since the last call, in arrival order. Never blocks.
   std::vector<SessionEvent> TakeEvents();
 

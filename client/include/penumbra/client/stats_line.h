@@ -30,6 +30,8 @@ struct FrameStats {
   uint64_t bytesReceived = 0;  // over every connection
   uint32_t samplesPending = 0;
   bool converged = false;      // the current view is final (ClientModel::Converged)
+  bool refining = false;       // the SMA refines the view (stage 2)
+  uint64_t trianglesAdded = 0; // triangles received since the connection began (Delta_total)
   std::optional<double> viewToFirstDeltaMs;
   double fps = 0.0;
   ProcessMemory memory;
