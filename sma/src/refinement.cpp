@@ -149,7 +149,7 @@ std::vector<NodeId> Refiner::Select(const Hierarchy& hierarchy, const SampleCach
       return chosen;
     }
     case Criterion::kNldIs:
-      return SelectImageSpace(hierarchy, cache, hits, visible, lum, lMax);
+      return SelectImageSpace(hierarchy, cache, hits, visible, lum, lMax, samplesOutstanding);
     case Criterion::kRnd: {
       auto chosen = SelectRandom(hierarchy, cache, visible, size_t(params_.pixelFraction * float(pixels)), params_.batch);
       return chosen;
@@ -213,7 +213,8 @@ std::vector<NodeId> Refiner::SelectObjectSpace(const Hierarchy& h, const SampleC
 }
 
 std::vector<NodeId> Refiner::SelectImageSpace(const Hierarchy& h, const SampleCache& cache, const HitBuffer& hits,
-                                              const VisibleSet& visible, VertexLuminance& lum, float lMax) {
+                                              const VisibleSet& visible, VertexLuminance& lum, float lMax,
+                                              bool samplesOutstanding) {
   const int width = hits.view.width, height = hits.view.height;
   if (!quadrantsSeeded_) {
     quadrants_.push_back(Quadrant{0, 0, width - 1, height - 1});
@@ -255,6 +256,12 @@ std::vector<NodeId> Refiner::SelectImageSpace(const Hierarchy& h, const SampleCa
       exhausted_ = true;
       return chosen;
     }
+    // Descend a level only once the splits of the level above are shaded and
+    // on screen, so each level judges the image its parent level refined.
+    const Quadrant& peek = quadrants_[nextQuadrant_];
+    const int size = std::max(peek.x1 - peek.x0, peek.y1 - peek.y0);
+    if (size < levelSize_ && (samplesOutstanding || !chosen.empty())) return chosen;
+    levelSize_ = size;
     const Quadrant q = quadrants_[nextQuadrant_++];
     if (q.x1 - q.x0 < 1 && q.y1 - q.y0 < 1) continue;  // pixel-sized: the recursion ends
     const int mx = (q.x0 + q.x1) / 2, my = (q.y0 + q.y1) / 2;
@@ -301,7 +308,11 @@ std::vector<NodeId> Refiner::SelectRandom(const Hierarchy& h, const SampleCache&
   const size_t pixels = visible.pixelNode.size();
   std::vector<NodeId> chosen;
   std::unordered_set<NodeId> taken;
-  while (chosen.size() < limit && pointsDrawn_ < points && pixels > 0) {
+  // One point per selection, R points per step (the paper selects points one
+  // by one; a point landing on a leaf already chosen in this step, or on one
+  // whose children are still being shaded, is spent like any other).
+  const size_t stepEnd = std::min(points, pointsDrawn_ + limit);
+  while (pointsDrawn_ < stepEnd && pixels > 0) {
     ++pointsDrawn_;
     const NodeId id = visible.pixelNode[rng_.NextBelow(uint32_t(pixels))];
     if (id == kNoNode || !Splittable(h, cache, id, CoverageOf(visible, id))) continue;

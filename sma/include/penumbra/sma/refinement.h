@@ -32,10 +32,11 @@
 //    quadrant's four corners (luminance interpolated from the displayed
 //    leaves); of each quadrant's four sub-quadrants the one with the largest
 //    S has the leaf at its centre split, if S > S_req and the leaf covers
-//    >= minPixels. Ends at pixel-sized quadrants or when pixelFraction of the
-//    image's pixels have been requested as samples.
-//  * RND: leaves under random pixels are split (covering >= minPixels); ends
-//    after pixelFraction of the pixels have been drawn.
+//    >= minPixels. Level by level: a level is visited once the previous
+//    level's splits are shaded and displayed. Ends at pixel-sized quadrants
+//    or when pixelFraction of the image's pixels have been requested.
+//  * RND: leaves under random pixels are split (covering >= minPixels), R
+//    points per step; ends after pixelFraction of the pixels have been drawn.
 //  * NLD_OS_RND: NLD_OS, then a random pass (pixelFraction / 4 of the
 //    pixels, drawn in proportion to coverage among leaves NLD_OS left alone),
 //    then NLD_OS again on what the random pass found -- the paper's proposed
@@ -158,7 +159,8 @@ class Refiner {
   std::vector<NodeId> SelectObjectSpace(const Hierarchy& h, const SampleCache& cache, const VisibleSet& visible,
                                         VertexLuminance& lum, float lMax, size_t limit);
   std::vector<NodeId> SelectImageSpace(const Hierarchy& h, const SampleCache& cache, const HitBuffer& hits,
-                                       const VisibleSet& visible, VertexLuminance& lum, float lMax);
+                                       const VisibleSet& visible, VertexLuminance& lum, float lMax,
+                                       bool samplesOutstanding);
   std::vector<NodeId> SelectRandom(const Hierarchy& h, const SampleCache& cache, const VisibleSet& visible,
                                    size_t points, size_t limit);
   bool Splittable(const Hierarchy& h, const SampleCache& cache, NodeId id, uint32_t coverage) const;
@@ -172,6 +174,7 @@ class Refiner {
   std::vector<Quadrant> quadrants_;
   size_t nextQuadrant_ = 0;
   bool quadrantsSeeded_ = false;
+  int levelSize_ = 1 << 30;  // side of the quadrants of the level being visited
   // NLD_OS_RND: 0 = first NLD_OS pass, 1 = random pass, 2 = final NLD_OS pass.
   int phase_ = 0;
 };
