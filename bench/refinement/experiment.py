@@ -237,7 +237,7 @@ def main():
     parser.add_argument("--reference-spp", type=int, default=1024)
     parser.add_argument("--brute-max-spp", type=int, default=1024)
     parser.add_argument("--threads", type=int, default=os.cpu_count())
-    parser.add_argument("--snapshot-every", type=float, default=0.25, help="client snapshot interval (s)")
+    parser.add_argument("--snapshot-every", type=float, default=0.2, help="client snapshot interval (s)")
     parser.add_argument("--timeout", type=int, default=1800, help="per run, seconds")
     parser.add_argument("--docs", default=str(ROOT / "docs" / "refinement.md"))
     args = parser.parse_args()

@@ -34,7 +34,7 @@ def main(results_path, docs_path):
         "",
         "Each view is served by a fresh renderer and SMA (empty cache) to a headless "
         "`penumbra-client`, which looks at it until the SMA reports convergence, writing an EXR "
-        "snapshot of what it shows every 0.25 s. Stage 1 is the moment every initially visible "
+        "snapshot of what it shows every 0.2 s. Stage 1 is the moment every initially visible "
         "triangle is shaded (the SMA's `refining` flag turns on); stage 2 is convergence. "
         "**T** is seconds since the view was sent, **Δ** the triangles shown, **Δtotal** the "
         "triangles ever sent (refined-away ones included). Error is measured against a per-pixel "
