@@ -1,5 +1,5 @@
-// The renderer's one contact with Embree: one device, one committed scene of
-// all base triangles (geometry 0, primitive id = triangle index), queried
+// The renderer's one contact with Embree's queries: the scene of all base
+// triangles (EmbreeScene: geometry 0, primitive id = triangle index), queried
 // with single rays.
 //
 // Single-ray queries (rtcIntersect1/rtcOccluded1) rather than packets or
@@ -16,32 +16,11 @@
 
 #include <cstring>
 
-#include "penumbra/common/logging.h"
+#include "penumbra/common/embree_scene.h"
 
 namespace penumbra {
 
 namespace {
-
-constexpr unsigned kGeometryId = 0;
-
-const char* ErrorName(RTCError code) {
-  switch (code) {
-    case RTC_ERROR_NONE: return "no error";
-    case RTC_ERROR_UNKNOWN: return "unknown error";
-    case RTC_ERROR_INVALID_ARGUMENT: return "invalid argument";
-    case RTC_ERROR_INVALID_OPERATION: return "invalid operation";
-    case RTC_ERROR_OUT_OF_MEMORY: return "out of memory";
-    case RTC_ERROR_UNSUPPORTED_CPU: return "unsupported CPU";
-    case RTC_ERROR_CANCELLED: return "cancelled";
-  }
-  return "unrecognised error";
-}
-
-// Every device error reaches this one logger; Build() additionally turns a
-// failed step into an Error value for its caller.
-void LogDeviceError(void* /*userPtr*/, RTCError code, const char* message) {
-  Logger("renderer.embree")->error("{}: {}", ErrorName(code), message ? message : "");
-}
 
 RTCRay MakeRay(const Vec3& origin, const Vec3& direction, float tMin, float tMax) {
   RTCRay ray;
@@ -71,69 +50,20 @@ RTCRayHit MakeRayHit(const Vec3& origin, const Vec3& direction, float tMin, floa
 }  // namespace
 
 struct RayScene::Impl {
-  RTCDevice device = nullptr;
-  RTCScene scene = nullptr;
-
-  Impl() = default;
-  Impl(const Impl&) = delete;
-  Impl& operator=(const Impl&) = delete;
-  ~Impl() {
-    if (scene) rtcReleaseScene(scene);
-    if (device) rtcReleaseDevice(device);
-  }
-
-  // The error left by the last device call, if any, as an Error naming `step`.
-  std::optional<Error> Check(const char* step) const {
-    const RTCError code = rtcGetDeviceError(device);
-    if (code == RTC_ERROR_NONE) return std::nullopt;
-    return Fail(fmt::format("Embree: {} failed: {}", step, ErrorName(code)));
-  }
+  std::unique_ptr<EmbreeScene> embree;
+  RTCScene scene = nullptr;  // embree's, for the queries
 };
 
 Expected<std::unique_ptr<RayScene>> RayScene::Build(const Scene& scene) {
-  auto impl = std::make_unique<Impl>();
-  impl->device = rtcNewDevice(nullptr);
-  if (!impl->device)
-    return Fail(fmt::format("Embree: cannot create a device: {}", ErrorName(rtcGetDeviceError(nullptr))));
-  rtcSetDeviceErrorFunction(impl->device, LogDeviceError, nullptr);
-
-  impl->scene = rtcNewScene(impl->device);
-  if (auto error = impl->Check("creating the scene")) return *error;
   // Robust mode: conservative traversal and watertight-leaning arithmetic,
   // so that shadow rays do not leak through the shared edges of closed
   // meshes. It costs some speed; the benchmark measures against the same
   // scene, so its ratios are unaffected.
-  rtcSetSceneFlags(impl->scene, RTC_SCENE_FLAG_ROBUST);
-  // The scene is built once and traced billions of times.
-  rtcSetSceneBuildQuality(impl->scene, RTC_BUILD_QUALITY_HIGH);
-
-  RTCGeometry geometry = rtcNewGeometry(impl->device, RTC_GEOMETRY_TYPE_TRIANGLE);
-  if (auto error = impl->Check("creating the triangle geometry")) return *error;
-  auto* positions = static_cast<float*>(rtcSetNewGeometryBuffer(
-      geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), scene.vertices.size()));
-  auto* indices = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(
-      geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(uint32_t), scene.triangles.size()));
-  if (!positions || !indices) {
-    rtcReleaseGeometry(geometry);
-    return impl->Check("allocating vertex and index buffers").value_or(Fail("Embree: no buffers"));
-  }
-  for (size_t i = 0; i < scene.vertices.size(); ++i) {
-    const Vec3& p = scene.vertices[i].position;
-    positions[3 * i + 0] = p.x;
-    positions[3 * i + 1] = p.y;
-    positions[3 * i + 2] = p.z;
-  }
-  for (size_t t = 0; t < scene.triangles.size(); ++t)
-    std::memcpy(indices + 3 * t, scene.triangles[t].v.data(), 3 * sizeof(uint32_t));
-  rtcCommitGeometry(geometry);
-  rtcAttachGeometryByID(impl->scene, geometry, kGeometryId);
-  rtcReleaseGeometry(geometry);  // the scene holds it now
-  if (auto error = impl->Check("attaching the triangles")) return *error;
-
-  rtcCommitScene(impl->scene);
-  if (auto error = impl->Check("building the BVH")) return *error;
-  Logger("renderer.embree")
-      ->debug("BVH over {} triangles ({} vertices) built", scene.triangles.size(), scene.vertices.size());
+  auto embree = EmbreeScene::Build(scene, EmbreeSceneOptions{.logger = "renderer.embree", .robust = true});
+  if (!embree) return embree.error();
+  auto impl = std::make_unique<Impl>();
+  impl->scene = (*embree)->Handle();
+  impl->embree = std::move(*embree);
   return std::unique_ptr<RayScene>(new RayScene(std::move(impl)));
 }
 

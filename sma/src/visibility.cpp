@@ -28,24 +28,18 @@
 #include <utility>
 
 #include "penumbra/common/check.h"
+#include "penumbra/common/embree_scene.h"
 #include "penumbra/common/logging.h"
 
 namespace penumbra::sma {
 
 namespace {
 
-constexpr unsigned kGeometryId = 0;
 constexpr int kPacketSide = 4;                         // rtcIntersect16: 4x4 pixels
 constexpr int kPacketSize = kPacketSide * kPacketSide;
 constexpr int kTileSide = 32;                          // pixels; ~900 tasks at 1280x720
 
 std::shared_ptr<spdlog::logger> VisibilityLog() { return Logger("sma.visibility"); }
-
-// Every device error reaches this one logger; Build() additionally turns a
-// failed step into an Error value for its caller.
-void LogDeviceError(void* /*userPtr*/, RTCError code, const char* message) {
-  VisibilityLog()->error("Embree error {}: {}", int(code), message ? message : "");
-}
 
 // Embree asks for flush-to-zero and denormals-are-zero on every thread that
 // traces. TBB's threads also run the rest of the SMA, so a task sets the two
@@ -155,70 +149,19 @@ struct Packet {
 }  // namespace
 
 struct VisibilityTracer::Impl {
-  RTCDevice device = nullptr;
-  RTCScene scene = nullptr;
-
-  Impl() = default;
-  Impl(const Impl&) = delete;
-  Impl& operator=(const Impl&) = delete;
-  ~Impl() {
-    if (scene) rtcReleaseScene(scene);
-    if (device) rtcReleaseDevice(device);
-  }
-
-  // The error left by the last device call, if any, as an Error naming
-  // `step`; the device error function has logged Embree's own message.
-  std::optional<Error> Check(const char* step) const {
-    const RTCError code = rtcGetDeviceError(device);
-    if (code == RTC_ERROR_NONE) return std::nullopt;
-    return Fail(fmt::format("Embree: {} failed (error {}; see the sma.visibility log)", step, int(code)));
-  }
+  std::unique_ptr<EmbreeScene> embree;
+  RTCScene scene = nullptr;  // embree's, for the queries
 };
 
 Expected<std::unique_ptr<VisibilityTracer>> VisibilityTracer::Build(const Scene& scene) {
-  if (scene.triangles.empty()) return Fail("visibility: the scene has no triangles");
+  // Not robust, the renderer's choice against light leaking through shared
+  // edges: here a ray slipping through an edge only gives one pixel to the
+  // surface behind, while robust traversal made Trace ~45% slower on Sponza.
+  auto embree = EmbreeScene::Build(scene, EmbreeSceneOptions{.logger = "sma.visibility", .robust = false});
+  if (!embree) return embree.error();
   auto impl = std::make_unique<Impl>();
-  impl->device = rtcNewDevice(nullptr);
-  if (!impl->device)
-    return Fail(fmt::format("Embree: cannot create a device (error {})", int(rtcGetDeviceError(nullptr))));
-  rtcSetDeviceErrorFunction(impl->device, LogDeviceError, nullptr);
-
-  impl->scene = rtcNewScene(impl->device);
-  if (auto error = impl->Check("creating the scene")) return *error;
-  // Built once per scene, traced for every view of every client.
-  rtcSetSceneBuildQuality(impl->scene, RTC_BUILD_QUALITY_HIGH);
-  // Not RTC_SCENE_FLAG_ROBUST, the renderer's choice against light leaking
-  // through shared edges: here a ray slipping through an edge only gives one
-  // pixel to the surface behind, while robust traversal made Trace ~45%
-  // slower on Sponza.
-
-  RTCGeometry geometry = rtcNewGeometry(impl->device, RTC_GEOMETRY_TYPE_TRIANGLE);
-  if (auto error = impl->Check("creating the triangle geometry")) return *error;
-  rtcSetGeometryBuildQuality(geometry, RTC_BUILD_QUALITY_HIGH);
-  auto* positions = static_cast<float*>(rtcSetNewGeometryBuffer(
-      geometry, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float), scene.vertices.size()));
-  auto* indices = static_cast<uint32_t*>(rtcSetNewGeometryBuffer(
-      geometry, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(uint32_t), scene.triangles.size()));
-  if (!positions || !indices) {
-    rtcReleaseGeometry(geometry);
-    return impl->Check("allocating vertex and index buffers").value_or(Fail("Embree: no buffers"));
-  }
-  for (size_t i = 0; i < scene.vertices.size(); ++i) {
-    const Vec3& p = scene.vertices[i].position;
-    positions[3 * i + 0] = p.x;
-    positions[3 * i + 1] = p.y;
-    positions[3 * i + 2] = p.z;
-  }
-  // Primitive id == base triangle index.
-  for (size_t t = 0; t < scene.triangles.size(); ++t)
-    std::memcpy(indices + 3 * t, scene.triangles[t].v.data(), 3 * sizeof(uint32_t));
-  rtcCommitGeometry(geometry);
-  rtcAttachGeometryByID(impl->scene, geometry, kGeometryId);
-  rtcReleaseGeometry(geometry);  // the scene holds it now
-  if (auto error = impl->Check("attaching the triangles")) return *error;
-
-  rtcCommitScene(impl->scene);
-  if (auto error = impl->Check("building the BVH")) return *error;
+  impl->scene = (*embree)->Handle();
+  impl->embree = std::move(*embree);
   VisibilityLog()->info("BVH over {} base triangles built", scene.triangles.size());
   return std::unique_ptr<VisibilityTracer>(new VisibilityTracer(std::move(impl)));
 }
