@@ -217,7 +217,7 @@ std::vector<NodeId> Refiner::SelectImageSpace(const Hierarchy& h, const SampleCa
                                               bool samplesOutstanding) {
   const int width = hits.view.width, height = hits.view.height;
   if (!quadrantsSeeded_) {
-    quadrants_.push_back(Quadrant{0, 0, width - 1, height - 1});
+    quadrants_.push_back(Quadrant{0, 0, width - 1, height - 1, 0});
     quadrantsSeeded_ = true;
   }
   const double budget = double(params_.pixelFraction) * double(width) * double(height);
@@ -258,17 +258,17 @@ std::vector<NodeId> Refiner::SelectImageSpace(const Hierarchy& h, const SampleCa
     }
     // Descend a level only once the splits of the level above are shaded and
     // on screen, so each level judges the image its parent level refined.
-    const Quadrant& peek = quadrants_[nextQuadrant_];
-    const int size = std::max(peek.x1 - peek.x0, peek.y1 - peek.y0);
-    if (size < levelSize_ && (samplesOutstanding || !chosen.empty())) return chosen;
-    levelSize_ = size;
+    const int level = quadrants_[nextQuadrant_].level;
+    if (level > level_ && (samplesOutstanding || !chosen.empty())) return chosen;
+    level_ = level;
     const Quadrant q = quadrants_[nextQuadrant_++];
     if (q.x1 - q.x0 < 1 && q.y1 - q.y0 < 1) continue;  // pixel-sized: the recursion ends
     const int mx = (q.x0 + q.x1) / 2, my = (q.y0 + q.y1) / 2;
-    const Quadrant children[4] = {{q.x0, q.y0, mx, my},
-                                  {std::min(mx + 1, q.x1), q.y0, q.x1, my},
-                                  {q.x0, std::min(my + 1, q.y1), mx, q.y1},
-                                  {std::min(mx + 1, q.x1), std::min(my + 1, q.y1), q.x1, q.y1}};
+    const int l = q.level + 1;
+    const Quadrant children[4] = {{q.x0, q.y0, mx, my, l},
+                                  {std::min(mx + 1, q.x1), q.y0, q.x1, my, l},
+                                  {q.x0, std::min(my + 1, q.y1), mx, q.y1, l},
+                                  {std::min(mx + 1, q.x1), std::min(my + 1, q.y1), q.x1, q.y1, l}};
     float bestS = -1.0f;
     int best = 0;
     for (int c = 0; c < 4; ++c) {

@@ -155,6 +155,7 @@ class Refiner {
  private:
   struct Quadrant {
     int x0, y0, x1, y1;  // pixel corners, inclusive
+    int level;           // 0: the whole image; children are one level deeper
   };
   std::vector<NodeId> SelectObjectSpace(const Hierarchy& h, const SampleCache& cache, const VisibleSet& visible,
                                         VertexLuminance& lum, float lMax, size_t limit);
@@ -174,7 +175,7 @@ class Refiner {
   std::vector<Quadrant> quadrants_;
   size_t nextQuadrant_ = 0;
   bool quadrantsSeeded_ = false;
-  int levelSize_ = 1 << 30;  // side of the quadrants of the level being visited
+  int level_ = 0;  // quadtree level being visited
   // NLD_OS_RND: 0 = first NLD_OS pass, 1 = random pass, 2 = final NLD_OS pass.
   int phase_ = 0;
 };
