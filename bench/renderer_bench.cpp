@@ -21,6 +21,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "order_statistics.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/rng.h"
 #include "penumbra/common/scene.h"
@@ -108,11 +109,7 @@ double RawRateOfMix(const ShadeCounters& work, double rawClosest, double rawOccl
   return (closest + shadow) / (closest / rawClosest + shadow / rawOcclusion);
 }
 
-double Median(std::vector<double> values) {
-  std::sort(values.begin(), values.end());
-  const size_t n = values.size();
-  return n % 2 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
-}
+using bench::Median;
 
 // Each round measures the raw rates and the shader back to back and takes
 // its own ratio, so that load from other processes, which drifts over

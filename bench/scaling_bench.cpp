@@ -49,6 +49,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "order_statistics.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/scene.h"
 #include "support/service.h"
@@ -222,10 +223,7 @@ Expected<Round> RunRound(const Options& o, const CameraView& view, int renderers
   return round;
 }
 
-double Median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  return v.empty() ? 0.0 : v[v.size() / 2];
-}
+using bench::Median;
 
 int Run(Options o) {
   SetupLogging("warn");

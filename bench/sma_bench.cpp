@@ -25,6 +25,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "order_statistics.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
 #include "penumbra/common/scene.h"
@@ -40,12 +41,7 @@ using Clock = std::chrono::steady_clock;
 
 double Ms(Clock::duration d) { return std::chrono::duration<double, std::milli>(d).count(); }
 
-double Percentile(std::vector<double> v, double p) {
-  if (v.empty()) return 0.0;
-  std::sort(v.begin(), v.end());
-  const size_t i = std::min(v.size() - 1, size_t(p / 100.0 * double(v.size() - 1) + 0.5));
-  return v[i];
-}
+using bench::Percentile;
 
 struct Options {
   fs::path scene = fs::path(PENUMBRA_SOURCE_DIR) / "scenes" / "sponza.json";
@@ -60,10 +56,13 @@ struct Options {
   double walkFps = 30.0;
 };
 
-// Milliseconds from sending `viewId` until the first delta for it, and until
-// it is converged; applies every delta on the way.
+// Milliseconds from sending `viewId` until the first delta for it, until
+// stage 1 ends (every initially visible triangle shaded: the first delta
+// saying the view is refining or converged) and until it is converged;
+// applies every delta on the way.
 struct ViewTiming {
   double firstDeltaMs = -1.0;
+  double stage1Ms = -1.0;
   double completeMs = -1.0;
   uint64_t bytes = 0;
 };
@@ -79,6 +78,7 @@ Expected<ViewTiming> TimeView(SmaTestClient& client, const CameraView& view, uin
     if (auto ok = client.Apply(*e); !ok) return ok.error();
     if (!e->has_delta() || e->delta().view_id() != viewId) continue;
     if (t.firstDeltaMs < 0) t.firstDeltaMs = Ms(Clock::now() - start);
+    if (t.stage1Ms < 0 && (e->delta().refining() || e->delta().converged())) t.stage1Ms = Ms(Clock::now() - start);
     if (e->delta().converged()) break;
   }
   t.completeMs = Ms(Clock::now() - start);
@@ -166,11 +166,16 @@ int Run(const Options& o) {
   // Stage 1 of a new view.
   auto stage1 = TimeView(*client, atrium, viewId++);
   if (!stage1) return std::fprintf(stderr, "sma_bench: %s\n", stage1.error().message.c_str()), 1;
-  const double samples = client->Counter("samples_requested").value();
+  // Stage-1 samples: all asked for, less what refinement asked for after.
+  const double samples =
+      client->Counter("samples_requested").value() - client->Counter("client_refinement_samples").value();
+  const double refinementSamples = client->Counter("client_refinement_samples").value();
   const double triangles = double(client->Mesh().Triangles().size());
+  double trianglesSent = 0.0;  // Delta_total: refined-away ones included
+  for (const auto& [kind, n] : client->Mesh().added) trianglesSent += double(n);
   const double traceMs = client->Counter("client_last_trace_ms").value();
   const double mapMs = client->Counter("client_last_map_ms").value();
-  const double stage1Rate = samples / (stage1->completeMs / 1000.0);
+  const double stage1Rate = samples / (stage1->stage1Ms / 1000.0);
 
   // Baselines: the renderer alone on as many samples; a bare round trip.
   auto direct = DirectRendererRate(renderer->port, *scene, size_t(samples), 1ull << 40);
@@ -240,10 +245,12 @@ int Run(const Options& o) {
   std::printf("baselines: stats round trip p50 %.2f ms; renderer alone %.0f samples/s\n", rttP50, *direct);
   std::printf("new view:    view->first delta %.1f ms (visibility: trace %.1f ms + map %.1f ms)\n",
               stage1->firstDeltaMs, traceMs, mapMs);
-  std::printf("             stage 1 %.2f s for %.0f samples, %.0f triangles: %.0f samples/s = %.2f x renderer alone\n",
-              stage1->completeMs / 1000.0, samples, triangles, stage1Rate, stage1Rate / *direct);
-  std::printf("             %.1f KiB received, %.1f bytes per triangle\n", double(stage1->bytes) / 1024.0,
-              double(stage1->bytes) / triangles);
+  std::printf("             stage 1 %.2f s for %.0f samples: %.0f samples/s = %.2f x renderer alone\n",
+              stage1->stage1Ms / 1000.0, samples, stage1Rate, stage1Rate / *direct);
+  std::printf("             stage 2 (refinement converged) %.2f s, %.0f more samples; %.0f triangles shown\n",
+              stage1->completeMs / 1000.0, refinementSamples, triangles);
+  std::printf("             %.1f KiB received for %.0f triangles sent: %.1f bytes per triangle\n",
+              double(stage1->bytes) / 1024.0, trianglesSent, double(stage1->bytes) / trianglesSent);
   std::printf("cached view: view->first delta p50 %.1f ms p99 %.1f ms; complete display p50 %.1f ms p99 %.1f ms "
               "(%.0f x round trip); %.0f new samples over %d views; %.1f KiB per view\n",
               Percentile(cachedFirst, 50), Percentile(cachedFirst, 99), Percentile(cachedComplete, 50),

@@ -31,6 +31,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "order_statistics.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/scene.h"
 #include "penumbra/sma/hierarchy.h"
@@ -65,13 +66,7 @@ class Samples {
   }
   void Add(double value) { values_.push_back(value); }
   double Last() const { return values_.back(); }
-  // Nearest-rank percentile, p in (0, 100].
-  double Percentile(double p) const {
-    std::vector<double> sorted = values_;
-    std::sort(sorted.begin(), sorted.end());
-    const size_t rank = size_t(std::ceil(p / 100.0 * double(sorted.size())));
-    return sorted[std::clamp<size_t>(rank, 1, sorted.size()) - 1];
-  }
+  double Percentile(double p) const { return bench::Percentile(values_, p); }
   double P50() const { return Percentile(50.0); }
   double Best() const { return *std::min_element(values_.begin(), values_.end()); }
   size_t Count() const { return values_.size(); }

@@ -5,6 +5,7 @@
 
 #include <signal.h>
 
+#include <functional>
 #include <set>
 #include <thread>
 
@@ -69,6 +70,26 @@ void ExpectAllShaded(const HeldMesh& mesh) {
       EXPECT_GE(v.irradiance[c], 0.0f) << "vertex " << id;
     }
   }
+}
+
+CameraView FrontView(const SmaTestClient& c, int width, int height) {
+  for (const auto& p : c.Info().cameras())
+    if (p.name() == "front") return ViewFromPreset(p, width, height);
+  ADD_FAILURE() << "no camera preset front";
+  return CameraView{};
+}
+
+// Polls the SMA counter `name` until `done(value)`; false after `timeout`.
+bool WaitForCounter(SmaTestClient& c, const std::string& name, const std::function<bool(double)>& done,
+                    std::chrono::milliseconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (std::chrono::steady_clock::now() < deadline) {
+    auto value = c.Counter(name);
+    if (!value) return false;
+    if (done(*value)) return true;
+    std::this_thread::sleep_for(10ms);
+  }
+  return false;
 }
 
 class SmaProtocolTest : public ::testing::Test {
@@ -268,26 +289,12 @@ TEST(SmaRendererFailureTest, KillingOneOfTwoRenderersLosesNoSample) {
   auto c = SmaTestClient::Connect(sma.port);
   ASSERT_TRUE(c.ok()) << c.error().message;
   // Both renderers connected before the view, so both get work.
-  for (int i = 0; i < 200; ++i) {
-    auto n = c->Counter("renderers_connected");
-    ASSERT_TRUE(n.ok());
-    if (*n == 2.0) break;
-    std::this_thread::sleep_for(50ms);
-  }
-  CameraView view;
-  for (const auto& p : c->Info().cameras())
-    if (p.name() == "front") view = ViewFromPreset(p, kWidth, kHeight);
+  ASSERT_TRUE(WaitForCounter(*c, "renderers_connected", [](double n) { return n == 2.0; }, 10s));
+  const CameraView view = FrontView(*c, kWidth, kHeight);
   ASSERT_TRUE(c->SendView(view, 1));
   // Wait until r2 has samples in flight, then kill it.
-  const std::string key = "renderer." + r2.Address() + ".samples_in_flight";
-  bool busy = false;
-  for (int i = 0; i < 400 && !busy; ++i) {
-    auto n = c->Counter(key);
-    ASSERT_TRUE(n.ok()) << n.error().message;
-    busy = *n > 0.0;
-    if (!busy) std::this_thread::sleep_for(10ms);
-  }
-  ASSERT_TRUE(busy) << "renderer 2 never got work";
+  ASSERT_TRUE(WaitForCounter(*c, "renderer." + r2.Address() + ".samples_in_flight", [](double n) { return n > 0.0; }, 10s))
+      << "renderer 2 never got work";
   r2.process.Signal(SIGKILL);
   ASSERT_TRUE(c->WaitConverged(1, 180s).ok()) << sma.process.LogTail();
   ExpectHeldIsVisibleSet(*scene, view, c->Mesh());
@@ -312,27 +319,11 @@ TEST(SmaRendererFailureTest, ARendererThatStopsAnsweringIsDroppedAndItsWorkMoved
                          {"--max-batch", "2", "--credits", "2", "--renderer-read-timeout-ms", "1000", "--heartbeat-ms", "200"});
   auto c = SmaTestClient::Connect(sma.port);
   ASSERT_TRUE(c.ok()) << c.error().message;
-  for (int i = 0; i < 200; ++i) {
-    auto n = c->Counter("renderers_connected");
-    ASSERT_TRUE(n.ok());
-    if (*n == 2.0) break;
-    std::this_thread::sleep_for(50ms);
-  }
-  const CameraView view = [&] {
-    for (const auto& p : c->Info().cameras())
-      if (p.name() == "front") return ViewFromPreset(p, kWidth, kHeight);
-    return CameraView{};
-  }();
+  ASSERT_TRUE(WaitForCounter(*c, "renderers_connected", [](double n) { return n == 2.0; }, 10s));
+  const CameraView view = FrontView(*c, kWidth, kHeight);
   ASSERT_TRUE(c->SendView(view, 1));
-  const std::string key = "renderer." + r2.Address() + ".samples_in_flight";
-  bool busy = false;
-  for (int i = 0; i < 400 && !busy; ++i) {
-    auto n = c->Counter(key);
-    ASSERT_TRUE(n.ok()) << n.error().message;
-    busy = *n > 0.0;
-    if (!busy) std::this_thread::sleep_for(10ms);
-  }
-  ASSERT_TRUE(busy) << "renderer 2 never got work";
+  ASSERT_TRUE(WaitForCounter(*c, "renderer." + r2.Address() + ".samples_in_flight", [](double n) { return n > 0.0; }, 10s))
+      << "renderer 2 never got work";
   // Frozen, not dead: its socket stays open but nothing comes out of it.
   r2.process.Signal(SIGSTOP);
   ASSERT_TRUE(c->WaitConverged(1, 180s).ok()) << sma.process.LogTail();
@@ -347,13 +338,6 @@ TEST(SmaRendererFailureTest, ARendererThatStopsAnsweringIsDroppedAndItsWorkMoved
 }
 
 // --- Refinement (founding paper §4) -------------------------------------------
-
-CameraView FrontView(const SmaTestClient& c, int width, int height) {
-  for (const auto& p : c.Info().cameras())
-    if (p.name() == "front") return ViewFromPreset(p, width, height);
-  ADD_FAILURE() << "no camera preset front";
-  return CameraView{};
-}
 
 // Everything the client holds once a refined view converges: a conforming
 // mesh, refined below the base triangles, every vertex shaded.
