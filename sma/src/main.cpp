@@ -78,6 +78,9 @@ int main(int argc, char** argv) {
   app.add_option("--renderer-read-timeout-ms", rendererTimeoutMs,
                  "Silence after which a renderer is dropped and its samples go to the others")
       ->check(CLI::Range(10, 3600000))->capture_default_str();
+  app.add_option("--client-queue-bytes", options.clientSoftQueueBytes,
+                 "Bytes queued to a client above which its deltas are held back and later sent as one")
+      ->capture_default_str();
   app.add_option("--stats-interval", statsSeconds, "Seconds between counter lines in the log")
       ->check(CLI::Range(1, 86400))->capture_default_str();
   app.add_option("--exposure", options.toneMapping.exposure, "Default exposure clients apply before tone mapping")

@@ -218,12 +218,15 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   /// report convergence; `alwaysSend`: send even when nothing changed.
   void SendChanges(wire::DeltaKind kind, std::span<const NodeId> removals, std::span<const NodeId> additions,
                    bool alwaysSend, bool last);
+  bool RefiningNow() const { return Stage1Done() && !Converged() && params_.criterion != Criterion::kNone; }
   void FillStatus(wire::Delta& delta, bool last) {
     delta.set_view_id(appliedViewId_);
     delta.set_pending_samples(uint32_t(waiting_.size() + refinementPending_.size()));
     const bool converged = last && Converged();
     delta.set_converged(converged);
-    delta.set_refining(Stage1Done() && !converged && params_.criterion != Criterion::kNone);
+    delta.set_refining(!converged && RefiningNow());
+    sentConverged_ = converged;
+    sentRefining_ = delta.refining();
     if (converged && stage2Ms_ < 0.0) stage2Ms_ = Ms(Clock::now() - viewReceived_);
   }
   // Stage 1 (paper §5): every initially visible triangle of the view shaded.
@@ -240,6 +243,12 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   void OnRefineStepDone(const std::shared_ptr<Refiner>& refiner, size_t chosen, std::vector<VertexId> newVertices,
                         bool exhausted);
   void SendStatus();
+  /// Sends a STATUS delta if the client's last word on this view (converged,
+  /// refining) is out of date -- e.g. after a coalesced refresh that changed
+  /// no triangle, or when stage 1 ends without a delta of its own.
+  void SyncStatus() {
+    if (hasVisible_ && (Converged() != sentConverged_ || RefiningNow() != sentRefining_)) SendStatus();
+  }
   void RestartRefinement();
 
   Impl& server_;
@@ -286,6 +295,8 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   uint64_t refinementSamples_ = 0;
   double stage1Ms_ = -1.0;  // view received -> stage 1 done
   double stage2Ms_ = -1.0;  // view received -> converged
+  bool sentConverged_ = false;  // as the last delta sent said
+  bool sentRefining_ = false;
 };
 
 void SmaServer::Impl::NotifyArrived(const std::shared_ptr<Session>& session,
@@ -452,6 +463,7 @@ void SmaServer::Impl::Session::OnJobDone(uint64_t viewId, bool newView, std::sha
   if (refreshWanted_) ScheduleRefresh();
   NoteStage1();
   MaybeRefine();
+  SyncStatus();
 }
 
 void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
@@ -568,7 +580,7 @@ void SmaServer::Impl::Session::NoteStage1() {
     log_->debug("{}: view {}: stage 1 in {:.0f} ms, {} triangles", connection_->Id(), appliedViewId_, stage1Ms_,
                 mirror_.TriangleCount());
     // Tell the client at once that stage 2 (refinement) has begun.
-    if (params_.criterion != Criterion::kNone) SendStatus();
+    SyncStatus();
   }
 }
 
@@ -645,7 +657,7 @@ void SmaServer::Impl::Session::OnRefineStepDone(const std::shared_ptr<Refiner>& 
   }
   if (exhausted) {
     refinementDone_ = true;
-    if (Converged()) SendStatus();
+    SyncStatus();
     return;
   }
   // Nothing to split now. If samples are still on their way, or a re-map is
@@ -697,7 +709,7 @@ void SmaServer::Impl::Session::OnSessionOptions(const wire::SessionOptions& o) {
              p.sReq, p.noiseZ, p.batch, p.minPixels);
   RestartRefinement();
   MaybeRefine();
-  if (Converged()) SendStatus();
+  SyncStatus();
 }
 
 void SmaServer::Impl::Session::ScheduleRefresh() {
