@@ -14,6 +14,7 @@
 #include "gl/frame_targets.h"
 #include "gl/hud.h"
 #include "gl/mesh_renderer.h"
+#include "gl/sky_renderer.h"
 #include "penumbra/client/client_model.h"
 #include "penumbra/client/fly_camera.h"
 #include "penumbra/client/path_player.h"
@@ -149,6 +150,7 @@ class ClientApp {
   std::unique_ptr<Context> context_;
   Window* window_ = nullptr;  // context_, when it is a GLFW window
   std::optional<MeshRenderer> renderer_;
+  std::optional<SkyRenderer> sky_;
   std::optional<ToneMapper> toneMapper_;
   std::optional<Hud> hud_;
   FrameTargets targets_;
@@ -210,6 +212,9 @@ Status ClientApp::Init() {
   auto renderer = MeshRenderer::Create();
   if (!renderer) return renderer.error();
   renderer_.emplace(std::move(*renderer));
+  auto sky = SkyRenderer::Create();
+  if (!sky) return sky.error();
+  sky_.emplace(std::move(*sky));
   auto toneMapper = ToneMapper::Create();
   if (!toneMapper) return toneMapper.error();
   toneMapper_.emplace(std::move(*toneMapper));
@@ -463,6 +468,7 @@ void ClientApp::Render() {
   const std::optional<glm::mat4> worldToClip =
       sentView_ && info ? std::optional(WorldToClip(*sentView_, SceneBounds(*info))) : std::nullopt;
   targets_.BeginRadiance();
+  if (worldToClip && info->has_sky()) sky_->Draw(*worldToClip, info->sky());
   if (worldToClip) renderer_->DrawRadiance(*worldToClip);
   targets_.BeginDisplay();
   toneMapper_->Draw(targets_.RadianceTexture(), adaptation_, SceneDrago(info), tone_);

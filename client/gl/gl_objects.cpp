@@ -102,4 +102,12 @@ std::string TakeGlError(const char* what) {
   return first;
 }
 
+const char* const kFullScreenVertexShader = R"(#version 330 core
+void main() {
+  // One triangle covering the viewport: (-1,-1), (3,-1), (-1,3).
+  vec2 corner = vec2(float((gl_VertexID & 1) << 2) - 1.0, float((gl_VertexID & 2) << 1) - 1.0);
+  gl_Position = vec4(corner, 0.0, 1.0);
+}
+)";
+
 }  // namespace penumbra::client::gl

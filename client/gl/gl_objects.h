@@ -61,6 +61,11 @@ Framebuffer MakeFramebuffer();
 /// Compiles and links a program; the error carries `name` and the GL info log.
 Expected<Program> BuildProgram(const std::string& name, const char* vertexSource, const char* fragmentSource);
 
+/// Vertex shader of a full-screen pass: draw 3 vertices (glDrawArrays, no
+/// attributes, an empty vertex array bound) and one triangle covers the
+/// viewport; the fragment shader works from gl_FragCoord.
+extern const char* const kFullScreenVertexShader;
+
 /// The first pending GL error as text ("GL_OUT_OF_MEMORY after <what>"), or
 /// empty; clears every pending error.
 std::string TakeGlError(const char* what);

@@ -8,14 +8,6 @@ namespace {
 
 constexpr float kMidGrey = 0.18f;
 
-constexpr const char* kFullScreenVertexShader = R"(#version 330 core
-void main() {
-  // One triangle covering the viewport: (-1,-1), (3,-1), (-1,3).
-  vec2 corner = vec2(float((gl_VertexID & 1) << 2) - 1.0, float((gl_VertexID & 2) << 1) - 1.0);
-  gl_Position = vec4(corner, 0.0, 1.0);
-}
-)";
-
 // Every line of DragoDisplayLuminance and ToneMapDrago (common/src/tonemap.cpp)
 // and LinearToSrgb (common/math.h) has its counterpart here; change them together.
 constexpr const char* kToneMapFragmentShader = R"(#version 330 core

@@ -51,6 +51,19 @@ Status ValidateSceneInfo(const wire::SceneInfo& info) {
     if (!IsFiniteWire(m.albedo()) || !IsFiniteWire(m.emission()))
       return Fail(fmt::format("scene_info: material {} has a colour that is not finite", i));
   }
+  if (info.has_sky()) {
+    const auto& sky = info.sky();
+    const auto nonNegative = [](const wire::Vec3& c) {
+      return IsFiniteWire(c) && c.x() >= 0.0f && c.y() >= 0.0f && c.z() >= 0.0f;
+    };
+    const float upLength = std::sqrt(sky.up().x() * sky.up().x() + sky.up().y() * sky.up().y() +
+                                     sky.up().z() * sky.up().z());
+    if (!IsFiniteWire(sky.up()) || !(std::abs(upLength - 1.0f) < 1e-3f))
+      return Fail(fmt::format("scene_info: sky up ({}, {}, {}) is not a unit vector", sky.up().x(), sky.up().y(),
+                              sky.up().z()));
+    if (!nonNegative(sky.zenith()) || !nonNegative(sky.horizon()) || !nonNegative(sky.ground()))
+      return Fail("scene_info: sky radiance must be finite and non-negative");
+  }
   const auto& tm = info.tone_mapping();
   if (!(tm.bias() > 0.0f && tm.bias() < 1.0f) || !(tm.exposure() > 0.0f) || !std::isfinite(tm.exposure()) ||
       !(tm.max_display_luminance() > 0.0f) || !std::isfinite(tm.max_display_luminance()))

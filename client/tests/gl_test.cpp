@@ -10,9 +10,12 @@
 #include "gl/context.h"
 #include "gl/frame_targets.h"
 #include "gl/mesh_renderer.h"
+#include "gl/sky_renderer.h"
 #include "gl/tone_mapper.h"
 #include "penumbra/client/client_model.h"
 #include "penumbra/client/projection.h"
+#include "penumbra/common/camera.h"
+#include "penumbra/common/scene.h"
 #include "support/delta_builder.h"
 #include "support/fake_sma.h"
 
@@ -97,6 +100,55 @@ TEST_F(GlTest, ToneMappingShaderMirrorsTheCpuCode) {
     const Rgb expected(std::sqrt(cpu.r), std::sqrt(cpu.g), std::sqrt(cpu.b));
     ExpectRgbNear(encoded(display, int(i)), expected, oneLevel, "exposure+gamma, pixel " + std::to_string(i));
   }
+}
+
+TEST_F(GlTest, SkyShowsSkyLightRadianceAlongEachPixelsRay) {
+  // A tilted camera so that pixels span ground, horizon and zenith.
+  SkyLight sky;
+  sky.up = Vec3(0.0f, 0.0f, 1.0f);
+  sky.zenith = Rgb(0.1f, 0.3f, 1.0f);
+  sky.horizon = Rgb(1.0f, 0.9f, 0.8f);
+  sky.ground = Rgb(0.05f, 0.04f, 0.02f);
+  wire::Sky wireSky;
+  const auto set = [](wire::Vec3* out, const Vec3& v) {
+    out->set_x(v.x);
+    out->set_y(v.y);
+    out->set_z(v.z);
+  };
+  set(wireSky.mutable_up(), sky.up);
+  set(wireSky.mutable_zenith(), sky.zenith);
+  set(wireSky.mutable_horizon(), sky.horizon);
+  set(wireSky.mutable_ground(), sky.ground);
+
+  CameraView view;
+  view.pose = CameraPose{Vec3(3.0f, -2.0f, 1.0f), Vec3(0.0f, 0.0f, 1.6f), Vec3(0.0f, 0.0f, 1.0f)};
+  view.fovYDeg = 100.0f;
+  view.width = 48;
+  view.height = 32;
+  Bounds3 bounds;
+  bounds.Extend(Vec3(-1.0f));
+  bounds.Extend(Vec3(1.0f));
+  auto renderer = SkyRenderer::Create();
+  ASSERT_TRUE(renderer.ok()) << renderer.error().message;
+  FrameTargets targets;
+  ASSERT_TRUE(targets.Resize({view.width, view.height}).ok());
+  targets.BeginRadiance();
+  renderer->Draw(WorldToClip(view, bounds), wireSky);
+  const std::vector<float> image = targets.ReadRadiance();
+
+  const PinholeCamera camera(view);
+  bool sawGround = false, sawZenithSide = false;
+  for (int y = 0; y < view.height; y += 3) {
+    for (int x = 0; x < view.width; x += 3) {
+      const Vec3 direction = camera.DirectionThrough(float(x) + 0.5f, float(y) + 0.5f);
+      const float c = glm::dot(direction, sky.up);
+      sawGround |= c < -0.3f;
+      sawZenithSide |= c > 0.3f;
+      ExpectRgbNear(PixelAt(image, view.width, x, y), sky.Radiance(direction), 2e-3f,
+                    "pixel " + std::to_string(x) + "," + std::to_string(y));
+    }
+  }
+  EXPECT_TRUE(sawGround && sawZenithSide) << "the view should span the sky's range";
 }
 
 class MeshRendererTest : public GlTest {

@@ -4,6 +4,7 @@
 
 #include "penumbra/client/session.h"
 
+#include <cmath>
 #include <thread>
 
 #include <gtest/gtest.h>
@@ -26,6 +27,36 @@ CameraView FrontView() {
   view.width = 64;
   view.height = 48;
   return view;
+}
+
+void SetWire(wire::Vec3* out, float x, float y, float z) {
+  out->set_x(x);
+  out->set_y(y);
+  out->set_z(z);
+}
+
+TEST(ValidateSceneInfoTest, AcceptsASkyAndRefusesOneThatCannotBeDrawn) {
+  wire::SceneInfo info = testing::UnitSquareSceneInfo();
+  ASSERT_TRUE(ValidateSceneInfo(info).ok()) << ValidateSceneInfo(info).error().message;
+  auto* sky = info.mutable_sky();
+  SetWire(sky->mutable_up(), 0.0f, 0.0f, 1.0f);
+  SetWire(sky->mutable_zenith(), 0.2f, 0.4f, 1.0f);
+  SetWire(sky->mutable_horizon(), 1.0f, 1.0f, 1.0f);
+  SetWire(sky->mutable_ground(), 0.1f, 0.1f, 0.1f);
+  EXPECT_TRUE(ValidateSceneInfo(info).ok());
+
+  wire::SceneInfo notUnit = info;
+  SetWire(notUnit.mutable_sky()->mutable_up(), 0.0f, 0.0f, 2.0f);
+  ASSERT_FALSE(ValidateSceneInfo(notUnit).ok());
+  EXPECT_NE(ValidateSceneInfo(notUnit).error().message.find("sky up"), std::string::npos);
+
+  wire::SceneInfo negative = info;
+  SetWire(negative.mutable_sky()->mutable_ground(), -1.0f, 0.0f, 0.0f);
+  EXPECT_FALSE(ValidateSceneInfo(negative).ok());
+
+  wire::SceneInfo notFinite = info;
+  SetWire(notFinite.mutable_sky()->mutable_zenith(), std::nanf(""), 0.0f, 0.0f);
+  EXPECT_FALSE(ValidateSceneInfo(notFinite).ok());
 }
 
 class SessionTest : public ::testing::Test {

@@ -369,6 +369,13 @@ void SmaServer::Impl::Session::OnHello(const wire::Hello& hello) {
   info->mutable_tone_mapping()->set_exposure(tm.exposure);
   info->mutable_tone_mapping()->set_max_display_luminance(tm.maxDisplayLuminance);
   info->set_texture_count(uint32_t(scene.textures.size()));
+  if (scene.sky) {
+    auto* sky = info->mutable_sky();
+    ToWire(scene.sky->up, sky->mutable_up());
+    ToWire(scene.sky->zenith, sky->mutable_zenith());
+    ToWire(scene.sky->horizon, sky->mutable_horizon());
+    ToWire(scene.sky->ground, sky->mutable_ground());
+  }
   connection_->Send(infoEnvelope);
   log_->info("{}: client '{}' joined", connection_->Id(), hello.peer_name());
 }
