@@ -41,13 +41,16 @@ VIEWS = {
                   "title": "Breakfast room (sun through the blinds)"},
 }
 
-# (label, SMA flags). The paper's criteria use its plain metric (noise z = 0).
+# (label, SMA flags, renderer flags). The paper's criteria use its plain
+# metric (noise z = 0) and a fixed number of paths per vertex.
+ADAPTIVE_PATHS = ["--max-spp", "1024", "--target-error", "0.05"]
 CRITERIA = [
-    ("RND", ["--criterion", "rnd", "--noise-z", "0", "--pixel-fraction", "0.25"]),
-    ("NLD_IS", ["--criterion", "nld_is", "--noise-z", "0", "--pixel-fraction", "0.25"]),
-    ("NLD_OS", ["--criterion", "nld_os", "--noise-z", "0"]),
-    ("NLD_OS+RND", ["--criterion", "nld_os_rnd", "--noise-z", "0"]),
-    ("NLD_OS-N (ours)", ["--criterion", "nld_os", "--noise-z", "2"]),
+    ("RND", ["--criterion", "rnd", "--noise-z", "0", "--pixel-fraction", "0.25"], []),
+    ("NLD_IS", ["--criterion", "nld_is", "--noise-z", "0", "--pixel-fraction", "0.25"], []),
+    ("NLD_OS", ["--criterion", "nld_os", "--noise-z", "0"], []),
+    ("NLD_OS+RND", ["--criterion", "nld_os_rnd", "--noise-z", "0"], []),
+    ("NLD_OS-N (ours)", ["--criterion", "nld_os", "--noise-z", "2"], []),
+    ("NLD_OS-N + adaptive paths (ours)", ["--criterion", "nld_os", "--noise-z", "2"], ADAPTIVE_PATHS),
 ]
 
 
@@ -104,7 +107,7 @@ def render_reference(tools, view, out, spp, seed, threads):
     return float(match.group(1))
 
 
-def run_criterion(tools, view, label, sma_flags, work, args):
+def run_criterion(tools, view, label, sma_flags, renderer_flags, work, args):
     """One fresh stack, one client until convergence. Returns the run's record."""
     work.mkdir(parents=True, exist_ok=True)
     for f in work.glob("*"):
@@ -114,7 +117,7 @@ def run_criterion(tools, view, label, sma_flags, work, args):
     logs = []
     renderer = subprocess.Popen(
         [tools.renderer, "--scene", scene, "--listen", "127.0.0.1:0", "--port-file", work / "renderer.port",
-         "--threads", str(args.threads), "--spp", str(args.paths), "--log-level", "warn"],
+         "--threads", str(args.threads), "--spp", str(args.paths), "--log-level", "warn"] + renderer_flags,
         stdout=open(work / "renderer.log", "w"), stderr=subprocess.STDOUT)
     logs.append(renderer)
     try:
@@ -248,6 +251,12 @@ def main():
     results = {"settings": {"paths_per_vertex": args.paths, "reference_spp": args.reference_spp,
                             "threads": args.threads, "machine": os.uname().machine, "cpus": os.cpu_count()},
                "views": {}}
+    # A run of some views keeps the others' results from an earlier run.
+    previous = out / "results.json"
+    if previous.exists():
+        old = json.loads(previous.read_text())
+        if old.get("settings") == results["settings"]:
+            results["views"] = old.get("views", {})
     args.reference_of = {}
     for name in args.views.split(","):
         view = dict(VIEWS[name], name=name)
@@ -264,9 +273,11 @@ def main():
         tools.tonemap(reference, view_dir / "reference.png", reference)
         log(f"{name}: criteria")
         records = []
-        for label, flags in CRITERIA:
+        for label, sma_flags, renderer_flags in CRITERIA:
             slug = re.sub(r"[^a-z0-9]+", "_", label.lower()).strip("_")
-            record = run_criterion(tools, view, label, flags, view_dir / f"run_{slug}", args)
+            record = run_criterion(tools, view, label, sma_flags, renderer_flags, view_dir / f"run_{slug}", args)
+            record["sma_flags"] = sma_flags
+            record["renderer_flags"] = renderer_flags
             tools.tonemap(record["final_image"], view_dir / f"{slug}.png", reference)
             record["final_png"] = f"{slug}.png"
             if label == "NLD_OS" and "stage1_image" in record:

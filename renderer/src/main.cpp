@@ -35,6 +35,13 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0, 1024))->capture_default_str();
   app.add_option("--spp", shading.pathsPerSample, "Paths per sample unless a request says otherwise")
       ->check(CLI::Range(1, 1 << 20))->capture_default_str();
+  app.add_option("--max-spp", shading.maxPathsPerSample,
+                 "Adaptive sampling: trace further rounds of paths, up to this many per sample, while a sample's "
+                 "relative standard error exceeds --target-error (0: off, every sample gets --spp)")
+      ->check(CLI::Range(0, 1 << 20))->capture_default_str();
+  app.add_option("--target-error", shading.targetRelativeError,
+                 "Adaptive sampling: relative standard error of a sample's irradiance to stop at")
+      ->check(CLI::Range(0.001f, 1.0f))->capture_default_str();
   app.add_option("--max-depth", shading.maxDepth, "Path segments per path; 1 = direct light only")
       ->check(CLI::Range(1, 1024))->capture_default_str();
   app.add_option("--seed", shading.seed, "Seed mixed into every sample's random stream")->capture_default_str();
@@ -92,8 +99,13 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "penumbra-renderer: %s\n", bound.error().message.c_str());
     return 1;
   }
-  log->info("scene '{}' (identity {:016x}), {} worker thread(s), {} paths/sample, max depth {}", scene->name,
-            scene->identity, options.workerThreads, shading.pathsPerSample, shading.maxDepth);
+  log->info("scene '{}' (identity {:016x}), {} worker thread(s), {} paths/sample{}, max depth {}", scene->name,
+            scene->identity, options.workerThreads, shading.pathsPerSample,
+            shading.maxPathsPerSample > shading.pathsPerSample
+                ? fmt::format(" (adaptive up to {} at {:.3g} relative error)", shading.maxPathsPerSample,
+                              shading.targetRelativeError)
+                : std::string(),
+            shading.maxDepth);
   if (!portFile.empty()) {
     if (auto written = WritePortFile(portFile, bound->port()); !written) {
       std::fprintf(stderr, "penumbra-renderer: %s\n", written.error().message.c_str());

@@ -274,22 +274,34 @@ ShadeOutput Shader::Shade(const ShadeInput& in, int paths, ShadeCounters* counte
   ShadeCounters work;
   Rgb sum(0.0f);
   double luminanceSquares = 0.0;
-  for (int p = 0; p < pathCount; ++p) {
-    const Rgb estimate = s.TracePath(start, rng, work);
-    sum += estimate;
-    const double l = Luminance(estimate);
-    luminanceSquares += l * l;
+  int traced = 0;
+  // The luminance of E's standard error after `traced` paths (0 for one path).
+  const auto standardError = [&] {
+    if (traced < 2) return 0.0;
+    const double mean = Luminance(sum) / traced;
+    const double variance = std::max(0.0, (luminanceSquares / traced - mean * mean) * traced / (traced - 1));
+    return std::sqrt(variance / traced);
+  };
+  const int round = std::max(pathCount, 16);
+  const int maxPaths = std::max(pathCount, s.settings.maxPathsPerSample);
+  for (int target = pathCount; traced < target;) {
+    for (; traced < target; ++traced) {
+      const Rgb estimate = s.TracePath(start, rng, work);
+      sum += estimate;
+      const double l = Luminance(estimate);
+      luminanceSquares += l * l;
+    }
+    // Adaptive sampling: another round while the estimate is too uncertain.
+    const double mean = Luminance(sum) / traced;
+    if (traced < maxPaths && standardError() > double(s.settings.targetRelativeError) * mean)
+      target = std::min(maxPaths, traced + round);
   }
-  work.paths = uint64_t(pathCount);
+  work.paths = uint64_t(traced);
   if (counters) *counters += work;
 
   ShadeOutput out;
-  out.irradiance = sum / float(pathCount);
-  if (pathCount > 1) {
-    const double mean = Luminance(out.irradiance);
-    const double variance = std::max(0.0, (luminanceSquares / pathCount - mean * mean) * pathCount / (pathCount - 1));
-    out.irradianceStdErr = float(std::sqrt(variance / pathCount));
-  }
+  out.irradiance = sum / float(traced);
+  out.irradianceStdErr = float(standardError());
   const Rgb emitted = frontSide ? s.scene.MaterialOf(in.triangle).emission : Rgb(0.0f);
   out.radiance = emitted + s.scene.AlbedoAt(in.triangle, in.b1, in.b2) * kInvPi * out.irradiance;
   return out;

@@ -60,6 +60,17 @@ struct ShadingSettings {
   int maxDepth = 5;              // --max-depth: path segments from the sample, >= 1; 1 = direct light only
   int russianRouletteDepth = 3;  // first segment index (from 0) at which paths may be terminated
   uint64_t seed = 0;             // global seed mixed into every sample's stream
+  /// Adaptive sampling (--max-spp, --target-error). When maxPathsPerSample
+  /// exceeds a sample's path count, the shader keeps tracing further rounds
+  /// of that many paths while the relative standard error of the luminance
+  /// of E (stderr / mean) is above targetRelativeError and the total stays
+  /// within maxPathsPerSample: dim, indirectly lit samples -- the noisy ones
+  /// -- get more paths, directly lit ones no more. 0 = always exactly the
+  /// path count. The stopping rule looks at the sample's own estimate, which
+  /// biases it very slightly toward brighter values; the rounds are small
+  /// enough (>= 16 paths) that the bias is far below the noise it removes.
+  int maxPathsPerSample = 0;
+  float targetRelativeError = 0.05f;
 };
 
 struct ShadeInput {
@@ -111,7 +122,8 @@ class Shader {
   Shader(const Shader&) = delete;
   Shader& operator=(const Shader&) = delete;
 
-  /// Shades one sample with `paths` paths (the settings' count when 0).
+  /// Shades one sample with `paths` paths (the settings' count when 0), or
+  /// more under adaptive sampling (ShadingSettings::maxPathsPerSample).
   /// Input must have passed ValidateShadeInput. Adds the work done to
   /// `counters` when it is not null. Thread-safe; deterministic.
   ShadeOutput Shade(const ShadeInput& input, int paths, ShadeCounters* counters) const;
