@@ -151,6 +151,15 @@ void MeshRenderer::UploadTexture(const ReceivedTexture& texture) {
   glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
   glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_REPEAT);
   glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_REPEAT);
+  // Anisotropic filtering where the implementation has it (Mesa does): the
+  // floors and walls of a walkthrough are seen at grazing angles, where
+  // isotropic mipmapping blurs texture detail a camera would still resolve.
+  if (epoxy_has_gl_extension("GL_EXT_texture_filter_anisotropic") ||
+      epoxy_has_gl_extension("GL_ARB_texture_filter_anisotropic")) {
+    GLfloat maxAnisotropy = 1.0f;
+    glGetFloatv(GL_MAX_TEXTURE_MAX_ANISOTROPY_EXT, &maxAnisotropy);
+    glTexParameterf(GL_TEXTURE_2D, GL_TEXTURE_MAX_ANISOTROPY_EXT, std::min(maxAnisotropy, 16.0f));
+  }
   lastUploadBytes_ += texture.rgb8.size();
 }
 

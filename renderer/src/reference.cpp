@@ -8,6 +8,7 @@
 #include <thread>
 #include <vector>
 
+#include "penumbra/common/rng.h"
 #include "penumbra/renderer/ray_scene.h"
 
 namespace penumbra {
@@ -36,10 +37,14 @@ ShadeInput SampleAtHit(const Scene& scene, const RayHit& hit, const Vec3& direct
   return in;
 }
 
+// Mixed into the seed for the jitter streams, so that they are not the
+// shader's streams of the same ids.
+constexpr uint64_t kJitterStream = 0x6a09e667f3bcc909ull;
+
 }  // namespace
 
 Image RenderReference(const Shader& shader, const RayScene& rays, const CameraView& view, int threads,
-                      ShadeCounters* counters) {
+                      ShadeCounters* counters, PixelFilter filter) {
   const Scene& scene = shader.GetScene();
   const PinholeCamera camera(view);
   Image image;
@@ -48,6 +53,8 @@ Image RenderReference(const Shader& shader, const RayScene& rays, const CameraVi
   image.rgb.assign(size_t(view.width) * size_t(view.height) * 3, 0.0f);
   image.storedAsFloat = true;
 
+  const int paths = shader.Settings().pathsPerSample;
+  constexpr float kInfinity = std::numeric_limits<float>::infinity();
   // Rows go to whichever worker is free; every pixel depends only on its
   // own sample id, so the assignment does not show in the image.
   std::atomic<int> nextRow{0};
@@ -59,13 +66,26 @@ Image RenderReference(const Shader& shader, const RayScene& rays, const CameraVi
       EnableFlushToZero();
       for (int y; (y = nextRow.fetch_add(1)) < view.height;) {
         for (int x = 0; x < view.width; ++x) {
-          const Vec3 direction = camera.DirectionThrough(float(x) + 0.5f, float(y) + 0.5f);
           const uint64_t pixel = uint64_t(y) * uint64_t(view.width) + uint64_t(x);
+          // The radiance along the ray through (px, py), from pathCount paths.
+          const auto radianceThrough = [&](float px, float py, uint64_t sampleId, int pathCount) {
+            const Vec3 direction = camera.DirectionThrough(px, py);
+            if (const auto hit = rays.Intersect(camera.Origin(), direction, 0.0f, kInfinity))
+              return shader.Shade(SampleAtHit(scene, *hit, direction, sampleId), pathCount, &work[size_t(w)]).radiance;
+            return scene.sky ? scene.sky->Radiance(direction) : Rgb(0.0f);
+          };
           Rgb radiance(0.0f);
-          if (const auto hit = rays.Intersect(camera.Origin(), direction, 0.0f, std::numeric_limits<float>::infinity()))
-            radiance = shader.Shade(SampleAtHit(scene, *hit, direction, pixel), 0, &work[size_t(w)]).radiance;
-          else if (scene.sky)
-            radiance = scene.sky->Radiance(direction);
+          if (filter == PixelFilter::kCentre) {
+            radiance = radianceThrough(float(x) + 0.5f, float(y) + 0.5f, pixel, 0);
+          } else {
+            Pcg32 jitter = Pcg32::ForSample(shader.Settings().seed ^ kJitterStream, pixel);
+            for (int k = 0; k < paths; ++k) {
+              const float px = float(x) + jitter.NextFloat();
+              const float py = float(y) + jitter.NextFloat();
+              radiance += radianceThrough(px, py, pixel * uint64_t(paths) + uint64_t(k), 1);
+            }
+            radiance /= float(paths);
+          }
           float* out = image.rgb.data() + 3 * pixel;
           out[0] = radiance.r;
           out[1] = radiance.g;

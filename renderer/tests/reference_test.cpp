@@ -51,7 +51,7 @@ TEST_F(ReferenceTest, PixelsReadTheLitPlaneOrTheSky) {
   settings.pathsPerSample = 4;
   const Shader shader(t_.scene, *t_.rays, settings);
   ShadeCounters work;
-  const Image image = RenderReference(shader, *t_.rays, view_, 2, &work);
+  const Image image = RenderReference(shader, *t_.rays, view_, 2, &work, PixelFilter::kCentre);
   ASSERT_EQ(image.width, view_.width);
   ASSERT_EQ(image.height, view_.height);
   ASSERT_EQ(image.rgb.size(), size_t(view_.width * view_.height * 3));
@@ -66,6 +66,34 @@ TEST_F(ReferenceTest, PixelsReadTheLitPlaneOrTheSky) {
       planePixels += Near(p, 0.5f * kSky);
     }
   EXPECT_EQ(work.paths, uint64_t(planePixels) * 4u);
+}
+
+TEST_F(ReferenceTest, BoxFilterAveragesThePixelAreaAcrossTheHorizon) {
+  ShadingSettings settings;
+  settings.pathsPerSample = 256;
+  const Shader shader(t_.scene, *t_.rays, settings);
+  ShadeCounters work;
+  const Image image = RenderReference(shader, *t_.rays, view_, 2, &work, PixelFilter::kBox);
+  // Pixels wholly on the plane or the sky read exactly those values; the
+  // ones the plane's far edge crosses read something in between.
+  int inBetween = 0;
+  for (int y = 0; y < image.height; ++y) {
+    for (int x = 0; x < image.width; ++x) {
+      const Rgb p = Pixel(image, x, y);
+      if (Near(p, kSky) || Near(p, 0.5f * kSky)) continue;
+      // p = f * plane + (1 - f) * sky: recover f from the blue channel.
+      const float f = (kSky.b - p.b) / (0.5f * kSky.b);
+      EXPECT_GT(f, 0.0f) << "pixel " << x << ", " << y;
+      EXPECT_LT(f, 1.0f) << "pixel " << x << ", " << y;
+      EXPECT_TRUE(Near(p, f * 0.5f * kSky + (1.0f - f) * kSky)) << "pixel " << x << ", " << y;
+      ++inBetween;
+    }
+  }
+  EXPECT_GE(inBetween, view_.width / 2) << "the edge crosses every column of the image";
+  EXPECT_LE(inBetween, 2 * view_.width);
+  // Every path that hit the plane was counted once.
+  EXPECT_GT(work.paths, 0u);
+  EXPECT_LT(work.paths, uint64_t(image.width * image.height) * 256u);
 }
 
 TEST_F(ReferenceTest, ImageDoesNotDependOnTheThreadCount) {

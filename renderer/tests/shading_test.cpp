@@ -382,6 +382,44 @@ TEST(ShadingTest, StandardErrorIsZeroWhenEveryPathAgrees) {
   EXPECT_NEAR(out.irradianceStdErr, 0.0f, 1e-5f);
 }
 
+// --- Adaptive sampling ------------------------------------------------------------
+
+TEST(ShadingTest, AdaptiveSamplingAddsNoPathWhereEveryPathAgrees) {
+  const TestScene t = PlaneUnderSky(UniformSky(Rgb(0.7f)));
+  ShadingSettings settings = DirectOnly();
+  settings.maxPathsPerSample = 1024;
+  const Shader shader(t.scene, *t.rays, settings);
+  ShadeCounters counters;
+  shader.Shade(SampleAt(t.scene, Vec3(0.0f), kUp), 32, &counters);
+  EXPECT_EQ(counters.paths, 32u);
+}
+
+TEST(ShadingTest, AdaptiveSamplingStopsAtTheTargetErrorOrAtTheCap) {
+  // A point lit by a small area light: the light samples disagree, so the
+  // first 32 paths leave the relative error above 1 %.
+  const AreaLightScene s = MakeAreaLightScene(0.0f);
+  const ShadeInput in = SampleAt(s.t.scene, Vec3(0.6f, 0.0f, 0.3f), kUp);
+  const ShadeOutput fixed = Shader(s.t.scene, *s.t.rays, DirectOnly()).Shade(in, 32, nullptr);
+  ASSERT_GT(fixed.irradianceStdErr, 0.01f * Luminance(fixed.irradiance));
+
+  ShadingSettings adaptive = DirectOnly();
+  adaptive.maxPathsPerSample = 1 << 16;
+  adaptive.targetRelativeError = 0.004f;
+  ShadeCounters counters;
+  const ShadeOutput out = Shader(s.t.scene, *s.t.rays, adaptive).Shade(in, 32, &counters);
+  EXPECT_GT(counters.paths, 32u);
+  EXPECT_LT(counters.paths, uint64_t(adaptive.maxPathsPerSample)) << "the target is reachable";
+  EXPECT_LE(out.irradianceStdErr, 0.004f * Luminance(out.irradiance));
+  // Same answer as the fixed count, within their combined noise.
+  EXPECT_NEAR(Luminance(out.irradiance), Luminance(fixed.irradiance),
+              4.0f * std::hypot(fixed.irradianceStdErr, out.irradianceStdErr));
+
+  adaptive.maxPathsPerSample = 100;  // not a multiple of the round: the cap still holds exactly
+  ShadeCounters capped;
+  Shader(s.t.scene, *s.t.rays, adaptive).Shade(in, 32, &capped);
+  EXPECT_EQ(capped.paths, 100u);
+}
+
 // --- Determinism ----------------------------------------------------------------
 
 TestScene CornellLikeBox() {

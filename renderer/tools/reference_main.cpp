@@ -4,6 +4,7 @@
 //
 //   penumbra-reference --scene scenes/cornell-box.json --camera front --out cornell.png
 
+#include <map>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -52,6 +53,14 @@ int main(int argc, char** argv) {
   app.add_option("--height", height, "Image height for --camera (a path gives its own)")
       ->check(CLI::Range(1, 16384))->capture_default_str();
   app.add_option("--spp", shading.pathsPerSample, "Paths per pixel")->check(CLI::Range(1, 1 << 20))->capture_default_str();
+  PixelFilter filter = PixelFilter::kBox;
+  app.add_option("--pixel-filter", filter,
+                 "box: every path through its own random point of the pixel (antialiased, the default); "
+                 "centre: one ray through the pixel's centre, all paths from its hit")
+      ->transform(CLI::CheckedTransformer(
+          std::map<std::string, PixelFilter>{{"box", PixelFilter::kBox}, {"centre", PixelFilter::kCentre},
+                                             {"center", PixelFilter::kCentre}},
+          CLI::ignore_case));
   app.add_option("--max-depth", shading.maxDepth, "Path segments per path; 1 = direct light only")
       ->check(CLI::Range(1, 1024))->capture_default_str();
   app.add_option("--seed", shading.seed, "Seed mixed into every pixel's random stream")->capture_default_str();
@@ -96,7 +105,7 @@ int main(int argc, char** argv) {
 
   const auto start = std::chrono::steady_clock::now();
   ShadeCounters work;
-  Image image = RenderReference(shader, **rays, view, workers, &work);
+  Image image = RenderReference(shader, **rays, view, workers, &work, filter);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   Logger("reference")->info("{}x{} at {} paths/pixel in {:.3f} s ({:.2f} Mrays/s, {} thread(s))", view.width,
                             view.height, shading.pathsPerSample, seconds, double(work.rays) / seconds * 1e-6, workers);

@@ -3,12 +3,22 @@
 // the SMA's vertex samples -- the ground truth that walkthrough images are
 // compared against, and a way to look at a scene.
 //
-// Pixel (x, y) casts one ray through its centre from a pinhole camera
-// (camera.h conventions). Where the ray hits a surface, the pixel is L_out
-// at the hit, shaded on the side facing the camera with the vertex normals
-// interpolated across the triangle (as the SMA's samples are), under sample
-// id y * width + x. Where it escapes, the pixel is the sky's radiance in
-// that direction (black without a sky). The sun's disc is not drawn.
+// A pixel is the mean radiance over its area (PixelFilter::kBox, the
+// default): each of its paths starts with its own camera ray through a
+// uniformly random point of the pixel, so edges and texture detail finer than
+// a pixel are averaged as a camera's sensor averages them -- the ground truth
+// a client's filtered textures approximate. With PixelFilter::kCentre one
+// ray goes through the pixel's centre and all the paths start from its hit
+// (camera.h conventions; aliased, but exactly what the SMA's visibility
+// sees). Where a ray hits a surface, its radiance is L_out at the hit,
+// shaded on the side facing the camera with the vertex normals interpolated
+// across the triangle (as the SMA's samples are). Where it escapes, it is
+// the sky's radiance in that direction (black without a sky). The sun's disc
+// is not drawn.
+//
+// Sample ids: pixel p = y * width + x uses id p for kCentre and
+// p * paths + k for its k-th path under kBox; the jitter of pixel p comes
+// from its own stream too, so images do not depend on the thread count.
 
 #include "penumbra/common/camera.h"
 #include "penumbra/common/image_io.h"
@@ -18,12 +28,14 @@ namespace penumbra {
 
 class RayScene;
 
+enum class PixelFilter { kBox, kCentre };
+
 /// Renders `view` with `threads` worker threads (at least one), each pixel
 /// with the shader's paths per sample. Returns linear radiance, row 0 at the
 /// top; adds the work done to `counters` when it is not null. The view must
 /// have passed ValidateCameraView. Deterministic: the image does not depend
 /// on the thread count. Blocks until done; call from any one thread.
 Image RenderReference(const Shader& shader, const RayScene& rays, const CameraView& view, int threads,
-                      ShadeCounters* counters = nullptr);
+                      ShadeCounters* counters = nullptr, PixelFilter filter = PixelFilter::kBox);
 
 }  // namespace penumbra
