@@ -197,10 +197,8 @@ TEST_F(ClientTest, HeadlessWithoutXWritesTheRadianceOfExactlyWhatTheSmaSees) {
   Service sma = StartSma({"--criterion", "none"});  // held triangles are then base triangles
   SetDisplay("");
   const std::string exr = dir_ + "/front.exr", stats = dir_ + "/stats.jsonl";
-  // One sample per pixel: pixels are compared with the ray through their
-  // centre (multisampled edges are gl_test's to check).
   ChildProcess client = StartClient({"--connect", sma.Address(), "--headless", "--camera-path", FrontPathFile(),
-                                     "--until-converged", "--msaa", "1", "--screenshot", exr, "--stats", stats},
+                                     "--until-converged", "--screenshot", exr, "--stats", stats},
                                     dir_ + "/client.log");
   const auto exit = client.WaitExit(120s);
   ASSERT_TRUE(exit.has_value()) << client.LogTail();
@@ -250,7 +248,7 @@ TEST_F(ClientTest, HeadlessUnderXvfbWritesTheToneMappedImage) {
   Service sma = StartSma({"--criterion", "none"});
   const std::string png = dir_ + "/front.png", stats = dir_ + "/stats.jsonl";
   ChildProcess client = StartClient({"--connect", sma.Address(), "--headless", "--camera-path", FrontPathFile(),
-                                     "--msaa", "1", "--screenshot", png, "--stats", stats},
+                                     "--screenshot", png, "--stats", stats},
                                     dir_ + "/client.log");
   const auto exit = client.WaitExit(240s);
   ASSERT_TRUE(exit.has_value()) << client.LogTail();

@@ -101,7 +101,10 @@ def render_reference(tools, view, out, spp, seed, threads):
     """Per-pixel path tracing; returns render seconds (scene loading excluded)."""
     width, height = view["size"]
     args = [tools.reference, "--scene", ROOT / view["scene"], "--camera", view["camera"], "--width", str(width),
-            "--height", str(height), "--spp", str(spp), "--seed", str(seed), "--threads", str(threads), "--out", out]
+            "--height", str(height), "--spp", str(spp), "--seed", str(seed), "--threads", str(threads),
+            # Pixel centres: what the SMA's visibility and the client's rasterizer
+            # sample (docs/refinement.md says what this leaves out).
+            "--pixel-filter", "centre", "--out", out]
     result = subprocess.run(args, check=True, capture_output=True, text=True)
     match = re.search(r"paths/pixel in ([0-9.]+) s", result.stdout + result.stderr)
     return float(match.group(1))

@@ -225,7 +225,7 @@ Status ClientApp::Init() {
   }
   if (options_.headless && options_.cameraPath) {
     player_.emplace(*options_.cameraPath);
-    if (auto ok = targets_.Resize({options_.cameraPath->width, options_.cameraPath->height}, options_.msaaSamples); !ok) return ok;
+    if (auto ok = targets_.Resize({options_.cameraPath->width, options_.cameraPath->height}); !ok) return ok;
   }
   if (!options_.statsPath.empty()) {
     auto stats = StatsLineWriter::Open(options_.statsPath);
@@ -261,7 +261,7 @@ int ClientApp::Run() {
     if (!EnsureCamera()) return 1;
     if (!options_.headless) {
       HandleInput(seconds);
-      if (auto ok = targets_.Resize(window_->FramebufferSize(), options_.msaaSamples); !ok) {
+      if (auto ok = targets_.Resize(window_->FramebufferSize()); !ok) {
         // A minimised window has no pixels: draw nothing, keep the session.
         window_->SwapBuffers();
         std::this_thread::sleep_for(std::chrono::milliseconds(50));
@@ -325,7 +325,7 @@ bool ClientApp::EnsureCamera() {
       return false;
     }
     player_.emplace(StillPath(info->cameras(preset), options_.size.x, options_.size.y));
-    if (auto ok = targets_.Resize(options_.size, options_.msaaSamples); !ok) {
+    if (auto ok = targets_.Resize(options_.size); !ok) {
       Failed(ok.error().message);
       return false;
     }
@@ -470,7 +470,6 @@ void ClientApp::Render() {
   targets_.BeginRadiance();
   if (worldToClip && info->has_sky()) sky_->Draw(*worldToClip, info->sky());
   if (worldToClip) renderer_->DrawRadiance(*worldToClip);
-  targets_.EndRadiance();
   targets_.BeginDisplay();
   toneMapper_->Draw(targets_.RadianceTexture(), adaptation_, SceneDrago(info), tone_);
   if (wireframe_ && worldToClip) renderer_->DrawWireframe(*worldToClip, kWireColour);

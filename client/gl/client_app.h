@@ -34,8 +34,6 @@ struct ClientOptions {
   /// Preset to start from (window) or to show (headless); empty: the first.
   std::string cameraPreset;
   glm::ivec2 size{1280, 720};  // window size, or a headless still view's
-  /// Multisampling of the radiance pass: samples per pixel (1: off).
-  int msaaSamples = 4;
   /// Headless: written when the run ends; .exr/.hdr hold linear radiance,
   /// .png/.jpg the tone-mapped image. Empty: none.
   std::filesystem::path screenshot;

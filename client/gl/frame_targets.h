@@ -1,11 +1,7 @@
 #pragma once
 // The two offscreen images every frame is drawn into, at the view's size:
 //  * radiance: RGBA32F linear radiance (alpha 0 where nothing was drawn),
-//    with a 32-bit float depth texture. With multisampling (the default,
-//    4 samples) the frame is drawn into multisampled twins of both and
-//    resolved into them, so that a pixel on an edge holds the mean over its
-//    area, as a camera (and penumbra-reference's box filter) sees it; alpha
-//    is then the covered fraction;
+//    with a 32-bit float depth texture;
 //  * display: RGBA8 tone-mapped, display-encoded colour, sharing that depth
 //    texture so overlays (the wireframe) are depth-tested against the mesh.
 // The window shows the display image by a blit; headless runs read it (or
@@ -23,20 +19,13 @@ namespace penumbra::client::gl {
 
 class FrameTargets {
  public:
-  /// Allocates (or reallocates) for `size` pixels and `samples` samples per
-  /// pixel (1: no multisampling; clamped to what the implementation offers
-  /// for float targets); no-op when unchanged.
-  Status Resize(glm::ivec2 size, int samples = kDefaultSamples);
-  static constexpr int kDefaultSamples = 4;
-  int Samples() const { return samples_; }
+  /// Allocates (or reallocates) for `size` pixels; no-op when unchanged.
+  Status Resize(glm::ivec2 size);
   glm::ivec2 Size() const { return size_; }
 
-  /// Binds the radiance framebuffer (its multisampled twin), sets the
-  /// viewport, clears colour to 0 (alpha 0: background) and depth to 1.
+  /// Binds the radiance framebuffer, sets the viewport, clears colour to 0
+  /// (alpha 0: background) and depth to 1.
   void BeginRadiance();
-  /// Resolves the multisampled radiance and depth into the textures the
-  /// tone mapper and the wireframe read; call after the radiance pass.
-  void EndRadiance();
   /// Binds the display framebuffer and sets the viewport (depth kept).
   void BeginDisplay();
   GLuint RadianceTexture() const { return radianceColour_.id(); }
@@ -51,10 +40,6 @@ class FrameTargets {
 
  private:
   glm::ivec2 size_{0};
-  int samples_ = 0;  // 0: not allocated
-  Framebuffer multisampleFbo_;  // when samples_ > 1
-  Texture multisampleColour_;
-  Texture multisampleDepth_;
   Framebuffer radianceFbo_;
   Framebuffer displayFbo_;
   Texture radianceColour_;

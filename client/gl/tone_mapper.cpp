@@ -46,26 +46,19 @@ float LinearToSrgb(float c) {
   return c <= 0.0031308 ? 12.92 * c : 1.055 * pow(c, 1.0 / 2.4) - 0.055;
 }
 
-vec3 Display(vec3 radiance) {
-  if (uOperator == 0) {
-    vec3 display = ToneMapDrago(radiance);
-    return vec3(LinearToSrgb(display.r), LinearToSrgb(display.g), LinearToSrgb(display.b));
-  }
-  vec3 display = clamp(radiance * uExposure, 0.0, 1.0);
-  return pow(display, vec3(1.0 / uGamma));
-}
-
 void main() {
   vec4 radiance = texelFetch(uRadiance, ivec2(gl_FragCoord.xy), 0);
   if (radiance.a == 0.0) {
     outColour = vec4(uBackground, 1.0);
     return;
   }
-  // A multisampled edge pixel is partly covered (alpha < 1), its radiance the
-  // covered samples' sum over all samples: show the surface's own colour
-  // blended with the background by coverage.
-  vec3 surface = Display(radiance.rgb / radiance.a);
-  outColour = vec4(mix(uBackground, surface, radiance.a), 1.0);
+  if (uOperator == 0) {
+    vec3 display = ToneMapDrago(radiance.rgb);
+    outColour = vec4(LinearToSrgb(display.r), LinearToSrgb(display.g), LinearToSrgb(display.b), 1.0);
+  } else {
+    vec3 display = clamp(radiance.rgb * uExposure, 0.0, 1.0);
+    outColour = vec4(pow(display, vec3(1.0 / uGamma)), 1.0);
+  }
 }
 )";
 

@@ -56,11 +56,6 @@ int main(int argc, char** argv) {
   app.add_option("--camera", options.cameraPreset,
                  "Camera preset of the scene to start from (window) or to show (headless); default: the first");
   app.add_option("--size", size, "Window size, or a headless still view's image size, WxH (default 1280x720)");
-  app.add_option("--msaa", options.msaaSamples,
-                 "Samples per pixel of the radiance pass (1: no antialiasing); edges then show the mean over the "
-                 "pixel, as penumbra-reference's images do")
-      ->check(CLI::Range(1, 32))
-      ->capture_default_str();
   app.add_option("--tone", tone, "Tone mapping: drago (Drago 2003) or exposure (exposure + gamma)")
       ->check(CLI::IsMember({"drago", "exposure"}))
       ->capture_default_str();
