@@ -649,6 +649,10 @@ void SmaServer::Impl::Session::OnRefineStepDone(const std::shared_ptr<Refiner>& 
   }
   refinementSplits_ += chosen;
   refinementSamples_ += newVertices.size();
+  log_->trace("{}: refinement step: {} split, {} new vertices, exhausted {}; pending {}, refresh wanted {} armed {}, "
+              "job running {}",
+              connection_->Id(), chosen, newVertices.size(), exhausted, refinementPending_.size(), refreshWanted_,
+              refreshArmed_, jobRunning_);
   {
     // Results may have landed before this step's report: only wait for
     // what is still unshaded.
@@ -731,10 +735,16 @@ void SmaServer::Impl::Session::ScheduleRefresh() {
   refreshTimer_.async_wait([self = shared_from_this()](const error_code& ec) {
     self->refreshArmed_ = false;
     if (ec) return;
-    if (self->jobRunning_)
+    if (self->jobRunning_) {
       self->ScheduleRefresh();  // try again after the running job
-    else
-      self->StartJob();
+      return;
+    }
+    self->StartJob();
+    // Another path (a new view, a client that caught up) may have run the
+    // refresh while this timer waited, leaving nothing to start. A refinement
+    // step that found nothing to split was waiting for this timer to wake it:
+    // wake it here, or it would wait forever (seen on the breakfast room).
+    if (!self->jobRunning_) self->MaybeRefine();
   });
 }
 
