@@ -66,6 +66,12 @@ def main(results_path, docs_path):
         view_images.mkdir(parents=True, exist_ok=True)
         crit = view["criteria"]
         nld_os = next(r for r in crit if r["label"] == "NLD_OS")
+        # Δtotal at which each criterion first shows NLD_OS's final error: its
+        # snapshots, then its final image (the last snapshot may precede it).
+        for r in crit:
+            points = r["curve"] + [r["stage2"]]
+            r["delta_total_to_nld_os_error"] = next(
+                (p["delta_total"] for p in points if p["rel_mae"] <= nld_os["stage2"]["rel_mae"]), None)
         lines += [f"## {view['title']} ({view['size'][0]}×{view['size'][1]})", ""]
         lines += ["| criterion | T¹ (s) | Δ¹ | Δtotal¹ | T² (s) | Δ² | Δtotal² | rel. MAE² | SSIM² | Δtotal to reach NLD_OS's error |",
                   "|---|---|---|---|---|---|---|---|---|---|"]
