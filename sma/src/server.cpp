@@ -455,7 +455,9 @@ void SmaServer::Impl::Session::OnJobDone(uint64_t viewId, bool newView, std::sha
   visible_ = std::move(visible);
   appliedViewId_ = viewId;
   hasVisible_ = true;
-  lastTimings_ = timings;
+  // The counters report the last new view's visibility; refreshes of the
+  // same view (no trace, a re-map) would overwrite its trace time with 0.
+  if (newView) lastTimings_ = timings;
   const auto planStart = Clock::now();
   ApplyVisibility(newView);
   if (firstForView) {
