@@ -38,8 +38,9 @@ def main(results_path, docs_path):
         "triangle is shaded (the SMA's `refining` flag turns on); stage 2 is convergence. "
         "**T** is seconds since the view was sent, **Δ** the triangles shown, **Δtotal** the "
         "triangles ever sent (refined-away ones included). Error is measured against a per-pixel "
-        f"path-traced reference (`penumbra-reference`, {settings['reference_spp']} paths per pixel, "
-        "same shader): **rel. MAE** is the relative mean absolute error on linear radiance, **SSIM** "
+        f"path-traced reference (`penumbra-reference`, {settings['reference_spp']} paths per pixel "
+        "from the hit of the ray through its centre -- `--pixel-filter centre`, where the SMA's "
+        "visibility samples too -- same shader): **rel. MAE** is the relative mean absolute error on linear radiance, **SSIM** "
         "is computed on Drago-mapped luma (`common/image_metrics.h`).",
         "",
         f"Settings: {settings['paths_per_vertex']} paths per vertex sample, max depth 5, renderer on "
