@@ -29,6 +29,7 @@
 
 #include "penumbra/common/check.h"
 #include "penumbra/common/embree_scene.h"
+#include "penumbra/common/fork_join_annotation.h"
 #include "penumbra/common/logging.h"
 
 namespace penumbra::sma {
@@ -175,7 +176,10 @@ void VisibilityTracer::Trace(const CameraView& view, HitBuffer& out) const {
   out.hits.resize(size_t(width) * size_t(height));
   const PrimaryRays rays(view);
   const Tiling tiling(width, height);
+  ForkJoinAnnotation order;  // TBB's hand-offs, for ThreadSanitizer
+  order.Fork();
   tbb::parallel_for(tbb::blocked_range<int>(0, tiling.Count()), [&](const tbb::blocked_range<int>& tiles) {
+    order.Enter();
     const ScopedFlushToZero flushToZero;
     RTCIntersectContext context = CoherentContext();
     Packet packet;
@@ -191,7 +195,9 @@ void VisibilityTracer::Trace(const CameraView& view, HitBuffer& out) const {
         }
       });
     }
+    order.Leave();
   });
+  order.Join();
 }
 
 size_t VisibilityTracer::TraceRaw(const CameraView& view, RawTrace mode) const {
@@ -357,7 +363,12 @@ void MapHitsToNodes(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFu
 
   const int chunkCount = (height + kRowsPerChunk - 1) / kRowsPerChunk;
   std::vector<std::vector<Run>> runsOfChunk(static_cast<size_t>(chunkCount));
+  // The tasks read the hierarchy and, through `descend`, whatever the caller
+  // guards with its lock: TBB's hand-offs must be visible to ThreadSanitizer.
+  ForkJoinAnnotation order;
+  order.Fork();
   tbb::parallel_for(tbb::blocked_range<int>(0, chunkCount), [&](const tbb::blocked_range<int>& chunks) {
+    order.Enter();
     NodeFinder finder(hierarchy, descend, context);
     RunFolder folder;
     for (int chunk = chunks.begin(); chunk != chunks.end(); ++chunk) {
@@ -380,7 +391,9 @@ void MapHitsToNodes(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFu
       }
       folder.Flush(runs);
     }
+    order.Leave();
   });
+  order.Join();
 
   std::vector<Run> runs, scratch;
   size_t runCount = 0;
