@@ -313,7 +313,9 @@ TEST_P(SmaSlowClientTest, CoalescedDeltasKeepEveryClientExact) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Criteria, SmaSlowClientTest, ::testing::Values("nld_os", "nld_is", "rnd"),
-                         [](const ::testing::TestParamInfo<const char*>& info) { return std::string(info.param); });
+                         [](const ::testing::TestParamInfo<const char*>& criterion) {
+                           return std::string(criterion.param);
+                         });
 
 TEST(SmaRendererFailureTest, KillingOneOfTwoRenderersLosesNoSample) {
   auto scene = LoadScene(kScene);
