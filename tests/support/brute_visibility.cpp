@@ -69,41 +69,45 @@ PixelResult ClassifyPixel(const Scene& scene, const D3& origin, const D3& dir, d
 
 }  // namespace
 
-BruteVisibility BruteForceVisibleTriangles(const Scene& scene, const CameraView& view, double tieBary) {
-  BruteVisibility out;
+namespace {
+
+// Classifies the ray through every pixel centre, row by row; `use(x, y, pixel)`.
+template <typename Use>
+void ForEachPixel(const Scene& scene, const CameraView& view, double tieBary, Use&& use) {
   const PinholeCamera camera(view);
   const D3 origin = ToD3(camera.Origin());
   std::vector<Candidate> hits;
   for (int y = 0; y < view.height; ++y) {
     for (int x = 0; x < view.width; ++x) {
       const D3 dir = ToD3(camera.DirectionThrough(float(x) + 0.5f, float(y) + 0.5f));
-      const PixelResult pixel = ClassifyPixel(scene, origin, dir, tieBary, hits);
-      if (pixel.certain)
-        out.certain.insert(*pixel.certain);
-      else
-        out.ties.insert(pixel.contenders.begin(), pixel.contenders.end());
+      use(x, y, ClassifyPixel(scene, origin, dir, tieBary, hits));
     }
   }
+}
+
+}  // namespace
+
+BruteVisibility BruteForceVisibleTriangles(const Scene& scene, const CameraView& view, double tieBary) {
+  BruteVisibility out;
+  ForEachPixel(scene, view, tieBary, [&](int, int, const PixelResult& pixel) {
+    if (pixel.certain)
+      out.certain.insert(*pixel.certain);
+    else
+      out.ties.insert(pixel.contenders.begin(), pixel.contenders.end());
+  });
   for (uint32_t t : out.certain) out.ties.erase(t);
   return out;
 }
 
 std::vector<int64_t> BruteForcePixelHits(const Scene& scene, const CameraView& view, double tieBary) {
   std::vector<int64_t> out(size_t(view.width) * size_t(view.height), kPixelMiss);
-  const PinholeCamera camera(view);
-  const D3 origin = ToD3(camera.Origin());
-  std::vector<Candidate> hits;
-  for (int y = 0; y < view.height; ++y) {
-    for (int x = 0; x < view.width; ++x) {
-      const D3 dir = ToD3(camera.DirectionThrough(float(x) + 0.5f, float(y) + 0.5f));
-      const PixelResult pixel = ClassifyPixel(scene, origin, dir, tieBary, hits);
-      int64_t& result = out[size_t(y) * size_t(view.width) + size_t(x)];
-      if (pixel.certain)
-        result = *pixel.certain;
-      else if (!pixel.contenders.empty())
-        result = kPixelTie;
-    }
-  }
+  ForEachPixel(scene, view, tieBary, [&](int x, int y, const PixelResult& pixel) {
+    int64_t& result = out[size_t(y) * size_t(view.width) + size_t(x)];
+    if (pixel.certain)
+      result = *pixel.certain;
+    else if (!pixel.contenders.empty())
+      result = kPixelTie;
+  });
   return out;
 }
 
