@@ -33,6 +33,16 @@ TEST(PathSpecTest, LoadsAPathFile) {
   EXPECT_EQ(path->keyframes.size(), 2u);
 }
 
+// Finite but absurd coordinates once passed and aborted the SMA inside Embree.
+TEST(PathSpecTest, CoordinatesBeyondAnySceneAreRefused) {
+  for (const char* keys : {R"([{"t": 0, "eye": [1e19, 0, 0], "target": [0, 0, 0]}])",
+                           R"([{"t": 0, "eye": [3e38, 0, 0], "target": [-3e38, 0, 0]}])"}) {
+    auto path = LoadCameraPathSpec(WriteFile("far.json", std::string(R"({"keyframes": )") + keys + "}"));
+    ASSERT_FALSE(path.ok()) << keys;
+    EXPECT_NE(path.error().message.find("within"), std::string::npos) << path.error().message;
+  }
+}
+
 TEST(PathSpecTest, LoadsANamedPathOfASceneFile) {
   const std::string scene = std::string(R"({"mesh": "x.obj", "paths": {"dolly": )") + kTwoKeyframes + "}}";
   const std::string file = WriteFile("scene.json", scene);

@@ -1,5 +1,6 @@
 #include "penumbra/common/camera.h"
 
+#include <cmath>
 #include <fstream>
 #include <sstream>
 
@@ -12,6 +13,15 @@ Status ValidateCameraView(const CameraView& v) {
   const auto& p = v.pose;
   if (!IsFinite(p.eye) || !IsFinite(p.target) || !IsFinite(p.up))
     return Fail("camera eye, target and up must be finite");
+  // Embree's ray origins must stay well inside float range (it asserts on
+  // larger ones), and eye - target must not overflow to infinity.
+  for (const Vec3* point : {&p.eye, &p.target})
+    for (int axis = 0; axis < 3; ++axis)
+      if (!(std::abs((*point)[axis]) <= kMaxCameraCoordinate))
+        return Fail(fmt::format("camera eye and target coordinates must lie within +-{:g}", kMaxCameraCoordinate));
+  for (int axis = 0; axis < 3; ++axis)
+    if (!(std::abs(p.up[axis]) <= kMaxCameraCoordinate))
+      return Fail(fmt::format("camera up coordinates must lie within +-{:g}", kMaxCameraCoordinate));
   const Vec3 forward = p.target - p.eye;
   if (glm::length(forward) <= 0.0f) return Fail("camera eye and target coincide");
   if (glm::length(p.up) <= 0.0f) return Fail("camera up is the zero vector");

@@ -32,7 +32,13 @@ struct CameraView {
   int height = 480;
 };
 
-/// Checks that a view is usable: finite, eye != target, up not parallel to the
+/// The largest |coordinate| a camera's eye, target or up may have: far
+/// beyond any scene (metres), far below where Embree's ray arithmetic or
+/// eye - target overflow.
+inline constexpr float kMaxCameraCoordinate = 1.0e9f;
+
+/// Checks that a view is usable: finite, every coordinate within
+/// +-kMaxCameraCoordinate, eye != target, up not parallel to the
 /// view direction, 1 <= fov <= 179 degrees, 1 <= width,height <= 16384.
 Status ValidateCameraView(const CameraView& view);
 
