@@ -6,7 +6,9 @@
 #include <filesystem>
 #include <signal.h>
 
+#include <atomic>
 #include <functional>
+#include <memory>
 #include <set>
 #include <thread>
 
@@ -18,6 +20,7 @@
 #include "support/brute_visibility.h"
 #include "support/service.h"
 #include "support/sma_client.h"
+#include "support/wire_client.h"
 
 namespace penumbra::testing {
 namespace {
@@ -36,7 +39,7 @@ Service MustStart(const std::string& exe, const std::vector<std::string>& args, 
 
 Service StartRenderer(const std::string& tag, int pathsPerSample = 16, const std::vector<std::string>& extra = {}) {
   std::vector<std::string> args = {"--scene", kScene, "--threads", "1", "--spp", std::to_string(pathsPerSample),
-                                   "--max-depth", "3"};
+                                   "--max-bounces", "2"};
   args.insert(args.end(), extra.begin(), extra.end());
   return MustStart(PENUMBRA_RENDERER_EXE, args, tag);
 }
@@ -250,6 +253,21 @@ TEST_F(SmaProtocolTest, MalformedInputClosesOnlyThatClient) {
     ASSERT_TRUE(c.SendView(v, 1));
     expectClosedWith(c.Wire(), wire::ERROR_CODE_INVALID_REQUEST);
   }
+  {  // finite, but beyond Embree's range: once an assertion that aborted the SMA
+    SmaTestClient c = Client("far");
+    CameraView v = Preset(c, "front");
+    v.pose.eye = Vec3(1e19f, 0.0f, 0.0f);
+    ASSERT_TRUE(c.SendView(v, 1));
+    expectClosedWith(c.Wire(), wire::ERROR_CODE_INVALID_REQUEST);
+  }
+  {  // finite eye and target whose difference overflows to infinity
+    SmaTestClient c = Client("overflow");
+    CameraView v = Preset(c, "front");
+    v.pose.eye = Vec3(3e38f, 0.0f, 0.0f);
+    v.pose.target = Vec3(-3e38f, 0.0f, 0.0f);
+    ASSERT_TRUE(c.SendView(v, 1));
+    expectClosedWith(c.Wire(), wire::ERROR_CODE_INVALID_REQUEST);
+  }
   {  // absurd viewport
     SmaTestClient c = Client("huge");
     CameraView v = Preset(c, "front");
@@ -374,6 +392,146 @@ TEST(SmaRendererFailureTest, ARendererThatStopsAnsweringIsDroppedAndItsWorkMoved
   auto failures = c->Counter("renderer." + r2.Address() + ".failures");
   ASSERT_TRUE(failures.ok());
   EXPECT_GE(*failures, 1.0);
+}
+
+// A hostile renderer, played by the test: it handshakes, takes the first
+// ShadeRequest and answers it with `answer(request)`, then keeps the
+// connection open and answers nothing more.
+class FakeRenderer {
+ public:
+  using Answer = std::function<wire::ShadeReply(const wire::ShadeRequest&)>;
+  FakeRenderer(uint64_t sceneHash, Answer answer) {
+    auto listener = WireListener::Listen();
+    EXPECT_TRUE(listener.ok());
+    listener_ = std::make_unique<WireListener>(std::move(*listener));
+    thread_ = std::thread([this, sceneHash, answer = std::move(answer)] {
+      auto sma = listener_->Accept(20s);
+      if (!sma) return;
+      auto hello = sma->Receive();
+      if (!hello || !hello->has_hello()) return;
+      wire::Envelope welcome;
+      auto* w = welcome.mutable_welcome();
+      w->set_protocol_version(kProtocolVersion);
+      w->set_role(wire::ROLE_RENDERER);
+      w->set_server_name("hostile-renderer");
+      w->set_scene_hash(sceneHash);
+      w->set_max_frame_bytes(16u << 20);
+      w->set_max_batch_samples(64);
+      w->set_worker_threads(1);
+      w->set_max_batches_in_flight(1);
+      if (!sma->Send(welcome)) return;
+      while (!stop_) {
+        auto e = sma->Receive(200ms);
+        if (!e) {
+          if (e.error().message == "timeout") continue;
+          return;
+        }
+        if (!e->has_shade_request() || answered_) continue;
+        wire::Envelope reply;
+        *reply.mutable_shade_reply() = answer(e->shade_request());
+        answered_ = sma->Send(reply);
+      }
+    });
+  }
+  ~FakeRenderer() {
+    stop_ = true;
+    thread_.join();
+  }
+  std::string Address() const { return "127.0.0.1:" + std::to_string(listener_->Port()); }
+  bool Answered() const { return answered_; }
+
+ private:
+  std::unique_ptr<WireListener> listener_;
+  std::atomic<bool> stop_{false};
+  std::atomic<bool> answered_{false};
+  std::thread thread_;
+};
+
+// A reply part with one sample per id of the request, all with `radiance`.
+wire::ShadeReply ReplyWith(const wire::ShadeRequest& request, int count, float radiance) {
+  wire::ShadeReply reply;
+  reply.set_batch_id(request.batch_id());
+  for (int i = 0; i < count && i < request.sample_ids_size(); ++i) {
+    reply.add_sample_ids(request.sample_ids(i));
+    for (int c = 0; c < 3; ++c) {
+      reply.add_radiance(radiance);
+      reply.add_irradiance(radiance);
+    }
+    reply.add_irradiance_stderr(0.0f);
+  }
+  reply.set_remaining(uint32_t(request.sample_ids_size() - reply.sample_ids_size()));
+  return reply;
+}
+
+// Ends with every sample the SMA asked for stored once, nothing in flight.
+void ExpectNothingLost(SmaTestClient& c) {
+  auto requested = c.Counter("samples_requested");
+  auto shaded = c.Counter("cache_shaded");
+  auto inFlight = c.Counter("samples_in_flight");
+  ASSERT_TRUE(requested.ok() && shaded.ok() && inFlight.ok());
+  EXPECT_EQ(*requested, *shaded);
+  EXPECT_EQ(*inFlight, 0.0);
+}
+
+// A reply part whose first sample is good and second is not once lost the
+// first for ever: it was marked answered before the link was dropped, so it
+// was neither stored nor requeued, and the view never converged.
+TEST(SmaHostileRendererTest, AGoodSampleBeforeABadOneInOneReplyIsNotLost) {
+  auto scene = LoadScene(kScene);
+  ASSERT_TRUE(scene.ok());
+  FakeRenderer hostile(scene->identity, [](const wire::ShadeRequest& request) {
+    wire::ShadeReply reply = ReplyWith(request, 2, 0.1f);
+    reply.set_sample_ids(1, uint64_t(1) << 40);  // a sample it was not asked for
+    return reply;
+  });
+  Service honest = StartRenderer("honest");
+  Service sma = StartSma({hostile.Address(), honest.Address()}, "hostile-sma");
+  auto c = SmaTestClient::Connect(sma.port);
+  ASSERT_TRUE(c.ok()) << c.error().message;
+  ASSERT_TRUE(WaitForCounter(*c, "renderers_connected", [](double n) { return n == 2.0; }, 10s));
+  const CameraView view = FrontView(*c, kWidth, kHeight);
+  ASSERT_TRUE(c->SendView(view, 1));
+  ASSERT_TRUE(c->WaitConverged(1, 120s).ok()) << sma.process.LogTail();
+  EXPECT_TRUE(hostile.Answered());
+  ExpectHeldIsVisibleSet(*scene, view, c->Mesh());
+  ExpectNothingLost(*c);
+  auto bad = c->Counter("renderer." + hostile.Address() + ".bad_replies");
+  ASSERT_TRUE(bad.ok());
+  EXPECT_EQ(*bad, 1.0);
+}
+
+// Finite but impossible radiance (3e38, -1e30) was stored and served to every
+// client: one bad renderer of two turned the image black. It is refused,
+// counted, and its renderer quarantined; the honest one shades the view.
+TEST(SmaHostileRendererTest, ImpossibleRadianceIsRejectedAndItsRendererQuarantined) {
+  auto scene = LoadScene(kScene);
+  ASSERT_TRUE(scene.ok());
+  const float brightest = scene->MaxEmittedRadiance();
+  for (float poison : {3e38f, -1e30f, 1e6f * brightest}) {
+    SCOPED_TRACE(poison);
+    FakeRenderer hostile(scene->identity,
+                         [poison](const wire::ShadeRequest& request) { return ReplyWith(request, 64, poison); });
+    Service honest = StartRenderer("honest");
+    Service sma = StartSma({hostile.Address(), honest.Address()}, "poisoned-sma");
+    auto c = SmaTestClient::Connect(sma.port);
+    ASSERT_TRUE(c.ok()) << c.error().message;
+    ASSERT_TRUE(WaitForCounter(*c, "renderers_connected", [](double n) { return n == 2.0; }, 10s));
+    const CameraView view = FrontView(*c, kWidth, kHeight);
+    ASSERT_TRUE(c->SendView(view, 1));
+    ASSERT_TRUE(c->WaitConverged(1, 120s).ok()) << sma.process.LogTail();
+    EXPECT_TRUE(hostile.Answered());
+    for (const auto& [id, v] : c->Mesh().Vertices())
+      for (int ch = 0; ch < 3; ++ch) {
+        ASSERT_GE(v.radiance[ch], 0.0f) << "vertex " << id;
+        ASSERT_LE(v.radiance[ch], 100.0f * brightest) << "vertex " << id;
+      }
+    ExpectNothingLost(*c);
+    auto rejected = c->Counter("samples_rejected");
+    auto connected = c->Counter("renderer." + hostile.Address() + ".connected");
+    ASSERT_TRUE(rejected.ok() && connected.ok());
+    EXPECT_GE(*rejected, 1.0);
+    EXPECT_EQ(*connected, 0.0) << "quarantined, not reconnected at once";
+  }
 }
 
 // --- Refinement (founding paper §4) -------------------------------------------

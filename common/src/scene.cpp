@@ -137,6 +137,16 @@ uint64_t ComputeIdentity(const Scene& s) {
 
 }  // namespace
 
+float Scene::MaxEmittedRadiance() const {
+  const auto maxChannel = [](const Rgb& c) { return std::max({c.r, c.g, c.b}); };
+  float brightest = 0.0f;
+  for (const Material& m : materials) brightest = std::max(brightest, maxChannel(m.emission));
+  if (sun) brightest = std::max(brightest, maxChannel(sun->radiance));
+  if (sky)
+    brightest = std::max({brightest, maxChannel(sky->zenith), maxChannel(sky->horizon), maxChannel(sky->ground)});
+  return brightest;
+}
+
 Status Scene::Finalize() {
   const std::string where = sourcePath.empty() ? name : sourcePath.string();
   if (triangles.empty()) return Fail(fmt::format("{}: the scene has no triangles", where));
@@ -164,6 +174,8 @@ Status Scene::Finalize() {
       return Fail(fmt::format("{}: material '{}' refers to texture {} of {}", where, m.name,
                               m.albedoTexture, textures.size()));
   }
+  if (textures.size() > kMaxSceneTextures)
+    return Fail(fmt::format("{}: {} textures; at most {} are supported", where, textures.size(), kMaxSceneTextures));
   for (const Texture& t : textures)
     if (t.width <= 0 || t.height <= 0 || t.texels.size() != size_t(t.width) * size_t(t.height))
       return Fail(fmt::format("{}: texture '{}' has inconsistent size", where, t.path));

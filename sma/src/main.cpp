@@ -28,6 +28,7 @@ int main(int argc, char** argv) {
   int statsSeconds = 10;
   int resolveSeconds = int(options.pool.resolveInterval.count() / 1000);
   int batchTimeoutSeconds = int(options.pool.batchTimeout.count() / 1000);
+  int quarantineSeconds = int(options.pool.quarantine.count() / 1000);
 
   app.add_option("--scene", scenePath, "Scene description (.json) or mesh file; must match the renderers'")->required();
   app.add_option("--listen", listen, "Address for clients, HOST:PORT (port 0: any free port)")->capture_default_str();
@@ -42,6 +43,9 @@ int main(int argc, char** argv) {
   app.add_option("--max-batch", options.pool.maxBatchSamples, "Largest batch sent to a renderer")
       ->check(CLI::Range(1u, 1u << 20))->capture_default_str();
   app.add_option("--batch-timeout", batchTimeoutSeconds, "Seconds a batch may stay unanswered before its renderer is dropped")
+      ->check(CLI::Range(1, 86400))->capture_default_str();
+  app.add_option("--renderer-quarantine", quarantineSeconds,
+                 "Seconds a renderer that sent a malformed or impossible reply waits before it is reconnected")
       ->check(CLI::Range(1, 86400))->capture_default_str();
   app.add_option("--resolve-interval", resolveSeconds, "Seconds between re-resolving renderer names")
       ->check(CLI::Range(1, 86400))->capture_default_str();
@@ -130,6 +134,7 @@ int main(int argc, char** argv) {
   options.pool.connection.readTimeout = std::chrono::milliseconds(rendererTimeoutMs);
   options.pool.resolveInterval = std::chrono::seconds(resolveSeconds);
   options.pool.batchTimeout = std::chrono::seconds(batchTimeoutSeconds);
+  options.pool.quarantine = std::chrono::seconds(quarantineSeconds);
   options.statsInterval = std::chrono::seconds(statsSeconds);
 
   auto scene = LoadScene(scenePath);

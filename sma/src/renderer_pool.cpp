@@ -55,6 +55,7 @@ struct RendererPool::Link {
   Clock::time_point lastCompletion;
   uint64_t shaded = 0;
   uint32_t failures = 0;
+  uint32_t badReplies = 0;
 };
 
 std::shared_ptr<RendererPool> RendererPool::Create(asio::io_context& io, RendererPoolOptions options,
@@ -236,22 +237,26 @@ void RendererPool::RequeueLocked(Link& link) {
     for (auto it = batch.vertices.rbegin(); it != batch.vertices.rend(); ++it) {
       auto e = entries_.find(*it);
       if (e == entries_.end() || e->second.state != EntryState::kInFlight || e->second.batch != id) continue;
-      Entry& entry = e->second;
-      entry.state = EntryState::kQueued;
-      ++requeued_;
-      --inFlight_;
-      ++queuedTotal_;
-      if (entry.interest > 0) {
-        entry.inVisibleQueue = true;
-        ++queuedVisible_;
-        visibleQueue_.push_front(*it);
-      } else {
-        backgroundQueue_.push_front(*it);
-      }
+      RequeueEntryLocked(*it, e->second);
     }
   }
   link.batches.clear();
   link.samplesInFlight = 0;
+}
+
+void RendererPool::RequeueEntryLocked(VertexId v, Entry& entry) {
+  // Back to the front of its queue: it has waited longest.
+  entry.state = EntryState::kQueued;
+  ++requeued_;
+  --inFlight_;
+  ++queuedTotal_;
+  if (entry.interest > 0) {
+    entry.inVisibleQueue = true;
+    ++queuedVisible_;
+    visibleQueue_.push_front(v);
+  } else {
+    backgroundQueue_.push_front(v);
+  }
 }
 
 void RendererPool::CheckTimeouts() {
@@ -296,7 +301,6 @@ void RendererPool::OnMessage(const std::shared_ptr<Link>& link, wire::Envelope&&
       link->peerName = w.server_name();
       link->credits = std::max(1u, std::min(options_.creditsPerRenderer, w.max_batches_in_flight()));
       link->maxBatch = std::max(1u, std::min(options_.maxBatchSamples, w.max_batch_samples()));
-      link->backoff = options_.reconnectMin;
       link->lastCompletion = Clock::now();
       log->info("renderer {} ('{}', {} threads) ready", link->label, link->peerName, w.worker_threads());
       DispatchLocked();
@@ -326,22 +330,13 @@ void RendererPool::OnMessage(const std::shared_ptr<Link>& link, wire::Envelope&&
           auto e = entries_.find(v);
           if (e == entries_.end() || e->second.state != EntryState::kInFlight || e->second.batch != batch.id) continue;
           Entry& entry = e->second;
-          --inFlight_;
           if (invalid && ++entry.invalidReplies >= 3) {
             entry.state = EntryState::kAnswered;
+            --inFlight_;
             ++failed_;
             failedSamples.push_back(ShadedSample{v, Rgb(0.0f), Rgb(0.0f)});
-            continue;
-          }
-          entry.state = EntryState::kQueued;
-          ++queuedTotal_;
-          ++requeued_;
-          if (entry.interest > 0) {
-            entry.inVisibleQueue = true;
-            ++queuedVisible_;
-            visibleQueue_.push_front(v);
           } else {
-            backgroundQueue_.push_front(v);
+            RequeueEntryLocked(v, entry);
           }
         }
         DispatchLocked();
@@ -359,46 +354,45 @@ void RendererPool::OnReply(const std::shared_ptr<Link>& link, const wire::ShadeR
   {
     std::lock_guard lock(mutex_);
     auto it = link->batches.find(reply.batch_id());
-    if (it == link->batches.end()) {
-      ++link->failures;
-      return FailLinkLocked(*link, fmt::format("reply for unknown batch {}", reply.batch_id()));
-    }
+    if (it == link->batches.end())
+      return RejectReplyLocked(*link, fmt::format("reply for unknown batch {}", reply.batch_id()));
     Batch& batch = it->second;
     const int n = reply.sample_ids_size();
-    if (reply.radiance_size() != 3 * n || reply.irradiance_size() != 3 * n || reply.irradiance_stderr_size() != n) {
-      ++link->failures;
-      return FailLinkLocked(*link, fmt::format("reply for batch {} has inconsistent arrays", batch.id));
-    }
+    if (reply.radiance_size() != 3 * n || reply.irradiance_size() != 3 * n || reply.irradiance_stderr_size() != n)
+      return RejectReplyLocked(*link, fmt::format("reply for batch {} has inconsistent arrays", batch.id));
+    // The whole part is checked before any of it is taken: a bad sample after
+    // good ones drops the link, and every sample of the batch (the good ones
+    // too) must then still be in flight so that it is requeued, not lost.
     results.reserve(size_t(n));
+    std::set<uint64_t> seen;
     for (int i = 0; i < n; ++i) {
       const uint64_t id = reply.sample_ids(i);
       auto e = id < kNoVertex ? entries_.find(VertexId(id)) : entries_.end();
-      const Rgb radiance(reply.radiance(3 * i), reply.radiance(3 * i + 1), reply.radiance(3 * i + 2));
-      const Rgb irradiance(reply.irradiance(3 * i), reply.irradiance(3 * i + 1), reply.irradiance(3 * i + 2));
       if (e == entries_.end() || e->second.state != EntryState::kInFlight || e->second.batch != batch.id ||
-          !IsFinite(radiance) || !IsFinite(irradiance)) {
-        ++link->failures;
-        return FailLinkLocked(*link, fmt::format("reply for batch {} has a bad sample (id {})", batch.id, id));
+          !seen.insert(id).second)
+        return RejectReplyLocked(*link, fmt::format("reply for batch {} names sample {}, which it was not asked for",
+                                                    batch.id, id));
+      ShadedSample sample{VertexId(id),
+                          Rgb(reply.radiance(3 * i), reply.radiance(3 * i + 1), reply.radiance(3 * i + 2)),
+                          Rgb(reply.irradiance(3 * i), reply.irradiance(3 * i + 1), reply.irradiance(3 * i + 2)),
+                          reply.irradiance_stderr(i)};
+      if (auto ok = options_.radianceBounds.Check(sample); !ok) {
+        ++rejectedSamples_;
+        return RejectReplyLocked(*link, fmt::format("reply for batch {}: sample {}: {}", batch.id, id,
+                                                    ok.error().message));
       }
-      const float stdErr = reply.irradiance_stderr(i);
-      if (!(stdErr >= 0.0f) || !std::isfinite(stdErr)) {
-        ++link->failures;
-        return FailLinkLocked(*link, fmt::format("reply for batch {} has a bad standard error (id {})", batch.id, id));
-      }
-      e->second.state = EntryState::kAnswered;
-      results.push_back(ShadedSample{VertexId(id), radiance, irradiance, stdErr});
+      results.push_back(sample);
     }
+    if (reply.remaining() == 0 && batch.answered + size_t(n) != batch.vertices.size())
+      return RejectReplyLocked(*link, fmt::format("batch {} ended with {} of {} samples", batch.id,
+                                                  batch.answered + size_t(n), batch.vertices.size()));
+    for (const ShadedSample& sample : results) entries_[sample.vertex].state = EntryState::kAnswered;
     batch.answered += size_t(n);
     link->samplesInFlight -= size_t(n);
     link->shaded += size_t(n);
     inFlight_ -= size_t(n);
     shaded_ += size_t(n);
     if (reply.remaining() == 0) {
-      if (batch.answered != batch.vertices.size()) {
-        ++link->failures;
-        return FailLinkLocked(*link, fmt::format("batch {} ended with {} of {} samples", batch.id, batch.answered,
-                                                 batch.vertices.size()));
-      }
       // Service rate: pipelined batches overlap, so time a batch from the
       // later of its sending and the previous completion.
       const auto now = Clock::now();
@@ -408,11 +402,25 @@ void RendererPool::OnReply(const std::shared_ptr<Link>& link, const wire::ShadeR
         link->rate = link->rate > 0.0 ? 0.7 * link->rate + 0.3 * rate : rate;
       }
       link->lastCompletion = now;
+      // Only a whole batch answered well earns a quick reconnection next time.
+      link->backoff = options_.reconnectMin;
       link->batches.erase(it);
     }
     DispatchLocked();
   }
   if (!results.empty()) onResults_(std::move(results));
+}
+
+void RendererPool::RejectReplyLocked(Link& link, const std::string& reason) {
+  ++link.failures;
+  ++link.badReplies;
+  // Quarantine: a renderer that answered nonsense is not retried at once,
+  // and its Welcome does not shorten the wait (only a good batch does).
+  link.backoff = std::max(link.backoff, options_.quarantine);
+  Logger("sma.renderers")
+      ->warn("renderer {}: bad reply ({}); quarantined for at least {} ms", link.label, reason,
+             link.backoff.count());
+  FailLinkLocked(link, reason);
 }
 
 // --- Requests and scheduling ------------------------------------------------
@@ -566,6 +574,7 @@ RendererPoolStats RendererPool::Stats() const {
   s.shaded = shaded_;
   s.requeued = requeued_;
   s.failed = failed_;
+  s.rejected = rejectedSamples_;
   for (const auto& link : links_) {
     RendererStatus r;
     r.endpoint = link->label;
@@ -576,6 +585,7 @@ RendererPoolStats RendererPool::Stats() const {
     r.samplesShaded = link->shaded;
     r.samplesPerSecond = link->rate;
     r.failures = link->failures;
+    r.badReplies = link->badReplies;
     s.renderers.push_back(std::move(r));
   }
   return s;

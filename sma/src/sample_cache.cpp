@@ -1,6 +1,33 @@
 #include "penumbra/sma/sample_cache.h"
 
+#include <fmt/format.h>
+
 namespace penumbra::sma {
+
+RadianceBounds RadianceBounds::ForScene(const Scene& scene) {
+  const float brightest = scene.MaxEmittedRadiance();
+  RadianceBounds bounds;
+  bounds.maxRadiance = kMonteCarloMargin * brightest;
+  bounds.maxIrradiance = kMonteCarloMargin * kPi * brightest;
+  return bounds;
+}
+
+Status RadianceBounds::Check(const ShadedSample& sample) const {
+  const auto inRange = [](const Rgb& c, float limit) {
+    for (int i = 0; i < 3; ++i)
+      if (!(c[i] >= 0.0f && c[i] <= limit)) return false;  // also false for NaN
+    return true;
+  };
+  if (!inRange(sample.radiance, maxRadiance))
+    return Fail(fmt::format("radiance ({:g}, {:g}, {:g}) is outside [0, {:g}]", sample.radiance.r, sample.radiance.g,
+                            sample.radiance.b, maxRadiance));
+  if (!inRange(sample.irradiance, maxIrradiance))
+    return Fail(fmt::format("irradiance ({:g}, {:g}, {:g}) is outside [0, {:g}]", sample.irradiance.r,
+                            sample.irradiance.g, sample.irradiance.b, maxIrradiance));
+  if (!(sample.irradianceStdErr >= 0.0f && sample.irradianceStdErr <= maxIrradiance))
+    return Fail(fmt::format("standard error {:g} is outside [0, {:g}]", sample.irradianceStdErr, maxIrradiance));
+  return Status::Ok();
+}
 
 void SampleCache::Reserve(size_t vertexCount) {
   if (vertexCount <= shaded_.size()) return;

@@ -69,6 +69,7 @@ class SmaServer::Impl {
     cache_.Reserve(hierarchy_.VertexCount());
     options_.pool.sceneHash = scene.identity;
     options_.pool.name = options_.name;
+    options_.pool.radianceBounds = RadianceBounds::ForScene(scene);
     pool_ = RendererPool::Create(io_, options_.pool,
                                  [this](std::vector<ShadedSample>&& samples) { OnResults(std::move(samples)); });
   }
@@ -881,6 +882,7 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
   AddCounter(reply, "samples_shaded", double(pool.shaded));
   AddCounter(reply, "samples_requeued", double(pool.requeued));
   AddCounter(reply, "samples_failed", double(pool.failed));
+  AddCounter(reply, "samples_rejected", double(pool.rejected));
   AddCounter(reply, "samples_queued_visible", double(pool.queuedVisible));
   AddCounter(reply, "samples_queued_background", double(pool.queuedBackground));
   AddCounter(reply, "samples_in_flight", double(pool.inFlight));
@@ -892,6 +894,7 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
     AddCounter(reply, "renderer." + r.endpoint + ".samples_shaded", double(r.samplesShaded));
     AddCounter(reply, "renderer." + r.endpoint + ".samples_per_second", r.samplesPerSecond);
     AddCounter(reply, "renderer." + r.endpoint + ".failures", double(r.failures));
+    AddCounter(reply, "renderer." + r.endpoint + ".bad_replies", double(r.badReplies));
   }
   AddCounter(reply, "renderers", double(pool.renderers.size()));
   AddCounter(reply, "renderers_connected", double(connected));

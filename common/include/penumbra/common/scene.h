@@ -110,6 +110,10 @@ struct Scene {
   /// Diffuse albedo at a point of a triangle: Kd times the texture at its UV.
   Rgb AlbedoAt(uint32_t triangle, float b1, float b2) const;
   const Material& MaterialOf(uint32_t triangle) const { return materials[triangles[triangle].material]; }
+  /// The largest radiance (over colour channels) that any light of the scene
+  /// emits: emissive materials, the sun's disc, the sky. No surface of albedo
+  /// <= 1 can reflect more than this.
+  float MaxEmittedRadiance() const;
   const CameraPreset* FindCamera(std::string_view name) const;
   const CameraPath* FindPath(std::string_view name) const;
 
@@ -118,6 +122,10 @@ struct Scene {
   /// not finite, or an index out of range.
   Status Finalize();
 };
+
+/// The most textures a scene may have: every tier, and every client that a
+/// SceneInfo announces them to, may allocate per texture.
+inline constexpr uint32_t kMaxSceneTextures = 1u << 16;
 
 /// Default angle between face normals above which a vertex is split.
 inline constexpr float kDefaultCreaseAngleDeg = 40.0f;

@@ -71,6 +71,11 @@ struct RendererPoolOptions {
   std::chrono::milliseconds batchTimeout{60000};  // a batch unanswered this long drops its renderer
   std::chrono::milliseconds reconnectMin{100};
   std::chrono::milliseconds reconnectMax{5000};
+  /// A renderer that sent a bad reply (malformed, or radiance outside
+  /// `radianceBounds`) waits at least this long before it is reconnected.
+  std::chrono::milliseconds quarantine{30000};
+  /// What a sample's radiance may physically be in this scene.
+  RadianceBounds radianceBounds;
   std::chrono::milliseconds resolveInterval{10000};
   std::chrono::milliseconds connectTimeout{3000};
   net::ConnectionOptions connection;
@@ -84,7 +89,8 @@ struct RendererStatus {
   uint64_t samplesInFlight = 0;
   uint64_t samplesShaded = 0;
   double samplesPerSecond = 0.0;  // measured rate (moving average)
-  uint32_t failures = 0;          // disconnects and timeouts so far
+  uint32_t failures = 0;          // disconnects, timeouts and bad replies so far
+  uint32_t badReplies = 0;        // replies rejected (malformed or impossible radiance)
 };
 
 struct RendererPoolStats {
@@ -95,6 +101,7 @@ struct RendererPoolStats {
   uint64_t shaded = 0;       // samples answered since start
   uint64_t requeued = 0;     // samples sent again after a renderer failed
   uint64_t failed = 0;       // samples a renderer refused as invalid (stored black)
+  uint64_t rejected = 0;     // samples whose radiance was impossible (their renderer was quarantined)
   std::vector<RendererStatus> renderers;
 };
 
@@ -142,8 +149,11 @@ class RendererPool : public std::enable_shared_from_this<RendererPool> {
   void CheckTimeouts();
   void FailLinkLocked(Link& link, const std::string& reason);
   void RequeueLocked(Link& link);
+  void RejectReplyLocked(Link& link, const std::string& reason);
   void DispatchLocked();
   bool TakeNextLocked(VertexId& out);
+  struct Entry;
+  void RequeueEntryLocked(VertexId v, Entry& entry);
 
   enum class EntryState : uint8_t { kQueued, kInFlight, kAnswered };
   struct Entry {
@@ -177,6 +187,7 @@ class RendererPool : public std::enable_shared_from_this<RendererPool> {
   uint64_t shaded_ = 0;
   uint64_t requeued_ = 0;
   uint64_t failed_ = 0;
+  uint64_t rejectedSamples_ = 0;
 };
 
 }  // namespace penumbra::sma

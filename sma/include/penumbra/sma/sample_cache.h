@@ -9,9 +9,11 @@
 
 #include <atomic>
 #include <cstdint>
+#include <limits>
 #include <span>
 #include <vector>
 
+#include "penumbra/common/expected.h"
 #include "penumbra/common/math.h"
 #include "penumbra/sma/hierarchy.h"
 
@@ -22,6 +24,23 @@ struct ShadedSample {
   Rgb radiance{0.0f};
   Rgb irradiance{0.0f};
   float irradianceStdErr = 0.0f;  // standard error of Luminance(irradiance), from the renderer
+};
+
+/// What a renderer's sample can physically be in one scene, so that a bad or
+/// hostile renderer cannot poison the cache that every client is served from.
+/// Reflected radiance is non-negative and, for albedo <= 1, at most the
+/// brightest emitter's radiance L; irradiance at most pi L. One Monte Carlo
+/// estimate may overshoot the physical value (a path that lands close to a
+/// light), so the bounds are `kMonteCarloMargin` times wider: absurd values
+/// (1e30, 3e38) fail, noisy honest ones pass.
+struct RadianceBounds {
+  static constexpr float kMonteCarloMargin = 1.0e4f;
+  float maxRadiance = std::numeric_limits<float>::max();
+  float maxIrradiance = std::numeric_limits<float>::max();
+
+  static RadianceBounds ForScene(const Scene& scene);
+  /// OK, or what is wrong with the sample (non-finite, negative, too bright).
+  Status Check(const ShadedSample& sample) const;
 };
 
 class SampleCache {
