@@ -378,6 +378,39 @@ TEST_F(ClientTest, AMalformedDeltaIsReportedAndTheClientReconnectsWithAnEmptyMes
   EXPECT_TRUE(client.WaitExit(10s).has_value());
 }
 
+// A hostile SMA's SceneInfo once made the client allocate per announced
+// texture: 2^32-1 aborted it (bad_alloc), 5,000,000 took 13.9 GB. Every count
+// from the wire now bounds what it allocates: the client refuses the
+// SceneInfo with a clear error, stays small, and tries again.
+TEST_F(ClientTest, AHostileSceneInfoIsRefusedWithoutAllocatingWhatItAnnounces) {
+  SetDisplay("");
+  auto listener = WireListener::Listen();
+  ASSERT_TRUE(listener.ok()) << listener.error().message;
+  ChildProcess client = StartClient({"--connect", fmt::format("127.0.0.1:{}", listener->Port()), "--headless",
+                                     "--camera", "front", "--size", "64x48", "--seconds", "600"},
+                                    dir_ + "/client.log");
+  for (uint32_t textures : {0xFFFFFFFFu, 5000000u}) {
+    SCOPED_TRACE(textures);
+    auto sma = listener->Accept(30s);
+    ASSERT_TRUE(sma.ok()) << sma.error().message << client.LogTail();
+    wire::SceneInfo info = UnitSquareSceneInfo();
+    info.set_texture_count(textures);
+    ASSERT_TRUE(ServeClientHandshake(*sma, info).ok());
+    bool reported = false;
+    for (int i = 0; i < 10 && !reported; ++i) {
+      auto e = sma->Receive(5s);
+      if (!e) break;
+      reported = e->has_error() && e->error().message().find("textures") != std::string::npos;
+    }
+    EXPECT_TRUE(reported) << client.LogTail();
+    EXPECT_TRUE(sma->WaitClosed());
+    ASSERT_TRUE(client.Running()) << client.LogTail();
+    EXPECT_LT(ResidentMegabytes(client.Pid()), 1024.0);
+  }
+  client.Signal(SIGTERM);
+  EXPECT_TRUE(client.WaitExit(10s).has_value());
+}
+
 // Exit codes and their one-line explanations.
 TEST_F(ClientTest, FailuresEndWithOneClearLineAndAnExitCode) {
   auto run = [&](const std::vector<std::string>& args, const std::string& name) {

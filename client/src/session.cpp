@@ -9,6 +9,7 @@
 
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
+#include "penumbra/common/scene.h"
 
 namespace penumbra::client {
 
@@ -44,6 +45,11 @@ Status ValidateSceneInfo(const wire::SceneInfo& info) {
     if (!IsFiniteWire(c.eye()) || !IsFiniteWire(c.target()) || !IsFiniteWire(c.up()) || !std::isfinite(c.fov_y_deg()))
       return Fail(fmt::format("scene_info: camera {} ('{}') is not finite", i, c.name()));
   }
+  // Every count from the wire bounds what it allocates: the mesh store keeps
+  // a triangle group per texture.
+  if (info.texture_count() > kMaxSceneTextures)
+    return Fail(fmt::format("scene_info: {} textures; at most {} are supported", info.texture_count(),
+                            kMaxSceneTextures));
   for (int i = 0; i < info.materials_size(); ++i) {
     const auto& m = info.materials(i);
     if (m.texture() < -1 || m.texture() >= int64_t(info.texture_count()))

@@ -106,6 +106,14 @@ Expected<uint16_t> WaitForPortFile(ChildProcess& process, const std::string& por
   return Fail(fmt::format("no port in {} after {} ms; log:\n{}", portFile, timeout.count(), process.LogTail()));
 }
 
+double ResidentMegabytes(pid_t pid) {
+  std::ifstream status("/proc/" + std::to_string(pid) + "/status");
+  std::string line;
+  while (std::getline(status, line))
+    if (line.rfind("VmRSS:", 0) == 0) return std::stod(line.substr(6)) / 1024.0;  // "VmRSS:  1234 kB"
+  return -1.0;
+}
+
 std::string MakeTempDir(const std::string& prefix) {
   std::string pattern = (std::filesystem::temp_directory_path() / (prefix + "-XXXXXX")).string();
   if (::mkdtemp(pattern.data()) == nullptr) return std::filesystem::temp_directory_path().string();

@@ -49,6 +49,9 @@ class ChildProcess {
 Expected<uint16_t> WaitForPortFile(ChildProcess& process, const std::string& portFile,
                                    std::chrono::milliseconds timeout);
 
+/// Resident memory of process `pid` in MiB (VmRSS), or -1 when it cannot be read.
+double ResidentMegabytes(pid_t pid);
+
 /// A fresh directory under the system temp dir for one test's files.
 std::string MakeTempDir(const std::string& prefix);
 
