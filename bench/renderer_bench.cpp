@@ -37,7 +37,7 @@ struct Options {
   fs::path scene = fs::path(PENUMBRA_SOURCE_DIR) / "scenes" / "sponza.json";
   int samples = 4096;
   int spp = 32;
-  int maxDepth = 5;
+  int maxBounces = ShadingSettings{}.maxBounces;
   int rawRays = 1 << 19;
   int threads = int(std::max(1u, std::thread::hardware_concurrency()));
   int rounds = 5;
@@ -177,7 +177,7 @@ int Run(const Options& o) {
 
   ShadingSettings settings;
   settings.pathsPerSample = o.spp;
-  settings.maxDepth = o.maxDepth;
+  settings.maxBounces = o.maxBounces;
   const Shader shader(*scene, **rays, settings);
   const std::vector<ShadeInput> inputs = RandomVertexSamples(*scene, o.samples);
   const std::vector<Ray> rawRays = CosineRaysFrom(*scene, inputs, o.rawRays);
@@ -185,9 +185,9 @@ int Run(const Options& o) {
   std::printf("scene %s: %zu triangles, %zu emissive, sun %s, sky %s; loaded in %.2f s, BVH in %.2f s\n",
               o.scene.string().c_str(), scene->triangles.size(), scene->emissiveTriangles.size(),
               scene->sun ? "yes" : "no", scene->sky ? "yes" : "no", loadSeconds, buildSeconds);
-  std::printf("%d samples at random vertices, %d paths each, max depth %d, Russian roulette from %d; "
+  std::printf("%d samples at random vertices, %d paths each, at most %d bounces, Russian roulette from %d; "
               "%d raw rays; %d rounds\n",
-              o.samples, o.spp, o.maxDepth, settings.russianRouletteDepth, o.rawRays, o.rounds);
+              o.samples, o.spp, o.maxBounces, settings.russianRouletteDepth, o.rawRays, o.rounds);
   ShadeCounters work;
   const Rates one = Measure(**rays, shader, inputs, rawRays, 1, o.rounds, work);
   Report("single thread", 1, one, work);
@@ -207,12 +207,12 @@ int main(int argc, char** argv) {
   penumbra::Options o;
   CLI::App app{"Renderer shading throughput against raw Embree rates measured in the same run"};
   app.add_option("--scene", o.scene, "scene file (.json or a mesh)");
-  app.add_option("--samples", o.samples, "vertex samples to shade")->check(CLI::PositiveNumber);
-  app.add_option("--spp", o.spp, "paths per sample")->check(CLI::PositiveNumber);
-  app.add_option("--max-depth", o.maxDepth, "path segments")->check(CLI::PositiveNumber);
-  app.add_option("--raw-rays", o.rawRays, "rays per raw Embree measurement")->check(CLI::PositiveNumber);
-  app.add_option("--threads", o.threads, "threads for the parallel run")->check(CLI::PositiveNumber);
-  app.add_option("--rounds", o.rounds, "measurement rounds; medians are reported")->check(CLI::PositiveNumber);
+  app.add_option("--samples", o.samples, "vertex samples to shade")->check(CLI::NonNegativeNumber);
+  app.add_option("--spp", o.spp, "paths per sample")->check(CLI::NonNegativeNumber);
+  app.add_option("--max-bounces", o.maxBounces, "bounces after the sample (0: direct light)")->check(CLI::NonNegativeNumber);
+  app.add_option("--raw-rays", o.rawRays, "rays per raw Embree measurement")->check(CLI::NonNegativeNumber);
+  app.add_option("--threads", o.threads, "threads for the parallel run")->check(CLI::NonNegativeNumber);
+  app.add_option("--rounds", o.rounds, "measurement rounds; medians are reported")->check(CLI::NonNegativeNumber);
   CLI11_PARSE(app, argc, argv);
   return penumbra::Run(o);
 }

@@ -69,7 +69,7 @@ struct Options {
   fs::path scene;
   std::string camera;
   int spp = 0;
-  int maxDepth = 5;
+  int maxBounces = 64;  // the renderer's default
   int width = 1280;
   int height = 720;
   int rounds = 3;
@@ -167,8 +167,8 @@ Expected<Round> RunRound(const Options& o, const CameraView& view, int renderers
   std::vector<uint16_t> ports;
   for (int i = 0; i < renderers; ++i) {
     auto r = StartService(PENUMBRA_RENDERER_EXE,
-                          {"--scene", scene, "--threads", "1", "--spp", std::to_string(o.spp), "--max-depth",
-                           std::to_string(o.maxDepth), "--log-level", "warn"},
+                          {"--scene", scene, "--threads", "1", "--spp", std::to_string(o.spp), "--max-bounces",
+                           std::to_string(o.maxBounces), "--log-level", "warn"},
                           "scaling-renderer", std::chrono::seconds(120));
     if (!r) return r.error();
     smaArgs.insert(smaArgs.end(), {"--renderer", r->Address()});
@@ -263,9 +263,9 @@ int Run(Options o) {
     }
   }
 
-  std::printf("Scaling benchmark: %s, camera '%s', %dx%d, %d paths/sample, max depth %d, %d round(s), "
+  std::printf("Scaling benchmark: %s, camera '%s', %dx%d, %d paths/sample, at most %d bounces, %d round(s), "
               "%u hardware threads; load average %s before, %s after\n",
-              o.scene.filename().string().c_str(), o.camera.c_str(), o.width, o.height, o.spp, o.maxDepth, o.rounds,
+              o.scene.filename().string().c_str(), o.camera.c_str(), o.width, o.height, o.spp, o.maxBounces, o.rounds,
               std::thread::hardware_concurrency(), loadBefore.c_str(), LoadAverage().c_str());
   auto median = [&](int k, auto field) {
     std::vector<double> v;
@@ -313,7 +313,7 @@ int main(int argc, char** argv) {
   app.add_option("--scene", o.scene, "Scene file (default: scenes/sponza.json, else scenes/cornell-box.json)");
   app.add_option("--camera", o.camera, "Camera preset of the view (default: atrium, or front on the Cornell box)");
   app.add_option("--spp", o.spp, "Paths per sample (default: 256 on Sponza, 200000 on the Cornell box)");
-  app.add_option("--max-depth", o.maxDepth, "Path segments")->capture_default_str();
+  app.add_option("--max-bounces", o.maxBounces, "Bounces after the sample (0: direct light)")->capture_default_str();
   app.add_option("--width", o.width, "Viewport width")->capture_default_str();
   app.add_option("--height", o.height, "Viewport height")->capture_default_str();
   app.add_option("--rounds", o.rounds, "Rounds of each renderer count")->check(CLI::Range(1, 100))->capture_default_str();

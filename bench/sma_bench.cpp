@@ -48,7 +48,7 @@ struct Options {
   std::string camera = "atrium";
   std::string path = "walk";
   int spp = 64;
-  int maxDepth = 5;
+  int maxBounces = 64;  // the renderer's default
   int width = 1280;
   int height = 720;
   int threads = int(std::max(1u, std::thread::hardware_concurrency()));
@@ -141,7 +141,7 @@ int Run(const Options& o) {
   }
   auto renderer = StartService(PENUMBRA_RENDERER_EXE,
                                {"--scene", o.scene.string(), "--threads", std::to_string(o.threads), "--spp",
-                                std::to_string(o.spp), "--max-depth", std::to_string(o.maxDepth), "--log-level", "warn"},
+                                std::to_string(o.spp), "--max-bounces", std::to_string(o.maxBounces), "--log-level", "warn"},
                                "bench-renderer", std::chrono::seconds(120));
   if (!renderer) return std::fprintf(stderr, "sma_bench: %s\n", renderer.error().message.c_str()), 1;
   auto sma = StartService(PENUMBRA_SMA_EXE,
@@ -240,8 +240,8 @@ int Run(const Options& o) {
   }
 
   const double rttP50 = Percentile(rtt, 50);
-  std::printf("SMA benchmark: %s, camera '%s', %dx%d, %d paths/vertex, max depth %d, renderer threads %d\n",
-              scene->name.c_str(), o.camera.c_str(), o.width, o.height, o.spp, o.maxDepth, o.threads);
+  std::printf("SMA benchmark: %s, camera '%s', %dx%d, %d paths/vertex, at most %d bounces, renderer threads %d\n",
+              scene->name.c_str(), o.camera.c_str(), o.width, o.height, o.spp, o.maxBounces, o.threads);
   std::printf("baselines: stats round trip p50 %.2f ms; renderer alone %.0f samples/s\n", rttP50, *direct);
   std::printf("new view:    view->first delta %.1f ms (visibility: trace %.1f ms + map %.1f ms)\n",
               stage1->firstDeltaMs, traceMs, mapMs);
@@ -275,7 +275,7 @@ int main(int argc, char** argv) {
   app.add_option("--camera", o.camera, "Camera preset for the new/cached views")->capture_default_str();
   app.add_option("--path", o.path, "Camera path for the walk")->capture_default_str();
   app.add_option("--spp", o.spp, "Paths per vertex")->capture_default_str();
-  app.add_option("--max-depth", o.maxDepth, "Path segments")->capture_default_str();
+  app.add_option("--max-bounces", o.maxBounces, "Bounces after the sample (0: direct light)")->capture_default_str();
   app.add_option("--width", o.width, "Viewport width")->capture_default_str();
   app.add_option("--height", o.height, "Viewport height")->capture_default_str();
   app.add_option("--threads", o.threads, "Renderer threads")->capture_default_str();

@@ -109,7 +109,7 @@ class MultiHostTest : public ::testing::Test {
   ChildProcess StartRenderer(const std::string& host) {
     return Start(host, PENUMBRA_RENDERER_EXE,
                  {"--scene", kScene, "--listen", Endpoint(host), "--threads", "1", "--spp",
-                  std::to_string(kPathsPerSample), "--max-depth", "3", "--name", host});
+                  std::to_string(kPathsPerSample), "--max-bounces", "2", "--name", host});
   }
   ChildProcess StartSma() {
     return Start("sma", PENUMBRA_SMA_EXE,

@@ -28,7 +28,7 @@ const std::string kSceneFile = std::string(PENUMBRA_SOURCE_DIR) + "/scenes/corne
 using Renderer = Service;
 
 Renderer StartRenderer(const std::vector<std::string>& extraArgs, const std::string& tag) {
-  std::vector<std::string> args = {"--scene", kSceneFile, "--threads", "2", "--spp", "8", "--max-depth", "3"};
+  std::vector<std::string> args = {"--scene", kSceneFile, "--threads", "2", "--spp", "8", "--max-bounces", "2"};
   args.insert(args.end(), extraArgs.begin(), extraArgs.end());
   auto service = StartService(PENUMBRA_RENDERER_EXE, args, "renderer-" + tag);
   if (!service) ADD_FAILURE() << service.error().message;

@@ -43,7 +43,7 @@ def main(results_path, docs_path):
         "visibility samples too -- same shader): **rel. MAE** is the relative mean absolute error on linear radiance, **SSIM** "
         "is computed on Drago-mapped luma (`common/image_metrics.h`).",
         "",
-        f"Settings: {settings['paths_per_vertex']} paths per vertex sample, max depth 5, renderer on "
+        f"Settings: {settings['paths_per_vertex']} paths per vertex sample, the renderer's default path length, renderer on "
         f"{settings['threads']} threads of a {settings['cpus']}-core {settings['machine']} machine shared "
         "with the SMA and the client. The paper's criteria use its plain metric (noise z = 0), "
         "S_req = 0.04, R = 64, 6-pixel minimum, RND and NLD_IS with a budget of 25 % of the pixels.",

@@ -42,8 +42,10 @@ int main(int argc, char** argv) {
   app.add_option("--target-error", shading.targetRelativeError,
                  "Adaptive sampling: relative standard error of a sample's irradiance to stop at")
       ->check(CLI::Range(0.001f, 1.0f))->capture_default_str();
-  app.add_option("--max-depth", shading.maxDepth, "Path segments per path; 1 = direct light only")
-      ->check(CLI::Range(1, 1024))->capture_default_str();
+  app.add_option("--max-bounces", shading.maxBounces,
+                 "Most surfaces a path reflects from after the first (0: direct light only); Russian roulette ends "
+                 "paths long before the default cap, so the default is unbiased")
+      ->check(CLI::Range(0, 1024))->capture_default_str();
   app.add_option("--seed", shading.seed, "Seed mixed into every sample's random stream")->capture_default_str();
   app.add_option("--max-batch", options.limits.maxBatchSamples, "Largest batch accepted, in samples")
       ->check(CLI::Range(1u, 1u << 22))->capture_default_str();
@@ -99,13 +101,13 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "penumbra-renderer: %s\n", bound.error().message.c_str());
     return 1;
   }
-  log->info("scene '{}' (identity {:016x}), {} worker thread(s), {} paths/sample{}, max depth {}", scene->name,
+  log->info("scene '{}' (identity {:016x}), {} worker thread(s), {} paths/sample{}, at most {} bounces", scene->name,
             scene->identity, options.workerThreads, shading.pathsPerSample,
             shading.maxPathsPerSample > shading.pathsPerSample
                 ? fmt::format(" (adaptive up to {} at {:.3g} relative error)", shading.maxPathsPerSample,
                               shading.targetRelativeError)
                 : std::string(),
-            shading.maxDepth);
+            shading.maxBounces);
   if (!portFile.empty()) {
     if (auto written = WritePortFile(portFile, bound->port()); !written) {
       std::fprintf(stderr, "penumbra-renderer: %s\n", written.error().message.c_str());

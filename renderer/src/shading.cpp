@@ -154,7 +154,8 @@ Rgb Shader::Impl::TracePath(const PathVertex& start, Pcg32& rng, ShadeCounters& 
   PathVertex v = start;
   Rgb throughput(1.0f);
   Rgb irradiance(0.0f);
-  for (int depth = 0; depth < settings.maxDepth; ++depth) {
+  const int maxSegments = settings.MaxSegments();
+  for (int depth = 0; depth < maxSegments; ++depth) {
     if (!lights.empty()) irradiance += throughput * SampleAreaLight(v, rng, counters);
     if (scene.sun) irradiance += throughput * SampleSun(v, rng, counters);
 
@@ -177,7 +178,7 @@ Rgb Shader::Impl::TracePath(const PathVertex& start, Pcg32& rng, ShadeCounters& 
       const float weight = sampling::PowerHeuristic(sampling::CosineHemispherePdf(local.z), pdfLight);
       irradiance += throughput * kPi * weight * material.emission;
     }
-    if (depth + 1 == settings.maxDepth) break;
+    if (depth + 1 == maxSegments) break;
 
     // Only a textured albedo needs the hit's texture coordinates.
     const Rgb albedo =

@@ -32,22 +32,23 @@ constexpr Vec3 kUp(0.0f, 1.0f, 0.0f);
 
 ShadingSettings DirectOnly() {
   ShadingSettings s;
-  s.maxDepth = 1;
+  s.maxBounces = 0;
   return s;
 }
 
 // --- White furnace ------------------------------------------------------------
 
 struct FurnaceCase {
-  int maxDepth;
+  int maxBounces;  // < 0: the defaults of ShadingSettings, as the renderer ships
   int russianRouletteDepth;
 };
 
 class WhiteFurnaceTest : public ::testing::TestWithParam<FurnaceCase> {};
 
 // Inside a closed box whose walls all emit Le and reflect albedo rho, the
-// radiance everywhere is Le (1 + rho + ... + rho^D) for paths of D segments,
-// Le / (1 - rho) in the limit. The corner and edge samples would read low if
+// radiance everywhere is Le (1 + rho + ... + rho^D) for paths of D segments
+// (D - 1 bounces), Le / (1 - rho) in the limit -- which the default settings
+// must reach: a default that truncates paths makes every interior too dark. The corner and edge samples would read low if
 // rays leaked out of the box between its walls.
 TEST_P(WhiteFurnaceTest, EveryPointReadsTheGeometricSeries) {
   const Rgb emission(1.0f, 0.5f, 2.0f);
@@ -57,12 +58,15 @@ TEST_P(WhiteFurnaceTest, EveryPointReadsTheGeometricSeries) {
   const TestScene t = Finish(b);
 
   ShadingSettings settings;
-  settings.maxDepth = GetParam().maxDepth;
-  settings.russianRouletteDepth = GetParam().russianRouletteDepth;
+  Rgb exact = emission / (Rgb(1.0f) - albedo);
+  if (GetParam().maxBounces >= 0) {
+    settings.maxBounces = GetParam().maxBounces;
+    settings.russianRouletteDepth = GetParam().russianRouletteDepth;
+    Rgb series(0.0f), power(1.0f);
+    for (int k = 0; k <= settings.MaxSegments(); ++k, power *= albedo) series += power;
+    exact = emission * series;
+  }
   const Shader shader(t.scene, *t.rays, settings);
-  Rgb series(0.0f), power(1.0f);
-  for (int k = 0; k <= settings.maxDepth; ++k, power *= albedo) series += power;
-  const Rgb exact = emission * series;
 
   const struct {
     Vec3 position, normal;
@@ -78,11 +82,13 @@ TEST_P(WhiteFurnaceTest, EveryPointReadsTheGeometricSeries) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Depths, WhiteFurnaceTest,
-                         ::testing::Values(FurnaceCase{64, 3},     // converged, with Russian roulette
-                                           FurnaceCase{1, 64},     // direct light only
-                                           FurnaceCase{3, 64}),    // truncated, no roulette
+                         ::testing::Values(FurnaceCase{-1, 0},     // the shipped defaults: the limit
+                                           FurnaceCase{63, 3},     // converged, with Russian roulette
+                                           FurnaceCase{0, 64},     // direct light only
+                                           FurnaceCase{2, 64}),    // truncated, no roulette
                          [](const ::testing::TestParamInfo<FurnaceCase>& param) {
-                           return "MaxDepth" + std::to_string(param.param.maxDepth) + "Roulette" +
+                           if (param.param.maxBounces < 0) return std::string("Defaults");
+                           return "MaxBounces" + std::to_string(param.param.maxBounces) + "Roulette" +
                                   std::to_string(param.param.russianRouletteDepth);
                          });
 

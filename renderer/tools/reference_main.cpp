@@ -61,8 +61,10 @@ int main(int argc, char** argv) {
           std::map<std::string, PixelFilter>{{"box", PixelFilter::kBox}, {"centre", PixelFilter::kCentre},
                                              {"center", PixelFilter::kCentre}},
           CLI::ignore_case));
-  app.add_option("--max-depth", shading.maxDepth, "Path segments per path; 1 = direct light only")
-      ->check(CLI::Range(1, 1024))->capture_default_str();
+  app.add_option("--max-bounces", shading.maxBounces,
+                 "Most surfaces a path reflects from after the first (0: direct light only); Russian roulette ends "
+                 "paths long before the default cap, so the default is unbiased")
+      ->check(CLI::Range(0, 1024))->capture_default_str();
   app.add_option("--seed", shading.seed, "Seed mixed into every pixel's random stream")->capture_default_str();
   app.add_option("--threads", threads, "Worker threads (0: one per hardware thread)")
       ->check(CLI::Range(0, 1024))->capture_default_str();
