@@ -6,12 +6,22 @@
 //       Drago 2003 (common/tonemap.h) with the luminance statistics of
 //       REFERENCE (default: of IN itself), so that every image of one view
 //       is mapped identically, then sRGB.
+//   penumbra-image-tool check-cornell-box IMAGE.png
+//       Whether IMAGE (the client's tone-mapped PNG of the Cornell box's
+//       "front" preset) is a sane picture of it: lit, few black pixels, the
+//       red wall on the left and the green wall on the right. One JSON line
+//       with the figures; exit 1 when a check fails (scripts/run.sh
+//       --headless-check).
 //
 // Exit codes: 0 ok, 1 bad input (one line on stderr), 2 bad usage.
 
 #include <cmath>
 #include <cstdio>
+#include <algorithm>
 #include <string>
+#include <vector>
+
+#include <fmt/format.h>
 
 #include <CLI/CLI.hpp>
 
@@ -80,6 +90,56 @@ int ToneMap(const std::string& in, const std::string& out, const std::string& li
   return 0;
 }
 
+// Mean colour of the pixels in the column range [x0, x1) and row range [y0, y1),
+// as fractions of the image size.
+Rgb MeanOf(const RgbImage& image, float x0, float x1, float y0, float y1) {
+  Rgb sum(0.0f);
+  int n = 0;
+  for (int y = int(y0 * image.height); y < int(y1 * image.height); ++y)
+    for (int x = int(x0 * image.width); x < int(x1 * image.width); ++x, ++n)
+      sum += image.pixels[size_t(y) * size_t(image.width) + size_t(x)];
+  return n > 0 ? sum / float(n) : Rgb(0.0f);
+}
+
+int CheckCornellBox(const std::string& path) {
+  auto image = Load(path);
+  if (!image) {
+    std::fprintf(stderr, "penumbra-image-tool: %s\n", image.error().message.c_str());
+    return 1;
+  }
+  if (image->width < 16 || image->height < 16) {
+    std::fprintf(stderr, "penumbra-image-tool: %s: %dx%d is too small to judge\n", path.c_str(), image->width,
+                 image->height);
+    return 1;
+  }
+  size_t black = 0;
+  Rgb mean(0.0f);
+  for (const Rgb& p : image->pixels) {
+    black += std::max({p.r, p.g, p.b}) <= 1.0f / 255.0f;
+    mean += p;
+  }
+  mean /= float(image->pixels.size());
+  const float blackFraction = float(black) / float(image->pixels.size());
+  // The side walls, at mid height: in the front preset the box spans about
+  // 14 % to 86 % of the width, the side walls its outer sixths.
+  const Rgb left = MeanOf(*image, 0.17f, 0.25f, 0.35f, 0.65f);
+  const Rgb right = MeanOf(*image, 0.75f, 0.83f, 0.35f, 0.65f);
+  const Rgb centre = MeanOf(*image, 0.4f, 0.6f, 0.4f, 0.6f);
+  std::vector<std::string> problems;
+  if (blackFraction > 0.05f) problems.push_back(fmt::format("{:.1f} % of the pixels are black", 100 * blackFraction));
+  if (!(Luminance(mean) >= 0.05f && Luminance(centre) >= 0.05f))
+    problems.push_back(fmt::format("the image is dark (mean luminance {:.3f}, centre {:.3f})", Luminance(mean),
+                                   Luminance(centre)));
+  if (!(left.r > 1.25f * left.g && left.r > 1.25f * left.b)) problems.push_back("the left wall is not red");
+  if (!(right.g > 1.25f * right.r && right.g > 1.25f * right.b)) problems.push_back("the right wall is not green");
+  std::printf("{\"black_fraction\": %.4f, \"mean\": [%.4f, %.4f, %.4f], \"left_wall\": [%.4f, %.4f, %.4f], "
+              "\"right_wall\": [%.4f, %.4f, %.4f], \"sane\": %s}\n",
+              blackFraction, mean.r, mean.g, mean.b, left.r, left.g, left.b, right.r, right.g, right.b,
+              problems.empty() ? "true" : "false");
+  for (const std::string& p : problems) std::fprintf(stderr, "penumbra-image-tool: %s: %s\n", path.c_str(), p.c_str());
+  return problems.empty() ? 0 : 1;
+}
+
 }  // namespace
 }  // namespace penumbra
 
@@ -96,8 +156,11 @@ int main(int argc, char** argv) {
   tonemap->add_option("out", b, "Output PNG")->required();
   tonemap->add_option("--like", like, "Map with this image's luminance statistics (e.g. the reference)");
   tonemap->add_option("--exposure", exposure, "Exposure in stops")->capture_default_str();
+  auto* cornell = app.add_subcommand("check-cornell-box", "Whether IMAGE is a sane render of the Cornell box's front view");
+  cornell->add_option("image", a, "Tone-mapped PNG of the front preset")->required();
   CLI11_PARSE(app, argc, argv);
   penumbra::SetupLogging("warn");
   if (*compare) return penumbra::Compare(a, b);
+  if (*cornell) return penumbra::CheckCornellBox(a);
   return penumbra::ToneMap(a, b, like, exposure);
 }

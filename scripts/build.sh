@@ -14,7 +14,12 @@ for arg in "$@"; do
     *) echo "build.sh: unknown option $arg" >&2; exit 2 ;;
   esac
 done
-"$root/scripts/install-deps.sh"
+# Phase times go to stderr: stdout's last line is the build folder (test.sh and run.sh read it).
+t0=$(date +%s)
+"$root/scripts/install-deps.sh" >&2
+t1=$(date +%s)
 cmake -S "$root" -B "$build_dir" -DCMAKE_BUILD_TYPE="$build_type" "${cmake_args[@]}" >/dev/null
 cmake --build "$build_dir" -j"$(nproc)"
+t2=$(date +%s)
+echo "build.sh: dependencies $((t1 - t0)) s, configure and build $((t2 - t1)) s" >&2
 echo "$build_dir"

@@ -3,18 +3,26 @@
 # the client window in the foreground -- on the default scene
 # (scenes/cornell-box.json). Closing the window or Ctrl-C stops everything.
 # Without a display the stack runs alone and the headless client command is printed.
-# Usage: scripts/run.sh [--scene FILE] [--renderers N] [--spp N]
+# Usage: scripts/run.sh [--scene FILE] [--renderers N] [--spp N] [--headless-check [PNG]]
+#   --headless-check: no window; render the default scene's front view headless
+#   until it converges, write it to PNG (default build/headless-check.png), check
+#   that it is a sane Cornell box, stop the stack, exit 0 if it is.
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 scene="$root/scenes/cornell-box.json"
 renderers=1
 spp=64
+check_png=""
 while [ $# -gt 0 ]; do
   case "$1" in
+    --headless-check)
+      check_png="$root/build/headless-check.png"
+      if [ $# -gt 1 ] && [ "${2#--}" = "$2" ]; then check_png="$2"; shift; fi
+      shift ;;
     --scene) scene="$2"; shift 2 ;;
     --renderers) renderers="$2"; shift 2 ;;
     --spp) spp="$2"; shift 2 ;;
-    -h|--help) sed -n '2,6p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,9p' "$0"; exit 0 ;;
     *) echo "run.sh: unknown option $1" >&2; exit 2 ;;
   esac
 done
@@ -30,9 +38,14 @@ cleanup() {
 }
 trap cleanup EXIT INT TERM
 
-wait_port() {  # wait until a process has written its port file
-  for _ in $(seq 1 300); do [ -s "$1" ] && { cat "$1"; return 0; }; sleep 0.1; done
-  echo "run.sh: $2 did not start; see $logs/$2.log" >&2; return 1
+wait_port() {  # PORTFILE NAME PID: wait while the process lives (big scenes load for long) until it writes its port
+  local waited=0
+  while kill -0 "$3" 2>/dev/null; do
+    [ -s "$1" ] && { cat "$1"; return 0; }
+    sleep 0.2; waited=$((waited + 1))
+    if [ $((waited % 50)) -eq 0 ]; then echo "run.sh: $2 still starting ($((waited / 5)) s): $(tail -n 1 "$logs/$2.log")" >&2; fi
+  done
+  echo "run.sh: $2 exited before it listened:" >&2; tail -n 5 "$logs/$2.log" >&2; return 1
 }
 
 threads=$(( $(nproc) / renderers )); [ "$threads" -ge 1 ] || threads=1
@@ -41,19 +54,33 @@ for i in $(seq 0 $((renderers - 1))); do
   "$build_dir/renderer/penumbra-renderer" --scene "$scene" --listen 127.0.0.1:0 \
     --port-file "$logs/renderer-$i.port" --threads "$threads" --spp "$spp" --name "renderer-$i" \
     >"$logs/renderer-$i.log" 2>&1 &
-  pids+=("$!")
-  port="$(wait_port "$logs/renderer-$i.port" "renderer-$i")"
+  pid=$!; pids+=("$pid")
+  port="$(wait_port "$logs/renderer-$i.port" "renderer-$i" "$pid")"
   renderer_flags+=(--renderer "127.0.0.1:$port")
   echo "run.sh: renderer $i on 127.0.0.1:$port"
 done
 
 "$build_dir/sma/penumbra-sma" --scene "$scene" --listen 127.0.0.1:0 --port-file "$logs/sma.port" \
   "${renderer_flags[@]}" >"$logs/sma.log" 2>&1 &
-pids+=("$!")
-sma_port="$(wait_port "$logs/sma.port" sma)"
+pid=$!; pids+=("$pid")
+sma_port="$(wait_port "$logs/sma.port" sma "$pid")"
 echo "run.sh: SMA on 127.0.0.1:$sma_port (logs in $logs)"
 
 client=("$build_dir/client/penumbra-client" --connect "127.0.0.1:$sma_port")
+if [ -n "$check_png" ]; then
+  [ "$scene" = "$root/scenes/cornell-box.json" ] || { echo "run.sh: --headless-check judges the default scene only" >&2; exit 2; }
+  echo "run.sh: headless check: rendering the front view until it converges"
+  mkdir -p "$(dirname "$check_png")"
+  "${client[@]}" --headless --gl egl --camera front --size 640x480 --until-converged --timeout 300 \
+    --screenshot "$check_png" >"$logs/client.log" 2>&1 ||
+    { echo "run.sh: the headless client failed:" >&2; tail -n 20 "$logs/client.log" >&2; exit 1; }
+  if "$build_dir/bench/penumbra-image-tool" check-cornell-box "$check_png"; then
+    echo "run.sh: headless check passed: $check_png is a sane Cornell box"
+    exit 0
+  fi
+  echo "run.sh: headless check FAILED: $check_png is not a sane Cornell box (logs in $logs)" >&2
+  exit 1
+fi
 if [ -n "${DISPLAY:-}" ]; then
   echo "run.sh: opening the client window (H or F1 in it lists the keys); closing it stops the stack"
   # In the foreground, so that Ctrl-C reaches it; the EXIT trap then stops the rest.

@@ -13,4 +13,8 @@ for arg in "$@"; do
 done
 build_dir="$("$root/scripts/build.sh" "${build_flags[@]}" | tail -n 1)"
 cd "$build_dir"
-ctest --output-on-failure -j"$(nproc)" "${ctest_args[@]}"
+t0=$(date +%s)
+status=0
+ctest --output-on-failure -j"$(nproc)" "${ctest_args[@]}" || status=$?
+echo "test.sh: tests $(( $(date +%s) - t0 )) s"
+exit "$status"
