@@ -97,7 +97,8 @@ else
   rm -rf "$dest"/build*
 fi
 if [ -d "$root/../shared" ]; then
-  cp -a "$(cd "$root/../shared" && pwd)" "$work/root/work/shared"
+  mkdir "$work/root/work/shared"
+  cp -a "$root/../shared/." "$work/root/work/shared/"   # its contents, even when ../shared is a symlink
   chmod -R a-w "$work/root/work/shared"   # as CI lays it: read-only
 else
   say "no ../shared beside the clone; tests that need it will skip"
