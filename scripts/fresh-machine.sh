@@ -103,7 +103,11 @@ if [ -d "$root/../shared" ]; then
 else
   say "no ../shared beside the clone; tests that need it will skip"
 fi
+# What an installed machine has besides its packages, and debootstrap does not
+# write: a resolver configuration and a hosts file (`ip netns exec` binds a
+# namespace's hosts file over /etc/hosts, which must exist).
 cp /etc/resolv.conf "$work/root/etc/resolv.conf"
+[ -e "$work/root/etc/hosts" ] || printf '127.0.0.1\tlocalhost\n::1\t\tlocalhost ip6-localhost ip6-loopback\n' >"$work/root/etc/hosts"
 say "root laid out in $(elapsed "$t"); running '$*' in /work/$name"
 
 # A mount namespace of our own: every mount below vanishes with it, whatever happens.
