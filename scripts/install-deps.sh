@@ -41,5 +41,11 @@ if [ "$(id -u)" -ne 0 ]; then
   fi
 fi
 export DEBIAN_FRONTEND=noninteractive
-$sudo apt-get update -qq
-$sudo apt-get install -y -qq --no-install-recommends "${missing[@]}"
+# apt's and dpkg's chatter goes to a log; on failure its end is shown.
+log="$(mktemp /tmp/penumbra-install-deps-XXXXXX.log)"
+if ! { $sudo apt-get update -qq && $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}"; } >"$log" 2>&1; then
+  tail -n 30 "$log" >&2
+  echo "install-deps: apt-get failed; full log in $log" >&2
+  exit 1
+fi
+echo "install-deps: installed ${#missing[@]} package(s) (log in $log)"
