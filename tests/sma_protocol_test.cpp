@@ -534,6 +534,70 @@ TEST(SmaHostileRendererTest, ImpossibleRadianceIsRejectedAndItsRendererQuarantin
   }
 }
 
+// --- Real models' geometry ------------------------------------------------------
+
+// tests/data/inverted_room.obj (make_inverted_room.py): a room mirror-
+// symmetric about x = 0 whose right wall is wound facing out of it, and
+// stair risers whose corner vertices are buried in the tread slabs. Shaded
+// one-sided, the right wall read black; shaded where they lie, the risers'
+// corners read black and no criterion split the risers. With both sides
+// shaded on their own and buried samples shaded where their surface emerges,
+// the right wall reads like its mirror image and no riser vertex is dark.
+TEST(SmaRealGeometryTest, OutwardWoundWallsAndBuriedRisersAreLit) {
+  const std::string sceneFile = std::string(PENUMBRA_SOURCE_DIR) + "/tests/data/inverted_room.json";
+  auto scene = LoadScene(sceneFile);
+  ASSERT_TRUE(scene.ok()) << scene.error().message;
+  ASSERT_TRUE(scene->twoSided);
+  auto renderer = StartService(PENUMBRA_RENDERER_EXE, {"--scene", sceneFile, "--threads", "2", "--spp", "64"}, "room-r");
+  ASSERT_TRUE(renderer.ok()) << renderer.error().message;
+  auto sma = StartService(PENUMBRA_SMA_EXE, {"--scene", sceneFile, "--renderer", renderer->Address(), "--criterion",
+                                             "nld_os"},
+                          "room-sma");
+  ASSERT_TRUE(sma.ok()) << sma.error().message;
+  auto c = SmaTestClient::Connect(sma->port);
+  ASSERT_TRUE(c.ok()) << c.error().message;
+  CameraView view;
+  for (const auto& p : c->Info().cameras())
+    if (p.name() == "walls") view = ViewFromPreset(p, 160, 120);
+  ASSERT_TRUE(c->SendView(view, 1));
+  ASSERT_TRUE(c->WaitConverged(1, 180s).ok()) << sma->process.LogTail();
+
+  // Mean luminance of the held vertices of triangles lying wholly on a plane.
+  const auto meanOn = [&](auto onPlane) {
+    double sum = 0.0;
+    std::set<uint64_t> counted;
+    for (const auto& [id, corners] : c->Mesh().Triangles()) {
+      bool all = true;
+      for (uint64_t v : corners) all = all && onPlane(c->Mesh().Vertices().at(v).position);
+      if (!all) continue;
+      for (uint64_t v : corners)
+        if (counted.insert(v).second) sum += Luminance(c->Mesh().Vertices().at(v).radiance);
+    }
+    return std::make_pair(counted.empty() ? 0.0 : sum / double(counted.size()), counted.size());
+  };
+  const auto near = [](float a, float b) { return std::abs(a - b) < 1e-4f; };
+  const auto [left, leftCount] = meanOn([&](const Vec3& p) { return near(p.x, -1.0f); });
+  const auto [right, rightCount] = meanOn([&](const Vec3& p) { return near(p.x, 1.0f); });
+  const auto [back, backCount] = meanOn([&](const Vec3& p) { return near(p.z, -1.0f); });
+  ASSERT_GT(leftCount, 0u);
+  ASSERT_GT(rightCount, 0u);
+  ASSERT_GT(backCount, 0u);
+  EXPECT_GT(left, 0.0);
+  // Mirror images, each vertex a Monte Carlo estimate of 64 paths.
+  EXPECT_NEAR(right / left, 1.0, 0.15) << "left " << left << ", right (wound outward) " << right;
+
+  // Every vertex of a riser (z = -0.6 or -0.8, facing the room) is lit.
+  size_t riserVertices = 0;
+  for (const auto& [id, v] : c->Mesh().Vertices()) {
+    if (!near(v.position.z, -0.6f) && !near(v.position.z, -0.8f)) continue;
+    if (std::abs(v.position.x) > 0.5f + 1e-4f) continue;
+    ++riserVertices;
+    EXPECT_GT(Luminance(v.radiance), 0.2 * back) << "riser vertex " << id << " at (" << v.position.x << ", "
+                                                 << v.position.y << ", " << v.position.z << ")";
+  }
+  EXPECT_GE(riserVertices, 8u);
+}
+
 // --- Refinement (founding paper §4) -------------------------------------------
 
 // Everything the client holds once a refined view converges: a conforming

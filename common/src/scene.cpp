@@ -119,6 +119,7 @@ uint64_t ComputeIdentity(const Scene& s) {
     h.Update(uint64_t(t.height));
     HashPod(h, t.texels);
   }
+  h.Update(uint64_t(s.twoSided));
   h.Update(uint64_t(s.sun.has_value()));
   if (s.sun) {
     h.Update(&s.sun->directionToSun, sizeof(Vec3));

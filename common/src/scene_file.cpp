@@ -326,8 +326,8 @@ Expected<SceneDescription> ParseSceneFile(const fs::path& path) {
   const Json& doc = *parsed;
   const JsonReader r(fileName);
   if (!doc.is_object()) return r.Problem("", "a scene file must be a JSON object");
-  if (auto ok = r.CheckKeys(doc, "", {"name", "mesh", "crease_angle_deg", "emission_scale", "materials", "sun", "sky",
-                                      "quad_lights", "cameras", "paths"});
+  if (auto ok = r.CheckKeys(doc, "", {"name", "mesh", "crease_angle_deg", "emission_scale", "two_sided", "materials", "sun",
+                                      "sky", "quad_lights", "cameras", "paths"});
       !ok)
     return ok.error();
 
@@ -347,6 +347,10 @@ Expected<SceneDescription> ParseSceneFile(const fs::path& path) {
     auto crease = r.Number(doc, "", "crease_angle_deg", 0.0f, 180.0f);
     if (!crease) return crease.error();
     d.creaseAngleDeg = *crease;
+  }
+  if (doc.contains("two_sided")) {
+    if (!doc["two_sided"].is_boolean()) return r.Problem("", "\"two_sided\" must be true or false");
+    d.twoSided = doc["two_sided"].get<bool>();
   }
   auto scale = r.Number(doc, "", "emission_scale", 0.0f, std::numeric_limits<float>::max(), 1.0f);
   if (!scale) return scale.error();

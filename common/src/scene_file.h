@@ -40,6 +40,7 @@ struct SceneDescription {
   std::filesystem::path meshPath;
   std::optional<float> creaseAngleDeg;
   float emissionScale = 1.0f;  // multiplies the mesh's own emission
+  bool twoSided = true;        // "two_sided": surfaces reflect on both sides
   std::vector<MaterialOverride> materialOverrides;
   std::vector<QuadLight> quadLights;
   std::optional<SunLight> sun;

@@ -64,6 +64,7 @@ Expected<Scene> Load(const fs::path& path, const SceneLoadOptions& options, size
   scene.sourcePath = path;
   if (description) {
     scene.sun = description->sun;
+    scene.twoSided = description->twoSided;
     scene.sky = description->sky;
     scene.cameras = std::move(description->cameras);
     scene.paths = std::move(description->paths);

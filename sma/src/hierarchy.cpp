@@ -36,13 +36,16 @@ PointKey KeyOfPosition(const Vec3& p) {
 }
 
 constexpr std::array<Vec2, 3> kRootBary = {Vec2(0.0f, 0.0f), Vec2(1.0f, 0.0f), Vec2(0.0f, 1.0f)};
+// A back root's corners: the base triangle's 0, 2, 1.
+constexpr std::array<Vec2, 3> kBackRootBary = {Vec2(0.0f, 0.0f), Vec2(0.0f, 1.0f), Vec2(1.0f, 0.0f)};
 
 }  // namespace
 
 Hierarchy::Hierarchy(const Scene& scene) : scene_(scene) {
-  // Base vertices: one per scene vertex; vertices at one point (split at a
-  // crease) share a point id.
-  vertices_.resize(scene.vertices.size());
+  // Base vertices: one per scene vertex (and side); vertices at one point
+  // (split at a crease) share a point id.
+  const size_t sceneVertices = scene.vertices.size();
+  vertices_.resize((scene.twoSided ? 2 : 1) * sceneVertices);
   std::unordered_map<PointKey, uint32_t, PointKeyHash> pointOf;
   pointOf.reserve(scene.vertices.size());
   for (size_t i = 0; i < scene.vertices.size(); ++i) {
@@ -60,14 +63,37 @@ Hierarchy::Hierarchy(const Scene& scene) : scene_(scene) {
       v.bary = kRootBary[c];
     }
   }
-  nodes_.resize(scene.triangles.size());
-  leavesOfPointEdge_.reserve(scene.triangles.size() * 2);
-  for (uint32_t t = 0; t < scene.triangles.size(); ++t) {
+  if (scene.twoSided) {
+    // The back side's vertices: the same places, the normals negated, and
+    // points of their own, so that adjacency never crosses between sides.
+    for (size_t i = 0; i < sceneVertices; ++i) {
+      SampleVertex& back = vertices_[sceneVertices + i];
+      back = vertices_[i];
+      back.normal = -back.normal;
+      back.point += pointCount_;
+    }
+    pointCount_ *= 2;
+  }
+  const uint32_t triangles = uint32_t(scene.triangles.size());
+  nodes_.resize(RootCount());
+  leavesOfPointEdge_.reserve(nodes_.size() * 2);
+  for (uint32_t t = 0; t < triangles; ++t) {
     Node& n = nodes_[t];
     n.baseTriangle = t;
     n.v = scene.triangles[t].v;
     n.bary = kRootBary;
     LinkEdges(t);
+  }
+  if (scene.twoSided) {
+    for (uint32_t t = 0; t < triangles; ++t) {
+      const auto& v = scene.triangles[t].v;
+      Node& n = nodes_[triangles + t];
+      n.baseTriangle = t;
+      n.back = true;
+      n.v = {VertexId(sceneVertices + v[0]), VertexId(sceneVertices + v[2]), VertexId(sceneVertices + v[1])};
+      n.bary = kBackRootBary;
+      LinkEdges(triangles + t);
+    }
   }
 }
 
@@ -118,6 +144,7 @@ VertexId Hierarchy::MidpointVertex(NodeId id, int edge) {
 NodeId Hierarchy::AddChild(NodeId parent, const std::array<VertexId, 3>& v, const std::array<Vec2, 3>& bary) {
   Node child;
   child.baseTriangle = nodes_[parent].baseTriangle;
+  child.back = nodes_[parent].back;
   child.v = v;
   child.bary = bary;
   child.parent = parent;

@@ -152,6 +152,10 @@ struct Packet {
 struct VisibilityTracer::Impl {
   std::unique_ptr<EmbreeScene> embree;
   RTCScene scene = nullptr;  // embree's, for the queries
+  // Per base triangle, its geometric normal (counter-clockwise front): which
+  // side a ray meets decides which of the hierarchy's roots it sees. Ours,
+  // not Embree's Ng, so that "front" means one thing in every tier.
+  std::vector<Vec3> faceNormals;
 };
 
 Expected<std::unique_ptr<VisibilityTracer>> VisibilityTracer::Build(const Scene& scene) {
@@ -163,6 +167,8 @@ Expected<std::unique_ptr<VisibilityTracer>> VisibilityTracer::Build(const Scene&
   auto impl = std::make_unique<Impl>();
   impl->scene = (*embree)->Handle();
   impl->embree = std::move(*embree);
+  impl->faceNormals.resize(scene.triangles.size());
+  for (uint32_t t = 0; t < scene.triangles.size(); ++t) impl->faceNormals[t] = scene.GeometricNormal(t);
   VisibilityLog()->info("BVH over {} base triangles built", scene.triangles.size());
   return std::unique_ptr<VisibilityTracer>(new VisibilityTracer(std::move(impl)));
 }
@@ -189,9 +195,15 @@ void VisibilityTracer::Trace(const CameraView& view, HitBuffer& out) const {
         for (int lane = 0; lane < kPacketSize; ++lane) {
           if (!packet.valid[lane]) continue;
           PixelHit& hit = out.hits[size_t(y0 + LaneY(lane)) * size_t(width) + size_t(x0 + LaneX(lane))];
-          hit = packet.Hit(lane) ? PixelHit{packet.rayHit.hit.primID[lane], packet.rayHit.hit.u[lane],
-                                            packet.rayHit.hit.v[lane]}
-                                 : PixelHit{};
+          if (!packet.Hit(lane)) {
+            hit = PixelHit{};
+            continue;
+          }
+          const uint32_t triangle = packet.rayHit.hit.primID[lane];
+          const Vec3& n = impl_->faceNormals[triangle];
+          const float towardNormal = packet.rayHit.ray.dir_x[lane] * n.x + packet.rayHit.ray.dir_y[lane] * n.y +
+                                     packet.rayHit.ray.dir_z[lane] * n.z;
+          hit = PixelHit{triangle, packet.rayHit.hit.u[lane], packet.rayHit.hit.v[lane], towardNormal > 0.0f};
         }
       });
     }
@@ -251,13 +263,15 @@ class NodeFinder {
       : hierarchy_(hierarchy), descend_(descend), context_(context) {}
 
   NodeId Find(const PixelHit& hit) {
-    if (hit.triangle == triangle_ && (wholeTriangle_ || WellInside(hit.b1, hit.b2))) return node_;
+    if (hit.triangle == triangle_ && hit.backFace == backFace_ && (wholeTriangle_ || WellInside(hit.b1, hit.b2)))
+      return node_;
     PENUMBRA_CHECK(hit.triangle < hierarchy_.BaseTriangleCount(),
                    fmt::format("hit on base triangle {}, but the hierarchy has {}", hit.triangle,
                                hierarchy_.BaseTriangleCount()));
-    node_ = hierarchy_.Locate(hit.triangle, hit.b1, hit.b2,
+    node_ = hierarchy_.Locate(hit.triangle, hit.backFace, hit.b1, hit.b2,
                               [this](const Node& n) { return descend_(n, context_); });
     triangle_ = hit.triangle;
+    backFace_ = hit.backFace;
     const Node& n = hierarchy_.GetNode(node_);
     wholeTriangle_ = n.depth == 0;
     if (!wholeTriangle_) Remember(n);
@@ -287,7 +301,8 @@ class NodeFinder {
   const Hierarchy& hierarchy_;
   DescendFunction descend_;
   const void* context_;
-  uint32_t triangle_ = kNoHit;  // the last hit's base triangle and its node
+  uint32_t triangle_ = kNoHit;  // the last hit's base triangle, side and node
+  bool backFace_ = false;
   NodeId node_ = kNoNode;
   bool wholeTriangle_ = false;  // node_ is the root: every hit on triangle_ goes there
   Vec2 origin_{0.0f};

@@ -20,6 +20,7 @@ Scene QuadScene() {
   b.AddMaterial(textured);
   b.AddQuad(Vec3(0), Vec3(1, 0, 0), Vec3(0, 0, -1), m0);
   Scene s;
+  s.twoSided = false;  // one surface per triangle; two-sided hierarchies have tests of their own
   EXPECT_TRUE(b.BuildInto(s).ok());
   return s;
 }

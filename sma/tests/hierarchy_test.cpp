@@ -17,6 +17,7 @@ Scene GridScene(int n, float creaseAngle = kDefaultCreaseAngleDeg) {
   for (int i = 0; i < n; ++i)
     for (int j = 0; j < n; ++j) b.AddQuad(Vec3(float(i), 0, float(j)), Vec3(0, 0, 1), Vec3(1, 0, 0), mat);
   Scene s;
+  s.twoSided = false;  // one surface per triangle; two-sided hierarchies have tests of their own
   EXPECT_TRUE(b.BuildInto(s).ok());
   return s;
 }
@@ -32,6 +33,7 @@ Scene CubeScene() {
   b.AddQuad(Vec3(0, 0, 0), Vec3(0, 1, 0), Vec3(1, 0, 0), mat);
   b.AddQuad(Vec3(0, 0, 1), Vec3(1, 0, 0), Vec3(0, 1, 0), mat);
   Scene s;
+  s.twoSided = false;  // one surface per triangle; two-sided hierarchies have tests of their own
   EXPECT_TRUE(b.BuildInto(s).ok());
   return s;
 }
@@ -176,11 +178,91 @@ TEST(HierarchyTest, LocateFindsTheLeafContainingThePoint) {
       b1 = 1.0f - b1;
       b2 = 1.0f - b2;
     }
-    const NodeId leaf = h.Locate(t, b1, b2, [](const Node&) { return true; });
+    const NodeId leaf = h.Locate(t, false, b1, b2, [](const Node&) { return true; });
     ASSERT_TRUE(h.GetNode(leaf).IsLeaf());
     EXPECT_EQ(h.GetNode(leaf).baseTriangle, t);
     EXPECT_TRUE(PointInNode(h, leaf, s.PointAt(t, b1, b2))) << "b=(" << b1 << "," << b2 << ")";
   }
+}
+
+// Each side of a surface is shaded on its own: a back root per triangle, on
+// the same plane, corners reversed, normals negated, points of its own.
+TEST(HierarchyTest, TwoSidedSceneHasABackSurfaceOfItsOwn) {
+  Scene s = GridScene(3);
+  s.twoSided = true;
+  Hierarchy h(s);
+  const size_t n = s.triangles.size(), nv = s.vertices.size();
+  ASSERT_EQ(h.RootCount(), 2 * n);
+  ASSERT_EQ(h.NodeCount(), 2 * n);
+  ASSERT_EQ(h.VertexCount(), 2 * nv);
+  for (uint32_t t = 0; t < n; ++t) {
+    const Node& front = h.GetNode(h.RootOf(t, false));
+    const Node& back = h.GetNode(h.RootOf(t, true));
+    EXPECT_EQ(h.RootOf(t, false), t);
+    EXPECT_EQ(h.RootOf(t, true), n + t);
+    EXPECT_FALSE(front.back);
+    EXPECT_TRUE(back.back);
+    EXPECT_EQ(back.baseTriangle, t);
+    // Reversed corners: the back's geometric normal is the front's negated.
+    const auto normalOf = [&](const Node& node) {
+      const Vec3 a = h.GetVertex(node.v[0]).position, b = h.GetVertex(node.v[1]).position,
+                 c = h.GetVertex(node.v[2]).position;
+      return glm::normalize(glm::cross(b - a, c - a));
+    };
+    EXPECT_NEAR(glm::dot(normalOf(front), normalOf(back)), -1.0f, 1e-5f);
+    for (int c = 0; c < 3; ++c) {
+      const SampleVertex& fv = h.GetVertex(front.v[c]);
+      EXPECT_LT(front.v[c], nv);
+      EXPECT_GE(back.v[c], nv);
+      // A back corner is the base triangle's corner with the negated normal,
+      // and its base triangle and barycentrics say where it is.
+      const SampleVertex& bv = h.GetVertex(back.v[c]);
+      EXPECT_EQ(bv.normal, -h.GetVertex(back.v[c] - VertexId(nv)).normal);
+      EXPECT_NE(bv.point, fv.point);
+      EXPECT_LT(glm::length(s.PointAt(bv.baseTriangle, bv.bary.x, bv.bary.y) - bv.position), 1e-6f);
+      EXPECT_LT(glm::length(s.PointAt(t, back.bary[c].x, back.bary[c].y) - bv.position), 1e-6f);
+    }
+  }
+  // Refining the back splits back leaves only, conforming on its own side;
+  // Locate on the back side finds back leaves containing the point.
+  std::mt19937 rng(3);
+  for (int i = 0; i < 12; ++i) {
+    std::vector<NodeId> backLeaves;
+    h.ForEachLeaf(kNoNode, [&](NodeId id) {
+      if (h.IsBack(id)) backLeaves.push_back(id);
+    });
+    const RefineResult r = h.Refine(backLeaves[rng() % backLeaves.size()], RefineOptions{});
+    for (NodeId split : r.split) EXPECT_TRUE(h.IsBack(split));
+  }
+  for (NodeId t = 0; t < n; ++t) EXPECT_TRUE(h.GetNode(t).IsLeaf()) << "front root " << t << " was split";
+  std::uniform_real_distribution<float> u(0.0f, 0.5f);
+  for (int i = 0; i < 500; ++i) {
+    const uint32_t t = uint32_t(rng() % n);
+    const float b1 = u(rng), b2 = u(rng);
+    const NodeId leaf = h.Locate(t, true, b1, b2, [](const Node&) { return true; });
+    EXPECT_TRUE(h.IsBack(leaf));
+    EXPECT_EQ(h.GetNode(leaf).baseTriangle, t);
+    EXPECT_TRUE(PointInNode(h, leaf, s.PointAt(t, b1, b2)));
+  }
+  // No T-vertex on the back surface (the front, unrefined, is another surface).
+  size_t tVertices = 0;
+  const auto backLeaves = Leaves(h);
+  for (NodeId id : backLeaves) {
+    if (!h.IsBack(id)) continue;
+    const Node& leaf = h.GetNode(id);
+    for (int k = 0; k < 3; ++k) {
+      const Vec3 a = h.GetVertex(leaf.v[(k + 1) % 3]).position, b = h.GetVertex(leaf.v[(k + 2) % 3]).position;
+      for (NodeId other : backLeaves) {
+        if (!h.IsBack(other)) continue;
+        for (VertexId v : h.GetNode(other).v) {
+          const Vec3 p = h.GetVertex(v).position;
+          const float along = glm::dot(p - a, b - a) / glm::dot(b - a, b - a);
+          if (along > 1e-4f && along < 1.0f - 1e-4f && glm::length(a + along * (b - a) - p) < 1e-5f) ++tVertices;
+        }
+      }
+    }
+  }
+  EXPECT_EQ(tVertices, 0u);
 }
 
 TEST(HierarchyTest, LocateStopsWhereThePredicateSaysSo) {
@@ -188,9 +270,9 @@ TEST(HierarchyTest, LocateStopsWhereThePredicateSaysSo) {
   Hierarchy h(s);
   h.Refine(0, RefineOptions{});
   // Refuse to descend: the root comes back.
-  EXPECT_EQ(h.Locate(0, 0.2f, 0.2f, [](const Node&) { return false; }), 0u);
+  EXPECT_EQ(h.Locate(0, false, 0.2f, 0.2f, [](const Node&) { return false; }), 0u);
   // Descend one level only.
-  const NodeId child = h.Locate(0, 0.1f, 0.1f, [](const Node& n) { return n.depth == 0; });
+  const NodeId child = h.Locate(0, false, 0.1f, 0.1f, [](const Node& n) { return n.depth == 0; });
   EXPECT_EQ(h.GetNode(child).depth, 1);
   EXPECT_EQ(h.GetNode(child).parent, 0u);
 }
@@ -231,6 +313,7 @@ TEST(HierarchyTest, SlimNeighbourSplitsInTwoAndStopsPropagation) {
   b.AddTriangle({Vec3(4, 0, 0), Vec3(0, 0, 0), Vec3(2, 0, 0.5f)}, mat);
   b.AddTriangle({Vec3(0, 0, 0), Vec3(-1, 0, 2), Vec3(2, 0, 0.5f)}, mat);
   Scene s;
+  s.twoSided = false;  // one surface per triangle; two-sided hierarchies have tests of their own
   ASSERT_TRUE(b.BuildInto(s).ok());
   Hierarchy h(s);
   h.Refine(0, RefineOptions{});
@@ -249,6 +332,7 @@ TEST(HierarchyTest, TallNeighbourSplitsInFourAndPassesItOn) {
   b.AddTriangle({Vec3(1, 0, 0), Vec3(0, 0, 0), Vec3(0.5f, 0, 3)}, mat);
   b.AddTriangle({Vec3(0, 0, 0), Vec3(-2, 0, 2), Vec3(0.5f, 0, 3)}, mat);
   Scene s;
+  s.twoSided = false;  // one surface per triangle; two-sided hierarchies have tests of their own
   ASSERT_TRUE(b.BuildInto(s).ok());
   Hierarchy h(s);
   h.Refine(0, RefineOptions{});
@@ -267,6 +351,7 @@ TEST(HierarchyTest, NonManifoldEdgeSplitsEveryLeafOnIt) {
     b.AddTriangle({Vec3(0, 0, 0), Vec3(std::cos(a), 0.5f, std::sin(a)), Vec3(0, 1, 0)}, mat);
   }
   Scene s;
+  s.twoSided = false;  // one surface per triangle; two-sided hierarchies have tests of their own
   ASSERT_TRUE(b.BuildInto(s).ok());
   Hierarchy h(s);
   h.Refine(0, RefineOptions{});
@@ -287,6 +372,7 @@ TEST(HierarchyTest, SplitBudgetBoundsPropagationAndKeepsConformity) {
     b.AddTriangle({Vec3(x + 0.1f, 0, 0), Vec3(x + 0.1f, 0, -1), Vec3(x, 0, -1)}, mat);
   }
   Scene s;
+  s.twoSided = false;  // one surface per triangle; two-sided hierarchies have tests of their own
   ASSERT_TRUE(b.BuildInto(s).ok());
   Hierarchy h(s);
   RefineOptions options;

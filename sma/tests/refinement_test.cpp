@@ -20,6 +20,7 @@ Scene GridScene() {
   for (int i = 0; i < kGrid; ++i)
     for (int j = 0; j < kGrid; ++j) b.AddQuad(Vec3(float(i), 0, float(j)), Vec3(0, 0, 1), Vec3(1, 0, 0), mat);
   Scene s;
+  s.twoSided = false;  // one surface per triangle; two-sided hierarchies have tests of their own
   EXPECT_TRUE(b.BuildInto(s).ok());
   return s;
 }

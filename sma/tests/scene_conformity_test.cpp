@@ -28,15 +28,17 @@ struct PositionHash {
   }
 };
 
-// Leaf edges whose exact midpoint is a corner of some leaf.
+// Leaf edges whose exact midpoint is a corner of some leaf of the same side
+// (the two sides of a surface are two meshes on one plane).
 size_t CountMidpointTVertices(const Hierarchy& h) {
-  std::unordered_set<Vec3, PositionHash> corners;
+  std::unordered_set<Vec3, PositionHash> cornersOfSide[2];
   h.ForEachLeaf(kNoNode, [&](NodeId id) {
-    for (VertexId v : h.GetNode(id).v) corners.insert(h.GetVertex(v).position + Vec3(0.0f));
+    for (VertexId v : h.GetNode(id).v) cornersOfSide[h.IsBack(id)].insert(h.GetVertex(v).position + Vec3(0.0f));
   });
   size_t count = 0;
   h.ForEachLeaf(kNoNode, [&](NodeId id) {
     const Node& n = h.GetNode(id);
+    const auto& corners = cornersOfSide[h.IsBack(id)];
     for (int k = 0; k < 3; ++k) {
       // The same arithmetic as a midpoint vertex's position.
       const Vec3 m = 0.5f * (h.GetVertex(n.v[(k + 1) % 3]).position + h.GetVertex(n.v[(k + 2) % 3]).position);
@@ -60,7 +62,7 @@ void RefineAndCheck(const fs::path& sceneFile, const fs::path& sharedMesh) {
   for (int step = 0; step < 12; ++step) {
     // Alternate fresh base triangles and children of earlier splits, so the
     // refinement goes deep and crosses many base-triangle boundaries.
-    NodeId leaf = NodeId(rng() % scene->triangles.size());
+    NodeId leaf = NodeId(rng() % h.RootCount());
     if (step % 2 == 1 && !recent.empty()) {
       const Node& parent = h.GetNode(recent[rng() % recent.size()]);
       leaf = parent.firstChild + NodeId(rng() % parent.childCount);

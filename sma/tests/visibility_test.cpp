@@ -19,6 +19,7 @@ constexpr double kTieBary = 1e-4;
 
 Scene Finish(SceneBuilder& b) {
   Scene s;
+  s.twoSided = false;  // one surface per triangle; two-sided hierarchies have tests of their own
   EXPECT_TRUE(b.BuildInto(s).ok());
   return s;
 }
@@ -352,6 +353,40 @@ TEST_F(MapHitsToNodesTest, MatchesAWorldSpaceDescent) {
   }
 }
 
+// In a two-sided scene a hit maps into the tree of the side the ray met: the
+// back when it travels along the triangle's normal. From under the floor,
+// every floor pixel sees the floor's back.
+TEST(TwoSidedVisibilityTest, AHitMapsToTheSideTheRayMet) {
+  Scene scene = FloorAndTriangles();
+  scene.twoSided = true;
+  const Hierarchy hierarchy(scene);
+  const auto tracer = TracerFor(scene);
+  for (const CameraView& view : {View(Vec3(0.2f, 1.6f, 2.4f), Vec3(0.0f, 0.3f, 0.0f), 60.0f, 80, 60),
+                                 View(Vec3(0.3f, -1.5f, 0.2f), Vec3(0.0f, 0.0f, -0.1f), 90.0f, 80, 60)}) {
+    HitBuffer hits;
+    tracer->Trace(view, hits);
+    VisibleSet visible;
+    MapHitsToNodes(hierarchy, hits, DescendAlways, nullptr, visible);
+    const PinholeCamera camera(view);
+    const bool underTheFloor = view.pose.eye.y < 0.0f;
+    int back = 0, front = 0;
+    for (int y = 0; y < view.height; ++y)
+      for (int x = 0; x < view.width; ++x) {
+        const size_t i = size_t(y) * size_t(view.width) + size_t(x);
+        const PixelHit& hit = hits.hits[i];
+        if (hit.triangle == kNoHit) continue;
+        const float along = glm::dot(camera.DirectionThrough(float(x) + 0.5f, float(y) + 0.5f),
+                                     scene.GeometricNormal(hit.triangle));
+        if (std::abs(along) > 1e-3f) EXPECT_EQ(hit.backFace, along > 0.0f) << "pixel " << i;
+        EXPECT_EQ(hierarchy.IsBack(visible.pixelNode[i]), hit.backFace) << "pixel " << i;
+        EXPECT_EQ(hierarchy.GetNode(visible.pixelNode[i]).baseTriangle, hit.triangle);
+        (hit.backFace ? back : front) += 1;
+        if (underTheFloor && hit.triangle < 32) EXPECT_TRUE(hit.backFace) << "floor pixel " << i;
+      }
+    EXPECT_GT(underTheFloor ? back : front, 1000);
+  }
+}
+
 TEST_F(MapHitsToNodesTest, RefusingToDescendYieldsTheRoots) {
   const HitBuffer hits = Trace(64, 48);
   VisibleSet visible;
@@ -381,7 +416,7 @@ TEST_F(MapHitsToNodesTest, AgreesExactlyWithLocate) {
     if (hit.triangle == kNoHit) continue;
     ++hitPixels;
     const NodeId located =
-        hierarchy_.Locate(hit.triangle, hit.b1, hit.b2, [&](const Node& n) { return DescendIfMarked(n, &marks_); });
+        hierarchy_.Locate(hit.triangle, hit.backFace, hit.b1, hit.b2, [&](const Node& n) { return DescendIfMarked(n, &marks_); });
     ASSERT_EQ(visible.pixelNode[i], located) << "pixel " << i;
   }
   EXPECT_LT(counting.calls.load(), hitPixels);  // the shortcut was taken

@@ -30,7 +30,9 @@ struct PixelResult {
   std::vector<uint32_t> contenders;
 };
 
-PixelResult ClassifyPixel(const Scene& scene, const D3& origin, const D3& dir, double tieBary,
+// `asRoots`: name what is hit by the hierarchy's root ids -- a base triangle
+// t met from behind (in a two-sided scene) is root triangles.size() + t.
+PixelResult ClassifyPixel(const Scene& scene, const D3& origin, const D3& dir, double tieBary, bool asRoots,
                           std::vector<Candidate>& hits) {
   PixelResult result;
   hits.clear();
@@ -47,7 +49,10 @@ PixelResult ClassifyPixel(const Scene& scene, const D3& origin, const D3& dir, d
     const double dist = Dot(e2, q) / det;
     const double margin = std::min({u, v, 1.0 - u - v});
     if (margin < -tieBary || dist <= 1e-6) continue;
-    hits.push_back(Candidate{t, dist, margin});
+    // det = (e1 x e2) . -dir: negative when the ray travels along the normal.
+    const bool back = det < 0.0;
+    const uint32_t id = asRoots && back && scene.twoSided ? uint32_t(scene.triangles.size()) + t : t;
+    hits.push_back(Candidate{id, dist, margin});
   }
   if (hits.empty()) return result;
   const Candidate* nearest = &hits[0];
@@ -73,14 +78,14 @@ namespace {
 
 // Classifies the ray through every pixel centre, row by row; `use(x, y, pixel)`.
 template <typename Use>
-void ForEachPixel(const Scene& scene, const CameraView& view, double tieBary, Use&& use) {
+void ForEachPixel(const Scene& scene, const CameraView& view, double tieBary, bool asRoots, Use&& use) {
   const PinholeCamera camera(view);
   const D3 origin = ToD3(camera.Origin());
   std::vector<Candidate> hits;
   for (int y = 0; y < view.height; ++y) {
     for (int x = 0; x < view.width; ++x) {
       const D3 dir = ToD3(camera.DirectionThrough(float(x) + 0.5f, float(y) + 0.5f));
-      use(x, y, ClassifyPixel(scene, origin, dir, tieBary, hits));
+      use(x, y, ClassifyPixel(scene, origin, dir, tieBary, asRoots, hits));
     }
   }
 }
@@ -89,7 +94,7 @@ void ForEachPixel(const Scene& scene, const CameraView& view, double tieBary, Us
 
 BruteVisibility BruteForceVisibleTriangles(const Scene& scene, const CameraView& view, double tieBary) {
   BruteVisibility out;
-  ForEachPixel(scene, view, tieBary, [&](int, int, const PixelResult& pixel) {
+  ForEachPixel(scene, view, tieBary, /*asRoots=*/true, [&](int, int, const PixelResult& pixel) {
     if (pixel.certain)
       out.certain.insert(*pixel.certain);
     else
@@ -101,7 +106,7 @@ BruteVisibility BruteForceVisibleTriangles(const Scene& scene, const CameraView&
 
 std::vector<int64_t> BruteForcePixelHits(const Scene& scene, const CameraView& view, double tieBary) {
   std::vector<int64_t> out(size_t(view.width) * size_t(view.height), kPixelMiss);
-  ForEachPixel(scene, view, tieBary, [&](int x, int y, const PixelResult& pixel) {
+  ForEachPixel(scene, view, tieBary, /*asRoots=*/false, [&](int x, int y, const PixelResult& pixel) {
     int64_t& result = out[size_t(y) * size_t(view.width) + size_t(x)];
     if (pixel.certain)
       result = *pixel.certain;

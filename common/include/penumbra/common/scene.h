@@ -91,6 +91,12 @@ struct Scene {
   std::vector<Texture> textures;
   std::optional<SunLight> sun;
   std::optional<SkyLight> sky;
+  /// Every surface reflects on both of its sides, each shaded on its own
+  /// (real models do not keep a consistent winding: a wall may face out of
+  /// the room it bounds). Emission stays one-sided, from the front face.
+  /// false: only the front face (counter-clockwise) is shaded; its back shows
+  /// the front's shading.
+  bool twoSided = true;
   std::vector<CameraPreset> cameras;
   std::vector<CameraPath> paths;
 

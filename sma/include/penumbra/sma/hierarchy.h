@@ -27,10 +27,20 @@
 // Refine() no leaf edge has a vertex of another leaf at its midpoint (input
 // meshes may carry T-junctions of their own; Refine never adds any).
 //
+// Sides. Surfaces reflect on both sides (Scene::twoSided), and each side is
+// shaded on its own: a base triangle has a front root, and in a two-sided
+// scene also a back root, a surface of its own on the same plane -- corners
+// in reverse order (so it is counter-clockwise seen from behind), vertices of
+// its own with the normals negated, points of its own (so the two sides are
+// never each other's neighbours). Its samples go to the renderer with the
+// negated normal, which is how the renderer is told which side to shade.
+//
 // Ids. NodeId and VertexId are dense indices, stable for the life of the
-// hierarchy (nodes and vertices are never removed). Root node id == base
-// triangle index; base vertex id == scene vertex index. Clients key their
-// triangles and vertices by these ids (widened to 64 bits on the wire).
+// hierarchy (nodes and vertices are never removed). Front root id == base
+// triangle index t; back root id == BaseTriangleCount() + t. Front base
+// vertex id == scene vertex index v; back base vertex id == scene vertex
+// count + v. Clients key their triangles and vertices by these ids (widened
+// to 64 bits on the wire).
 //
 // Threads: not synchronised. The SMA guards a Hierarchy with its state lock;
 // const member functions may run concurrently with each other.
@@ -72,6 +82,7 @@ struct Node {
   uint8_t childCount = 0;       // 0 (leaf), 2 or 4
   uint8_t splitEdge = 0;        // 1 -> 2 splits: the edge split, named by its opposite corner
   uint8_t depth = 0;            // 0 for roots
+  bool back = false;            // in a back root's tree (Hierarchy: "Sides")
   /// Vertices this node's split added: midpoints of edges 0, 1, 2 (edge k is
   /// opposite corner k) for 1 -> 4; only [splitEdge] for 1 -> 2; else kNoVertex.
   std::array<VertexId, 3> mid{kNoVertex, kNoVertex, kNoVertex};
@@ -108,14 +119,27 @@ class Hierarchy {
   size_t NodeCount() const { return nodes_.size(); }
   size_t VertexCount() const { return vertices_.size(); }
   size_t BaseTriangleCount() const { return scene_.triangles.size(); }
+  /// Whether base triangles have back roots (the scene is two-sided).
+  bool TwoSided() const { return scene_.twoSided; }
+  /// Roots: one per base triangle and side.
+  size_t RootCount() const { return (TwoSided() ? 2 : 1) * BaseTriangleCount(); }
+  /// The root of the side of `baseTriangle` that a ray meets first when it
+  /// travels along -normal (front) or along +normal (`backFace`). One-sided
+  /// scenes have front roots only.
+  NodeId RootOf(uint32_t baseTriangle, bool backFace) const {
+    return backFace && TwoSided() ? NodeId(BaseTriangleCount() + baseTriangle) : NodeId(baseTriangle);
+  }
+  /// Whether `id` belongs to a back root's tree.
+  bool IsBack(NodeId id) const { return nodes_[id].back; }
   const Node& GetNode(NodeId id) const { return nodes_[id]; }
   const SampleVertex& GetVertex(VertexId id) const { return vertices_[id]; }
 
-  /// The node containing point (b1, b2) of `baseTriangle` reached by
-  /// descending from the root while `descend(node)` is true for nodes with
-  /// children. Points on a shared edge go to one side deterministically.
+  /// The node containing point (b1, b2) of `baseTriangle`, on the side
+  /// RootOf(baseTriangle, backFace), reached by descending from that root
+  /// while `descend(node)` is true for nodes with children. Points on a
+  /// shared edge go to one side deterministically.
   template <class DescendPredicate>
-  NodeId Locate(uint32_t baseTriangle, float b1, float b2, DescendPredicate descend) const;
+  NodeId Locate(uint32_t baseTriangle, bool backFace, float b1, float b2, DescendPredicate descend) const;
 
   /// From node `from` (containing the point with node-local barycentrics
   /// `lambda`), descends further while `descend` holds; updates `lambda`.
@@ -135,7 +159,7 @@ class Hierarchy {
   /// Texture coordinates of a node's corner, interpolated from the base triangle.
   Vec2 CornerUv(NodeId id, int corner) const;
 
-  /// Calls f(leafId) for every leaf under `root` (or under every root).
+  /// Calls f(leafId) for every leaf under `root` (or under every root, both sides).
   template <class F>
   void ForEachLeaf(NodeId root, F&& f) const;
 
@@ -201,15 +225,18 @@ NodeId Hierarchy::Descend(NodeId from, std::array<float, 3>& l, DescendPredicate
 }
 
 template <class DescendPredicate>
-NodeId Hierarchy::Locate(uint32_t baseTriangle, float b1, float b2, DescendPredicate descend) const {
-  std::array<float, 3> lambda{1.0f - b1 - b2, b1, b2};
-  return Descend(NodeId(baseTriangle), lambda, descend);
+NodeId Hierarchy::Locate(uint32_t baseTriangle, bool backFace, float b1, float b2, DescendPredicate descend) const {
+  const NodeId root = RootOf(baseTriangle, backFace);
+  // A back root's corners are the base triangle's in the order (0, 2, 1).
+  std::array<float, 3> lambda = nodes_[root].back ? std::array<float, 3>{1.0f - b1 - b2, b2, b1}
+                                                  : std::array<float, 3>{1.0f - b1 - b2, b1, b2};
+  return Descend(root, lambda, descend);
 }
 
 template <class F>
 void Hierarchy::ForEachLeaf(NodeId root, F&& f) const {
   if (root == kNoNode) {
-    for (NodeId r = 0; r < scene_.triangles.size(); ++r) ForEachLeaf(r, f);
+    for (NodeId r = 0; r < RootCount(); ++r) ForEachLeaf(r, f);
     return;
   }
   // Iterative: hierarchies can be deep.

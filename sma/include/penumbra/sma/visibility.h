@@ -33,6 +33,7 @@ struct PixelHit {
   uint32_t triangle = kNoHit;  // base triangle, or kNoHit for background
   float b1 = 0.0f;             // barycentrics on that triangle
   float b2 = 0.0f;
+  bool backFace = false;       // the ray met the side its geometric normal points away from
 };
 
 /// Primary hits for one camera view, row-major, row 0 at the top.
@@ -90,9 +91,9 @@ struct VisibleSet {
   std::vector<uint32_t> coverage;  // parallel to `nodes`
 };
 
-/// Maps every hit to the deepest node reachable from its base triangle's
-/// root while `descend(node)` is true: the node Hierarchy::Locate returns,
-/// exactly. `descend` is asked only about nodes with children, and not
+/// Maps every hit to the deepest node reachable from the root of the side of
+/// its base triangle that the ray met, while `descend(node)` is true: the
+/// node Hierarchy::Locate returns, exactly. `descend` is asked only about nodes with children, and not
 /// necessarily once per pixel (a hit well inside the node its neighbour went
 /// to goes there too). It is called concurrently from TBB threads and must be
 /// thread-safe (read-only). The caller keeps the hierarchy unchanged
