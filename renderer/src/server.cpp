@@ -247,6 +247,7 @@ class RendererServer::Impl::Session : public std::enable_shared_from_this<Sessio
     AddCounter(reply, "samples_queued", double(totals.samplesQueued));
     AddCounter(reply, "paths_traced", double(totals.paths));
     AddCounter(reply, "rays_traced", double(totals.rays));
+    AddCounter(reply, "samples_buried", double(totals.buriedSamples));
     AddCounter(reply, "worker_threads", double(server_.Pool().Threads()));
     AddCounter(reply, "connections", double(server_.SessionCount()));
     AddCounter(reply, "uptime_seconds", std::chrono::duration<double>(Clock::now() - server_.Started()).count());

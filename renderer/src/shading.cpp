@@ -104,6 +104,9 @@ struct Shader::Impl {
   // Next-event estimates at `v` (throughput not applied), one shadow ray each.
   Rgb SampleAreaLight(const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const;
   Rgb SampleSun(const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const;
+  // Where to shade a sample leaving from `start` (header: "Buried samples");
+  // `inside` is a point off the same side of the sample's triangle, well inside it.
+  Vec3 UnburiedOrigin(const PathVertex& start, const Vec3& inside, Pcg32& rng, ShadeCounters& counters) const;
 
   const Scene& scene;
   const RayScene& rays;
@@ -228,6 +231,34 @@ Rgb Shader::Impl::SampleAreaLight(const PathVertex& v, Pcg32& rng, ShadeCounters
   return light.emission * (weight * cosAtVertex / pdfLight);
 }
 
+Vec3 Shader::Impl::UnburiedOrigin(const PathVertex& start, const Vec3& inside, Pcg32& rng,
+                                  ShadeCounters& counters) const {
+  const Vec3 toSample = start.origin - inside;
+  const float distance = glm::length(toSample);
+  if (!(distance > 4.0f * offset)) return start.origin;
+  const Vec3 along = toSample / distance;
+  ++counters.rays;
+  const std::optional<RayHit> entry = rays.Intersect(inside, along, 0.0f, distance);
+  // Nothing in the way, or the way leaves a solid rather than entering one
+  // (the inside point is enclosed itself, or the occluder is wound inward):
+  // nothing better to shade than the sample itself.
+  if (!entry || glm::dot(entry->normal, along) >= 0.0f) return start.origin;
+
+  constexpr int kProbes = 16;
+  const bool openSky = scene.sky.has_value() || scene.sun.has_value();
+  int seesOut = 0;
+  for (int i = 0; i < kProbes; ++i) {
+    const Vec3 direction = start.frame.ToWorld(sampling::CosineHemisphere(rng.NextFloat(), rng.NextFloat()));
+    ++counters.rays;
+    const std::optional<RayHit> hit = rays.Intersect(start.origin, direction, 0.0f, kInfinity);
+    if (hit ? glm::dot(hit->normal, direction) < 0.0f : openSky) ++seesOut;
+  }
+  if (seesOut * 10 > kProbes) return start.origin;  // it sees the scene: in a crease, not buried
+  ++counters.buriedSamples;
+  const float backOff = std::max(4.0f * offset, 0.01f * distance);
+  return inside + std::max(0.0f, entry->t - backOff) * along;
+}
+
 Rgb Shader::Impl::SampleSun(const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const {
   const Vec3 direction =
       sunFrame.ToWorld(sampling::UniformCone(rng.NextFloat(), rng.NextFloat(), sunCosHalfAngle));
@@ -273,6 +304,7 @@ ShadeOutput Shader::Shade(const ShadeInput& in, int paths, ShadeCounters* counte
 
   Pcg32 rng = Pcg32::ForSample(s.settings.seed, in.sampleId);
   ShadeCounters work;
+  start.origin = s.UnburiedOrigin(start, centroid + s.offset * start.geometricNormal, rng, work);
   Rgb sum(0.0f);
   double luminanceSquares = 0.0;
   int traced = 0;

@@ -70,6 +70,7 @@ ShadingPool::Totals ShadingPool::GetTotals() const {
   t.samplesCancelled = samplesCancelled_.load();
   t.paths = paths_.load();
   t.rays = rays_.load();
+  t.buriedSamples = buriedSamples_.load();
   t.samplesQueued = samplesQueued_.load();
   return t;
 }
@@ -116,6 +117,7 @@ void ShadingPool::RunChunk(Source& source, const Chunk& chunk) {
   samplesCancelled_ += chunk.end - done;
   paths_ += counters.paths;
   rays_ += counters.rays;
+  buriedSamples_ += counters.buriedSamples;
   if (shaded < chunk.end - chunk.begin) return;
 
   // Decrement and deliver under the job's lock, so parts leave in the order

@@ -109,6 +109,40 @@ SkyLight UniformSky(Rgb radiance) {
   return sky;
 }
 
+// --- Buried samples -----------------------------------------------------------------
+
+// A stair riser (z = 0, facing +z) whose top edge runs into a tread slab with
+// a 5 cm nosing, on a floor, under a uniform sky. The riser's top corners lie
+// inside the slab: shaded there they would see only its inside and read
+// black. They are shaded where the riser emerges below the slab instead; a
+// corner merely in a crease (riser meets floor) is shaded where it is.
+TEST(ShadingTest, ABuriedSampleIsShadedWhereItsSurfaceEmerges) {
+  SceneBuilder b;
+  const uint32_t m = b.AddMaterial(MakeMaterial(Rgb(0.5f)));
+  b.AddQuad(Vec3(-0.5f, 0.0f, 0.0f), Vec3(1.0f, 0.0f, 0.0f), Vec3(0.0f, 0.3f, 0.0f), m);  // riser, +z
+  AddHorizontalSquare(b, Vec3(0.0f, 0.0f, 1.0f), 2.0f, m, true);                          // floor, +y
+  AddBox(b, Vec3(-1.0f, 0.28f, -0.5f), Vec3(1.0f, 0.32f, 0.05f), m, false);              // the slab, a solid
+  Scene scene;
+  scene.sky = UniformSky(Rgb(1.0f));
+  const TestScene t = Finish(b, std::move(scene));
+  const Shader shader(t.scene, *t.rays, ShadingSettings{});
+  const Vec3 kFront(0.0f, 0.0f, 1.0f);
+
+  ShadeCounters buried;
+  const ShadeOutput top = shader.Shade(SampleAt(t.scene, Vec3(-0.5f, 0.3f, 0.0f), kFront), 1024, &buried);
+  EXPECT_EQ(buried.buriedSamples, 1u);
+  // Where it emerges, just under the slab, the nosing hides the upper half
+  // of the sky and the lower half is mostly the floor (albedo 0.5, lit by
+  // the sky): about (0 + 0.5 * 0.5) pi, with some sky past the floor's edge.
+  EXPECT_GT(Luminance(top.irradiance), 0.25f * kPi);
+  EXPECT_LT(Luminance(top.irradiance), 0.5f * kPi);
+
+  ShadeCounters crease;
+  const ShadeOutput bottom = shader.Shade(SampleAt(t.scene, Vec3(-0.5f, 0.0f, 0.0f), kFront), 1024, &crease);
+  EXPECT_EQ(crease.buriedSamples, 0u);
+  EXPECT_GT(Luminance(bottom.irradiance), 0.5f * kPi);
+}
+
 // Every cosine-sampled direction escapes and carries L: E = pi L exactly, on
 // either side of the plane, at a vertex as well as inside.
 TEST(ShadingTest, UnoccludedPlaneUnderUniformSkyReceivesPiL) {

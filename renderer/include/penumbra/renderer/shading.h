@@ -31,6 +31,16 @@
 // its triangle: samples sit on vertices and edges, where a neighbouring
 // triangle (a wall meeting a floor) passes through the exact point.
 //
+// Buried samples. Real models let surfaces run into each other: a stair
+// riser's corners sit inside the tread slabs, a skirting board's inside the
+// wall. Shaded where it is, such a sample sees only the inside of a solid
+// and reads black, and since all its triangle's corners do, no refinement
+// criterion would ever look inside the triangle. A sample is buried when the
+// way from its triangle's centroid to it enters a solid (meets a front face)
+// and, from the sample, nearly no direction sees a front face (nor, under a
+// sky or sun, the open sky). It is then shaded where its surface emerges:
+// just before that front face, on the line from the centroid.
+//
 // Path length. Segment 0 leaves the sample; a path has at most
 // `maxBounces` + 1 segments. The lights are sampled from the start of every
 // segment, a light sample counting as that segment, so maxBounces = 0 is
@@ -101,11 +111,13 @@ struct ShadeCounters {
   uint64_t paths = 0;
   uint64_t rays = 0;        // closest-hit and shadow rays together
   uint64_t shadowRays = 0;  // of which shadow (occlusion) rays
+  uint64_t buriedSamples = 0;  // samples shaded where their surface emerges from geometry burying them
 
   ShadeCounters& operator+=(const ShadeCounters& other) {
     paths += other.paths;
     rays += other.rays;
     shadowRays += other.shadowRays;
+    buriedSamples += other.buriedSamples;
     return *this;
   }
 };

@@ -66,6 +66,7 @@ class ShadingPool {
     uint64_t samplesCancelled = 0;
     uint64_t paths = 0;
     uint64_t rays = 0;
+    uint64_t buriedSamples = 0;  // shaded where their surface emerges (shading.h: "Buried samples")
     uint64_t samplesQueued = 0;  // waiting or being shaded now
   };
   Totals GetTotals() const;
@@ -90,6 +91,7 @@ class ShadingPool {
   std::atomic<uint64_t> samplesCancelled_{0};
   std::atomic<uint64_t> paths_{0};
   std::atomic<uint64_t> rays_{0};
+  std::atomic<uint64_t> buriedSamples_{0};
   std::atomic<uint64_t> samplesQueued_{0};
 };
 
