@@ -132,7 +132,11 @@ void ExpectCornellBox(const Image& image, const PixelClasses& classes) {
   }
   for (size_t i : classes.green) {
     const Rgb c = PixelOf(image, i);
-    EXPECT_GT(c.g, 1.2f * c.r) << "green wall pixel " << i;
+    // Without refinement the wall is four corner samples interpolated; the
+    // upper ones, in the creases with the white ceiling and back wall, are
+    // lit mostly by interreflection and read only mildly green once their
+    // estimates converge (improvement).
+    EXPECT_GT(c.g, 1.1f * c.r) << "green wall pixel " << i;
     greenX += double(i % size_t(image.width));
   }
   EXPECT_LT(redX / double(classes.red.size()), 0.3 * image.width) << "the red wall is on the left";

@@ -121,7 +121,10 @@ class MultiHostTest : public ::testing::Test {
     return Start("sma", PENUMBRA_SMA_EXE,
                  {"--scene", kScene, "--listen", net_->Address("sma") + ":" + std::to_string(kSmaPort), "--renderer",
                   kRenderers + ":" + std::to_string(kRendererPort), "--resolve-interval", "1", "--max-batch", "2",
-                  "--credits", "2", "--criterion", "none"});
+                  "--credits", "2", "--criterion", "none",
+                  // Every sample at the renderers' (slow) --spp, stage 1 too, so that work is in flight when a
+                  // renderer is killed.
+                  "--first-paths", "0"});
   }
   // A scripted client on the client host (its socket lives there).
   SmaTestClient ConnectClient() {

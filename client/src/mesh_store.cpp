@@ -60,8 +60,14 @@ Status MeshStore::CheckShape(const wire::Delta& d) const {
     return Fail(fmt::format("delta {}: unknown kind {}", d.sequence(), int(d.kind())));
   const int nv = d.vertex_ids_size();
   const int nt = d.triangle_ids_size();
-  if (d.kind() == wire::DELTA_KIND_STATUS && (nv > 0 || nt > 0 || d.removed_triangles_size() > 0))
-    return Fail(fmt::format("delta {}: a STATUS delta carries triangles or vertices", d.sequence()));
+  const int nu = d.updated_vertex_ids_size();
+  if ((d.kind() == wire::DELTA_KIND_STATUS || d.kind() == wire::DELTA_KIND_IMPROVED) &&
+      (nv > 0 || nt > 0 || d.removed_triangles_size() > 0))
+    return Fail(fmt::format("delta {}: a {} delta carries triangles or new vertices", d.sequence(),
+                            wire::DeltaKind_Name(d.kind())));
+  if (d.updated_vertex_radiance_size() != 3 * nu || d.updated_vertex_irradiance_size() != 3 * nu)
+    return Fail(fmt::format("delta {}: {} updated vertex ids but {} / {} radiance / irradiance values (3 per vertex)",
+                            d.sequence(), nu, d.updated_vertex_radiance_size(), d.updated_vertex_irradiance_size()));
   if (d.vertex_positions_size() != 3 * nv || d.vertex_radiance_size() != 3 * nv ||
       d.vertex_irradiance_size() != 3 * nv)
     return Fail(fmt::format("delta {}: {} vertex ids but {} / {} / {} position / radiance / irradiance values "
@@ -83,7 +89,8 @@ Status MeshStore::CheckShape(const wire::Delta& d) const {
     return Fail(fmt::format("delta {}: {} texture coordinates for {} textured triangles (6 each)", d.sequence(),
                             d.triangle_uvs_size(), textured));
   if (!AllFinite(d.vertex_positions()) || !AllFinite(d.vertex_radiance()) || !AllFinite(d.vertex_irradiance()) ||
-      !AllFinite(d.triangle_uvs()))
+      !AllFinite(d.triangle_uvs()) || !AllFinite(d.updated_vertex_radiance()) ||
+      !AllFinite(d.updated_vertex_irradiance()))
     return Fail(fmt::format("delta {}: a vertex position, radiance, irradiance or texture coordinate is not finite",
                             d.sequence()));
   return Status::Ok();
@@ -107,6 +114,8 @@ Status MeshStore::Apply(const wire::Delta& d) {
   for (uint64_t id : d.vertex_ids())
     if (vertices_.at(id).refs == 0)
       return Fail(fmt::format("delta {}: vertex {} sent but used by no triangle", d.sequence(), id));
+  for (int i = 0; i < d.updated_vertex_ids_size(); ++i)
+    if (auto ok = UpdateVertex(d, i); !ok) return Fail(fmt::format("delta {}: {}", d.sequence(), ok.error().message));
 
   viewId_ = d.view_id();
   pendingSamples_ = d.pending_samples();
@@ -161,6 +170,23 @@ Status MeshStore::AddVertex(const wire::Delta& d, int i) {
   vertexSlotIds_[slot] = id;
   vertices_.emplace(id, VertexRecord{slot, 0});
   dirtyVertices_.Mark(slot);
+  CountLuminance(Luminance(radiance));
+  return Status::Ok();
+}
+
+Status MeshStore::UpdateVertex(const wire::Delta& d, int i) {
+  const uint64_t id = d.updated_vertex_ids(i);
+  auto it = vertices_.find(id);
+  if (it == vertices_.end()) return Fail(fmt::format("update of vertex {}, which is not held", id));
+  GpuVertex& v = vertexSlots_[it->second.slot];
+  UncountLuminance(SlotLuminance(v));
+  const Rgb radiance = RgbAt(d.updated_vertex_radiance(), i);
+  const Rgb irradiance = RgbAt(d.updated_vertex_irradiance(), i);
+  for (int c = 0; c < 3; ++c) {
+    v.radiance[c] = radiance[c];
+    v.irradiance[c] = irradiance[c];
+  }
+  dirtyVertices_.Mark(it->second.slot);
   CountLuminance(Luminance(radiance));
   return Status::Ok();
 }

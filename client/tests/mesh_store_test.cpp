@@ -53,6 +53,33 @@ TEST_F(MeshStoreTest, AppliesVerticesThenTrianglesAndCountsReferences) {
   EXPECT_EQ(store_.LastSequence(), 1u);
 }
 
+// IMPROVED deltas carry better estimates of held vertices: the slot's
+// radiance changes and is marked for upload; an update of a vertex not held,
+// or an IMPROVED delta carrying triangles, is refused.
+TEST_F(MeshStoreTest, AnImprovedVertexChangesInPlace) {
+  ASSERT_TRUE(store_.Apply(Quad().Delta()).ok());
+  store_.DirtyVertices().Clear();
+  ASSERT_TRUE(store_.Apply(DeltaBuilder(2, 1, wire::DELTA_KIND_IMPROVED).Update(3, Rgb(5.0f, 6.0f, 7.0f)).Delta()).ok());
+  bool found = false;
+  for (const GpuVertex& v : store_.VertexSlots())
+    if (v.position[0] == 1.0f && v.position[1] == 1.0f) {
+      found = true;
+      EXPECT_EQ(v.radiance[0], 5.0f);
+      EXPECT_EQ(v.radiance[2], 7.0f);
+    }
+  EXPECT_TRUE(found);
+  EXPECT_FALSE(store_.DirtyVertices().Empty());
+  EXPECT_EQ(store_.VertexCount(), 4u);
+  EXPECT_EQ(store_.TriangleCount(), 2u);
+  ExpectRefused(DeltaBuilder(3, 1, wire::DELTA_KIND_IMPROVED).Update(99, Rgb(1.0f)).Delta(), "vertex 99");
+}
+
+TEST_F(MeshStoreTest, AnImprovedDeltaCarriesNoTriangles) {
+  DeltaBuilder d = Quad();
+  d.Mutable().set_kind(wire::DELTA_KIND_IMPROVED);
+  ExpectRefused(d.Delta(), "IMPROVED");
+}
+
 TEST_F(MeshStoreTest, AVertexGoesWithItsLastTriangle) {
   ASSERT_TRUE(store_.Apply(Quad().Delta()).ok());
   ASSERT_TRUE(store_.Apply(DeltaBuilder(2, 1, wire::DELTA_KIND_REMOVED).Remove(10).Delta()).ok());

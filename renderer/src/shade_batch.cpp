@@ -52,12 +52,14 @@ void FillShadeReply(uint64_t batchId, std::span<const ShadeInput> inputs, std::s
   reply->mutable_radiance()->Reserve(3 * n);
   reply->mutable_irradiance()->Reserve(3 * n);
   reply->mutable_irradiance_stderr()->Reserve(n);
+  reply->mutable_sample_paths()->Reserve(n);
   for (int i = 0; i < n; ++i) {
     reply->add_sample_ids(inputs[size_t(i)].sampleId);
     const ShadeOutput& out = outputs[size_t(i)];
     for (int c = 0; c < 3; ++c) reply->add_radiance(out.radiance[c]);
     for (int c = 0; c < 3; ++c) reply->add_irradiance(out.irradiance[c]);
     reply->add_irradiance_stderr(out.irradianceStdErr);
+    reply->add_sample_paths(out.paths);
   }
 }
 

@@ -335,6 +335,7 @@ ShadeOutput Shader::Shade(const ShadeInput& in, int paths, ShadeCounters* counte
   ShadeOutput out;
   out.irradiance = sum / float(traced);
   out.irradianceStdErr = float(standardError());
+  out.paths = uint32_t(traced);
   const Rgb emitted = frontSide ? s.scene.MaterialOf(in.triangle).emission : Rgb(0.0f);
   out.radiance = emitted + s.scene.AlbedoAt(in.triangle, in.b1, in.b2) * kInvPi * out.irradiance;
   return out;

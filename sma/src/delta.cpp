@@ -56,6 +56,19 @@ size_t ClientMirror::AppendChanges(std::span<const NodeId> removals, std::span<c
   return added;
 }
 
+size_t ClientMirror::AppendUpdates(std::span<const VertexId> vertices, const SampleCache& cache,
+                                   wire::Delta& delta) const {
+  size_t n = 0;
+  for (VertexId v : vertices) {
+    if (!HoldsVertex(v)) continue;
+    delta.add_updated_vertex_ids(v);
+    AddVec3(delta.mutable_updated_vertex_radiance(), cache.Radiance(v));
+    AddVec3(delta.mutable_updated_vertex_irradiance(), cache.Irradiance(v));
+    ++n;
+  }
+  return n;
+}
+
 void ClientMirror::Clear() {
   held_.clear();
   vertexRefs_.clear();

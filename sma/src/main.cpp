@@ -36,8 +36,20 @@ int main(int argc, char** argv) {
                  "Renderer address HOST:PORT; repeat for several. A name resolving to several addresses "
                  "connects to each, and is re-resolved periodically")
       ->required();
-  app.add_option("--paths", options.pool.pathsPerSample, "Paths per sample asked of renderers (0: their --spp)")
+  app.add_option("--paths", options.pool.pathsPerSample,
+                 "Paths per sample asked of renderers for refinement (0: their --spp)")
       ->capture_default_str();
+  app.add_option("--first-paths", options.pool.firstPaths,
+                 "Paths per sample for a new view's first image (stage 1; 0: as --paths): few, so it comes soon")
+      ->capture_default_str();
+  app.add_option("--improve-paths", options.pool.improvePaths,
+                 "Paths per improvement round of a displayed sample (0: no improvement)")
+      ->check(CLI::Range(0u, 1u << 16))->capture_default_str();
+  app.add_option("--improve-target-error", options.improveTargetError,
+                 "Improve displayed samples until their relative standard error is below this")
+      ->check(CLI::Range(0.0001f, 1.0f))->capture_default_str();
+  app.add_option("--improve-max-paths", options.improveMaxPaths, "... or until they average this many paths")
+      ->check(CLI::Range(1u, 1u << 24))->capture_default_str();
   app.add_option("--credits", options.pool.creditsPerRenderer, "Batches in flight per renderer")
       ->check(CLI::Range(1u, 1024u))->capture_default_str();
   app.add_option("--max-batch", options.pool.maxBatchSamples, "Largest batch sent to a renderer")

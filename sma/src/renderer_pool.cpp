@@ -31,8 +31,14 @@ struct RendererPool::Batch {
   uint64_t id = 0;
   std::vector<VertexId> vertices;
   size_t answered = 0;
+  uint32_t paths = 0;  // paths per sample asked for (the renderer's default when the request said 0)
   Clock::time_point sentAt;
 };
+
+namespace {
+// Wire sample ids: the vertex in the low 32 bits, the improvement round above.
+uint64_t WireSampleId(VertexId v, uint16_t round) { return uint64_t(v) | (uint64_t(round) << 32); }
+}  // namespace
 
 struct RendererPool::Link {
   Link(asio::io_context& io, tcp::endpoint e) : endpoint(std::move(e)), label(EndpointLabel(endpoint)), timer(io) {}
@@ -48,6 +54,7 @@ struct RendererPool::Link {
   std::string peerName;
   uint32_t credits = 0;   // batches in flight allowed
   uint32_t maxBatch = 0;  // samples per batch allowed
+  uint32_t defaultPaths = 0;  // its --spp, from its Welcome
   bool draining = false;  // the renderer is shutting down: no new batches
   std::unordered_map<uint64_t, Batch> batches;
   uint64_t samplesInFlight = 0;
@@ -250,7 +257,10 @@ void RendererPool::RequeueEntryLocked(VertexId v, Entry& entry) {
   ++requeued_;
   --inFlight_;
   ++queuedTotal_;
-  if (entry.interest > 0) {
+  if (entry.improve) {
+    ++queuedImprove_;
+    improveQueue_.push_front(v);
+  } else if (entry.interest > 0) {
     entry.inVisibleQueue = true;
     ++queuedVisible_;
     visibleQueue_.push_front(v);
@@ -301,6 +311,7 @@ void RendererPool::OnMessage(const std::shared_ptr<Link>& link, wire::Envelope&&
       link->peerName = w.server_name();
       link->credits = std::max(1u, std::min(options_.creditsPerRenderer, w.max_batches_in_flight()));
       link->maxBatch = std::max(1u, std::min(options_.maxBatchSamples, w.max_batch_samples()));
+      link->defaultPaths = std::max(1u, w.paths_per_sample());
       link->lastCompletion = Clock::now();
       log->info("renderer {} ('{}', {} threads) ready", link->label, link->peerName, w.worker_threads());
       DispatchLocked();
@@ -334,7 +345,8 @@ void RendererPool::OnMessage(const std::shared_ptr<Link>& link, wire::Envelope&&
             entry.state = EntryState::kAnswered;
             --inFlight_;
             ++failed_;
-            failedSamples.push_back(ShadedSample{v, Rgb(0.0f), Rgb(0.0f)});
+            // Paths 0: no estimate (an improvement of it changes nothing).
+            failedSamples.push_back(ShadedSample{v, Rgb(0.0f), Rgb(0.0f), 0.0f, 0, entry.request.round});
           } else {
             RequeueEntryLocked(v, entry);
           }
@@ -365,17 +377,25 @@ void RendererPool::OnReply(const std::shared_ptr<Link>& link, const wire::ShadeR
     // too) must then still be in flight so that it is requeued, not lost.
     results.reserve(size_t(n));
     std::set<uint64_t> seen;
+    if (reply.sample_paths_size() != 0 && reply.sample_paths_size() != n)
+      return RejectReplyLocked(*link, fmt::format("reply for batch {} has inconsistent arrays", batch.id));
     for (int i = 0; i < n; ++i) {
       const uint64_t id = reply.sample_ids(i);
-      auto e = id < kNoVertex ? entries_.find(VertexId(id)) : entries_.end();
+      const VertexId vertex = VertexId(id & 0xffffffffu);
+      const uint64_t round = id >> 32;
+      auto e = vertex != kNoVertex ? entries_.find(vertex) : entries_.end();
       if (e == entries_.end() || e->second.state != EntryState::kInFlight || e->second.batch != batch.id ||
-          !seen.insert(id).second)
+          e->second.request.round != round || !seen.insert(id).second)
         return RejectReplyLocked(*link, fmt::format("reply for batch {} names sample {}, which it was not asked for",
                                                     batch.id, id));
-      ShadedSample sample{VertexId(id),
+      const uint32_t paths = reply.sample_paths_size() == n ? reply.sample_paths(i) : batch.paths;
+      if (paths == 0 || paths > (1u << 24))
+        return RejectReplyLocked(*link, fmt::format("reply for batch {}: sample {} averages {} paths", batch.id, id,
+                                                    paths));
+      ShadedSample sample{vertex,
                           Rgb(reply.radiance(3 * i), reply.radiance(3 * i + 1), reply.radiance(3 * i + 2)),
                           Rgb(reply.irradiance(3 * i), reply.irradiance(3 * i + 1), reply.irradiance(3 * i + 2)),
-                          reply.irradiance_stderr(i)};
+                          reply.irradiance_stderr(i), paths, uint16_t(round)};
       if (auto ok = options_.radianceBounds.Check(sample); !ok) {
         ++rejectedSamples_;
         return RejectReplyLocked(*link, fmt::format("reply for batch {}: sample {}: {}", batch.id, id,
@@ -429,9 +449,25 @@ size_t RendererPool::Request(std::span<const SampleRequest> samples, Priority pr
   std::lock_guard lock(mutex_);
   size_t added = 0;
   const bool visible = priority == Priority::kVisible;
+  if (priority == Priority::kImprove) {
+    for (const SampleRequest& s : samples) {
+      auto [it, inserted] = entries_.try_emplace(s.vertex);
+      if (!inserted) continue;  // alive already (being shaded or improved): one request at a time
+      Entry& e = it->second;
+      e.request = s;
+      e.improve = true;
+      ++queuedTotal_;
+      ++queuedImprove_;
+      ++added;
+      improveQueue_.push_back(s.vertex);
+    }
+    DispatchLocked();
+    return added;
+  }
   for (const SampleRequest& s : samples) {
     auto [it, inserted] = entries_.try_emplace(s.vertex);
     Entry& e = it->second;
+    if (e.improve) continue;  // its improvement is on the way; a shaded vertex is not asked for again
     if (visible) ++e.interest;
     if (inserted) {
       e.request = s;
@@ -472,8 +508,20 @@ void RendererPool::Complete(std::span<const ShadedSample> samples) {
   }
 }
 
-bool RendererPool::TakeNextLocked(VertexId& out) {
-  while (!visibleQueue_.empty()) {
+bool RendererPool::TakeNextLocked(Priority priority, VertexId& out) {
+  if (priority == Priority::kImprove) {
+    while (!improveQueue_.empty()) {
+      const VertexId v = improveQueue_.front();
+      improveQueue_.pop_front();
+      auto it = entries_.find(v);
+      if (it == entries_.end() || it->second.state != EntryState::kQueued || !it->second.improve) continue;
+      --queuedImprove_;
+      out = v;
+      return true;
+    }
+    return false;
+  }
+  while (priority == Priority::kVisible && !visibleQueue_.empty()) {
     const VertexId v = visibleQueue_.front();
     visibleQueue_.pop_front();
     auto it = entries_.find(v);
@@ -487,7 +535,7 @@ bool RendererPool::TakeNextLocked(VertexId& out) {
     out = v;
     return true;
   }
-  while (!backgroundQueue_.empty()) {
+  while (priority == Priority::kBackground && !backgroundQueue_.empty()) {
     const VertexId v = backgroundQueue_.front();
     backgroundQueue_.pop_front();
     auto it = entries_.find(v);
@@ -516,14 +564,28 @@ void RendererPool::DispatchLocked() {
       const size_t fairShare = size_t((queuedTotal_ + freeCredits - 1) / freeCredits);
       const size_t size = std::clamp<size_t>(std::min<size_t>(size_t(byRate), fairShare), options_.minBatchSamples,
                                              std::max(options_.minBatchSamples, link->maxBatch));
+      // One priority per batch, the most urgent one queued.
+      VertexId v = kNoVertex;
+      Priority priority = Priority::kVisible;
+      for (Priority p : {Priority::kVisible, Priority::kBackground, Priority::kImprove}) {
+        if (TakeNextLocked(p, v)) {
+          priority = p;
+          break;
+        }
+      }
+      // Every queued entry sits in one of the queues.
+      PENUMBRA_CHECK(v != kNoVertex, fmt::format("{} samples counted as queued but none found", queuedTotal_));
+      const uint32_t paths = priority == Priority::kImprove ? options_.improvePaths
+                             : priority == Priority::kVisible && options_.firstPaths > 0 ? options_.firstPaths
+                                                                                       : options_.pathsPerSample;
       Batch batch;
       batch.id = nextBatchId_++;
+      batch.paths = paths > 0 ? paths : link->defaultPaths;
       wire::Envelope envelope;
       auto* request = envelope.mutable_shade_request();
       request->set_batch_id(batch.id);
-      request->set_paths_per_sample(options_.pathsPerSample);
-      VertexId v;
-      while (batch.vertices.size() < size && TakeNextLocked(v)) {
+      request->set_paths_per_sample(paths);
+      for (bool first = true; first || (batch.vertices.size() < size && TakeNextLocked(priority, v)); first = false) {
         Entry& e = entries_.at(v);
         e.state = EntryState::kInFlight;
         e.batch = batch.id;
@@ -531,15 +593,13 @@ void RendererPool::DispatchLocked() {
         ++inFlight_;
         batch.vertices.push_back(v);
         const SampleRequest& r = e.request;
-        request->add_sample_ids(v);
+        request->add_sample_ids(WireSampleId(v, r.round));
         for (int k = 0; k < 3; ++k) request->add_positions(r.position[k]);
         for (int k = 0; k < 3; ++k) request->add_normals(r.normal[k]);
         request->add_triangle_ids(r.triangle);
         request->add_barycentrics(r.bary.x);
         request->add_barycentrics(r.bary.y);
       }
-      // Every queued entry sits in one of the two queues.
-      PENUMBRA_CHECK(!batch.vertices.empty(), fmt::format("{} samples counted as queued but none found", queuedTotal_));
       batch.sentAt = Clock::now();
       link->samplesInFlight += batch.vertices.size();
       const uint64_t id = batch.id;
@@ -568,7 +628,8 @@ RendererPoolStats RendererPool::Stats() const {
   std::lock_guard lock(mutex_);
   RendererPoolStats s;
   s.queuedVisible = queuedVisible_;
-  s.queuedBackground = queuedTotal_ >= queuedVisible_ ? queuedTotal_ - queuedVisible_ : 0;
+  s.queuedImprove = queuedImprove_;
+  s.queuedBackground = queuedTotal_ >= queuedVisible_ + queuedImprove_ ? queuedTotal_ - queuedVisible_ - queuedImprove_ : 0;
   s.inFlight = inFlight_;
   s.requested = requested_;
   s.shaded = shaded_;

@@ -1,5 +1,8 @@
 #include "penumbra/sma/sample_cache.h"
 
+#include <algorithm>
+#include <cmath>
+
 #include <fmt/format.h>
 
 namespace penumbra::sma {
@@ -35,6 +38,37 @@ void SampleCache::Reserve(size_t vertexCount) {
   radiance_.resize(vertexCount, Rgb(0.0f));
   irradiance_.resize(vertexCount, Rgb(0.0f));
   irradianceStdErr_.resize(vertexCount, 0.0f);
+  paths_.resize(vertexCount, 0);
+  rounds_.resize(vertexCount, 0);
+}
+
+float SampleCache::RelativeError(VertexId v) const {
+  if (!IsShaded(v)) return 0.0f;
+  const float e = penumbra::Luminance(irradiance_[v]);
+  const float err = irradianceStdErr_[v];
+  if (!(err > 0.0f)) return 0.0f;
+  return e > 0.0f ? err / e : std::numeric_limits<float>::infinity();
+}
+
+std::vector<VertexId> SampleCache::Improve(std::span<const ShadedSample> samples) {
+  std::vector<VertexId> changed;
+  changed.reserve(samples.size());
+  for (const ShadedSample& s : samples) {
+    if (s.vertex >= shaded_.size() || !shaded_[s.vertex] || s.round != rounds_[s.vertex] + 1 || s.paths == 0)
+      continue;
+    const VertexId v = s.vertex;
+    const double n1 = std::max<uint32_t>(1, paths_[v]), n2 = std::max<uint32_t>(1, s.paths), n = n1 + n2;
+    const float w1 = float(n1 / n), w2 = float(n2 / n);
+    radiance_[v] = w1 * radiance_[v] + w2 * s.radiance;
+    irradiance_[v] = w1 * irradiance_[v] + w2 * s.irradiance;
+    // Var(w1 X1 + w2 X2) = w1^2 Var1 + w2^2 Var2 for independent estimates.
+    irradianceStdErr_[v] = std::sqrt(w1 * w1 * irradianceStdErr_[v] * irradianceStdErr_[v] +
+                                     w2 * w2 * s.irradianceStdErr * s.irradianceStdErr);
+    paths_[v] = uint32_t(std::min<double>(n, std::numeric_limits<uint32_t>::max()));
+    rounds_[v] = s.round;
+    changed.push_back(v);
+  }
+  return changed;
 }
 
 size_t SampleCache::Store(std::span<const ShadedSample> samples) {
@@ -47,6 +81,7 @@ size_t SampleCache::Store(std::span<const ShadedSample> samples) {
     radiance_[s.vertex] = s.radiance;
     irradiance_[s.vertex] = s.irradiance;
     irradianceStdErr_[s.vertex] = s.irradianceStdErr;
+    paths_[s.vertex] = s.paths;
     ++added;
   }
   shadedCount_ += added;

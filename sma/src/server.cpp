@@ -101,15 +101,39 @@ class SmaServer::Impl {
 
   // Called by the renderer pool (I/O thread) with shaded samples.
   void OnResults(std::vector<ShadedSample>&& samples) {
+    // First estimates and improvements come in separate batches (one
+    // priority per batch), but need not: sort them.
+    std::vector<ShadedSample> improvements;
+    for (auto it = samples.begin(); it != samples.end();) {
+      if (it->round == 0) {
+        ++it;
+        continue;
+      }
+      improvements.push_back(*it);
+      it = samples.erase(it);
+    }
+    std::vector<VertexId> changed;
     {
       std::unique_lock lock(stateMutex_);
-      cache_.Store(samples);
+      if (!samples.empty()) cache_.Store(samples);
+      if (!improvements.empty()) changed = cache_.Improve(improvements);
     }
     pool_->Complete(samples);
-    auto vertices = std::make_shared<std::vector<VertexId>>();
-    vertices->reserve(samples.size());
-    for (const ShadedSample& s : samples) vertices->push_back(s.vertex);
-    for (auto& session : Sessions()) NotifyArrived(session, vertices);
+    pool_->Complete(improvements);
+    samplesImproved_ += changed.size();
+    if (!samples.empty()) {
+      auto vertices = std::make_shared<std::vector<VertexId>>();
+      vertices->reserve(samples.size());
+      for (const ShadedSample& s : samples) vertices->push_back(s.vertex);
+      for (auto& session : Sessions()) NotifyArrived(session, vertices);
+    }
+    if (!improvements.empty()) {
+      auto answered = std::make_shared<std::vector<VertexId>>();
+      answered->reserve(improvements.size());
+      for (const ShadedSample& s : improvements) answered->push_back(s.vertex);
+      auto improved = std::make_shared<std::vector<VertexId>>(std::move(changed));
+      for (auto& session : Sessions()) NotifyImproved(session, answered, improved);
+    }
   }
 
   std::vector<std::shared_ptr<Session>> Sessions() {
@@ -124,6 +148,11 @@ class SmaServer::Impl {
     sessions_.erase(id);
   }
   void NotifyArrived(const std::shared_ptr<Session>& session, std::shared_ptr<const std::vector<VertexId>> vertices);
+  // `answered`: improvements that came back (some may have changed nothing);
+  // `improved`: the vertices whose cached estimate changed.
+  void NotifyImproved(const std::shared_ptr<Session>& session, std::shared_ptr<const std::vector<VertexId>> answered,
+                      std::shared_ptr<const std::vector<VertexId>> improved);
+  std::atomic<uint64_t> samplesImproved_{0};
 
   void AddGlobalCounters(wire::StatsReply* reply);
   // Timings of the views answered since the last stats line (any session).
@@ -188,6 +217,8 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
 
   // Strand: samples were stored in the cache.
   void OnSamplesArrived(const std::vector<VertexId>& vertices);
+  // Strand: improvements came back; `improved` changed the cache.
+  void OnSamplesImproved(const std::vector<VertexId>& answered, const std::vector<VertexId>& improved);
 
  private:
   struct JobTimings {
@@ -219,7 +250,10 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   /// report convergence; `alwaysSend`: send even when nothing changed.
   void SendChanges(wire::DeltaKind kind, std::span<const NodeId> removals, std::span<const NodeId> additions,
                    bool alwaysSend, bool last);
-  bool RefiningNow() const { return Stage1Done() && !Converged() && params_.criterion != Criterion::kNone; }
+  // Stage 2: the view is shaded, and refinement or improvement goes on.
+  bool RefiningNow() const {
+    return Stage1Done() && !Converged() && (params_.criterion != Criterion::kNone || ImprovementOn());
+  }
   void FillStatus(wire::Delta& delta, bool last) {
     delta.set_view_id(appliedViewId_);
     delta.set_pending_samples(uint32_t(waiting_.size() + refinementPending_.size()));
@@ -238,8 +272,13 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
     return params_.criterion == Criterion::kNone ||
            (refinementDone_ && refinementPending_.empty() && !refineRunning_ && !refreshWanted_);
   }
-  bool Converged() const { return Stage1Done() && RefinementDone(); }
+  bool ImprovementDone() const { return !ImprovementOn() || (improvementDone_ && improvePending_.empty()); }
+  bool ImprovementOn() const { return server_.options_.pool.improvePaths > 0; }
+  bool Converged() const { return Stage1Done() && RefinementDone() && ImprovementDone(); }
   void NoteStage1();
+  // Improvement of the view's samples (SmaOptions::improveTargetError).
+  void MaybeImprove();
+  void SendUpdates();
   void MaybeRefine();
   void OnRefineStepDone(const std::shared_ptr<Refiner>& refiner, size_t chosen, std::vector<VertexId> newVertices,
                         bool exhausted);
@@ -291,6 +330,14 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   std::shared_ptr<Refiner> refiner_;
   bool refineRunning_ = false;
   bool refinementDone_ = false;
+  // Improvement of the view's samples: asked for and not yet answered; done
+  // when nothing visible needs more; updates owed to the client (held
+  // vertices whose estimate improved), sent when its queue allows.
+  std::unordered_set<VertexId> improvePending_;
+  bool improvementDone_ = false;
+  std::unordered_set<VertexId> updatesOwed_;
+  uint64_t updatesSent_ = 0;
+  uint64_t improvementsAsked_ = 0;
   std::unordered_set<VertexId> refinementPending_;  // split vertices not yet shaded
   uint64_t refinementSplits_ = 0;
   uint64_t refinementSamples_ = 0;
@@ -304,6 +351,15 @@ void SmaServer::Impl::NotifyArrived(const std::shared_ptr<Session>& session,
                                     std::shared_ptr<const std::vector<VertexId>> vertices) {
   asio::post(session->Connection().Strand(),
              [session, vertices = std::move(vertices)] { session->OnSamplesArrived(*vertices); });
+}
+
+void SmaServer::Impl::NotifyImproved(const std::shared_ptr<Session>& session,
+                                     std::shared_ptr<const std::vector<VertexId>> answered,
+                                     std::shared_ptr<const std::vector<VertexId>> improved) {
+  asio::post(session->Connection().Strand(),
+             [session, answered = std::move(answered), improved = std::move(improved)] {
+               session->OnSamplesImproved(*answered, *improved);
+             });
 }
 
 void SmaServer::Impl::Session::OnMessage(wire::Envelope&& envelope) {
@@ -473,11 +529,13 @@ void SmaServer::Impl::Session::OnJobDone(uint64_t viewId, bool newView, std::sha
   if (refreshWanted_) ScheduleRefresh();
   NoteStage1();
   MaybeRefine();
+  MaybeImprove();
   SyncStatus();
 }
 
 void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
   Impl& server = server_;
+  improvementDone_ = false;  // what is displayed changed: look again
   std::shared_lock lock(server.stateMutex_);
   ViewPlan plan = PlanView(*visible_, mirror_, server.hierarchy_, server.cache_);
 
@@ -516,6 +574,8 @@ void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
     removals.insert(removals.end(), plan.removeGone.begin(), plan.removeGone.end());
     SendChanges(wire::DELTA_KIND_REFINED, removals, plan.addCached, /*alwaysSend=*/false, /*last=*/true);
   }
+  lock.unlock();
+  SendUpdates();
 }
 
 void SmaServer::Impl::Session::SendChanges(wire::DeltaKind kind, std::span<const NodeId> removals,
@@ -550,7 +610,7 @@ void SmaServer::Impl::Session::OnSamplesArrived(const std::vector<VertexId>& ver
   if (!hasVisible_ || !connection_->IsOpen()) return;
   std::unordered_set<NodeId> candidates;
   bool refinement = false;
-  const size_t baseVertices = server_.scene_.vertices.size();
+  const size_t baseVertices = server_.hierarchy_.BaseVertexCount();
   for (VertexId v : vertices) {
     refinementPending_.erase(v);
     auto it = waiting_.find(v);
@@ -582,6 +642,80 @@ void SmaServer::Impl::Session::OnSamplesArrived(const std::vector<VertexId>& ver
   lock.unlock();
   NoteStage1();
   MaybeRefine();
+  MaybeImprove();
+}
+
+void SmaServer::Impl::Session::MaybeImprove() {
+  if (!ImprovementOn() || improvementDone_ || !Stage1Done() || !connection_->IsOpen()) return;
+  const SmaOptions& o = server_.options_;
+  // Keep about a batch in flight: look for more once half of it is back.
+  if (improvePending_.size() > o.improveBatch / 2) return;
+  std::vector<SampleRequest> requests;
+  {
+    std::shared_lock lock(server_.stateMutex_);
+    const Hierarchy& hierarchy = server_.hierarchy_;
+    const SampleCache& cache = server_.cache_;
+    std::unordered_set<VertexId> seen;
+    for (NodeId id : visible_->nodes) {
+      if (requests.size() + improvePending_.size() >= o.improveBatch) break;
+      if (!mirror_.Holds(id)) continue;  // only what the client shows
+      for (VertexId v : hierarchy.GetNode(id).v) {
+        if (!seen.insert(v).second || improvePending_.contains(v) || !cache.IsShaded(v)) continue;
+        if (cache.Paths(v) >= o.improveMaxPaths || !(cache.RelativeError(v) > o.improveTargetError)) continue;
+        SampleRequest r = MakeSampleRequest(hierarchy, v);
+        r.round = uint16_t(cache.Rounds(v) + 1);
+        if (r.round == 0) continue;  // 65535 rounds: enough
+        requests.push_back(r);
+      }
+    }
+    // Under the state lock, like every request (RendererPool: "requested once").
+    if (!requests.empty()) server_.pool_->Request(requests, Priority::kImprove);
+  }
+  for (const SampleRequest& r : requests) improvePending_.insert(r.vertex);
+  improvementsAsked_ += requests.size();
+  if (requests.empty() && improvePending_.empty()) {
+    improvementDone_ = true;
+    SyncStatus();
+  }
+}
+
+void SmaServer::Impl::Session::OnSamplesImproved(const std::vector<VertexId>& answered,
+                                                 const std::vector<VertexId>& improved) {
+  for (VertexId v : answered) improvePending_.erase(v);
+  if (!hasVisible_ || !connection_->IsOpen()) return;
+  for (VertexId v : improved)
+    if (mirror_.HoldsVertex(v)) updatesOwed_.insert(v);
+  SendUpdates();
+  MaybeImprove();
+}
+
+void SmaServer::Impl::Session::SendUpdates() {
+  if (updatesOwed_.empty()) return;
+  if (Blocked()) {
+    WaitUntilUnblocked();  // its refresh sends them
+    return;
+  }
+  std::vector<VertexId> owed(updatesOwed_.begin(), updatesOwed_.end());
+  updatesOwed_.clear();
+  std::sort(owed.begin(), owed.end());
+  std::shared_lock lock(server_.stateMutex_);
+  const size_t chunk = std::max<size_t>(1, server_.options_.maxTrianglesPerDelta);
+  for (size_t offset = 0; offset < owed.size(); offset += chunk) {
+    wire::Envelope envelope;
+    wire::Delta& delta = *envelope.mutable_delta();
+    delta.set_kind(wire::DELTA_KIND_IMPROVED);
+    const size_t n = mirror_.AppendUpdates(std::span(owed).subspan(offset, std::min(chunk, owed.size() - offset)),
+                                           server_.cache_, delta);
+    if (n == 0) continue;
+    delta.set_sequence(++sequence_);
+    FillStatus(delta, /*last=*/offset + chunk >= owed.size());
+    if (!connection_->Send(envelope)) {
+      connection_->Close("client send queue overflow");
+      return;
+    }
+    ++deltasSent_;
+    updatesSent_ += n;
+  }
 }
 
 void SmaServer::Impl::Session::NoteStage1() {
@@ -599,6 +733,8 @@ void SmaServer::Impl::Session::RestartRefinement() {
   refiner_ = std::make_shared<Refiner>(params_);
   refinementDone_ = false;
   refinementPending_.clear();
+  improvementDone_ = false;
+  improvePending_.clear();
 }
 
 void SmaServer::Impl::Session::MaybeRefine() {
@@ -780,6 +916,9 @@ void SmaServer::Impl::Session::OnStatsRequest(const wire::StatsRequest& request)
   AddCounter(reply, "client_pending_samples", double(waiting_.size()));
   AddCounter(reply, "client_converged", Converged() ? 1.0 : 0.0);
   AddCounter(reply, "client_deltas_sent", double(deltasSent_));
+  AddCounter(reply, "client_improvements_pending", double(improvePending_.size()));
+  AddCounter(reply, "client_improvements_asked", double(improvementsAsked_));
+  AddCounter(reply, "client_vertex_updates_sent", double(updatesSent_));
   AddCounter(reply, "client_bytes_sent", double(connection_->BytesSent()));
   AddCounter(reply, "client_bytes_received", double(connection_->BytesReceived()));
   AddCounter(reply, "client_last_trace_ms", lastTimings_.traceMs);
@@ -875,6 +1014,7 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
   AddCounter(reply, "hierarchy_nodes", double(nodes));
   AddCounter(reply, "hierarchy_vertices", double(vertices));
   AddCounter(reply, "cache_shaded", double(shaded));
+  AddCounter(reply, "samples_improved", double(samplesImproved_.load()));
   AddCounter(reply, "cache_hits", double(hits));
   AddCounter(reply, "cache_misses", double(misses));
   AddCounter(reply, "cache_hit_rate", hits + misses > 0 ? double(hits) / double(hits + misses) : 0.0);

@@ -1,6 +1,7 @@
 #include "penumbra/sma/delta.h"
 
 #include <algorithm>
+#include <cmath>
 
 #include <gtest/gtest.h>
 
@@ -37,6 +38,54 @@ VisibleSet Visible(std::vector<NodeId> nodes) {
   v.nodes = nodes;
   v.coverage.assign(nodes.size(), 10);
   return v;
+}
+
+// Improvement rounds average in, weighted by paths; the standard error of
+// the mean of independent estimates combines as sqrt(sum w_i^2 s_i^2). A
+// round out of order, or for an unshaded vertex, changes nothing.
+TEST(SampleCacheTest, ImprovementsAverageInWeightedByPaths) {
+  SampleCache cache;
+  cache.Reserve(4);
+  const ShadedSample first{1, Rgb(1.0f), Rgb(2.0f), 0.4f, 16, 0};
+  cache.Store(std::span(&first, 1));
+  EXPECT_EQ(cache.Paths(1), 16u);
+  EXPECT_NEAR(cache.RelativeError(1), 0.4f / Luminance(Rgb(2.0f)), 1e-6f);
+
+  const ShadedSample second{1, Rgb(4.0f), Rgb(8.0f), 0.1f, 48, 1};
+  EXPECT_EQ(cache.Improve(std::span(&second, 1)), std::vector<VertexId>{1});
+  EXPECT_EQ(cache.Paths(1), 64u);
+  EXPECT_EQ(cache.Rounds(1), 1u);
+  EXPECT_NEAR(cache.Radiance(1).r, 0.25f * 1.0f + 0.75f * 4.0f, 1e-5f);
+  EXPECT_NEAR(cache.Irradiance(1).g, 0.25f * 2.0f + 0.75f * 8.0f, 1e-5f);
+  EXPECT_NEAR(cache.IrradianceStdErr(1), std::sqrt(0.25f * 0.25f * 0.16f + 0.75f * 0.75f * 0.01f), 1e-6f);
+
+  const ShadedSample stale{1, Rgb(100.0f), Rgb(100.0f), 0.0f, 64, 1};  // round 1 again
+  const ShadedSample skipped{1, Rgb(100.0f), Rgb(100.0f), 0.0f, 64, 3};
+  const ShadedSample unshaded{2, Rgb(100.0f), Rgb(100.0f), 0.0f, 64, 1};
+  const ShadedSample failed{1, Rgb(0.0f), Rgb(0.0f), 0.0f, 0, 2};  // a renderer gave up on it
+  for (const ShadedSample& s : {stale, skipped, unshaded, failed}) EXPECT_TRUE(cache.Improve(std::span(&s, 1)).empty());
+  EXPECT_EQ(cache.Paths(1), 64u);
+  EXPECT_FALSE(cache.IsShaded(2));
+}
+
+TEST(ClientMirrorTest, UpdatesGoOnlyToVerticesTheClientHolds) {
+  const Scene s = QuadScene();
+  Hierarchy h(s);
+  SampleCache cache;
+  cache.Reserve(h.VertexCount());
+  ShadeAll(h, cache);
+  ClientMirror mirror;
+  wire::Delta add;
+  const NodeId first = 0;
+  mirror.AppendChanges({}, std::span(&first, 1), h, cache, add);
+  wire::Delta update;
+  std::vector<VertexId> all;
+  for (VertexId v = 0; v < h.VertexCount(); ++v) all.push_back(v);
+  EXPECT_EQ(mirror.AppendUpdates(all, cache, update), 3u);
+  ASSERT_EQ(update.updated_vertex_ids_size(), 3);
+  EXPECT_EQ(update.updated_vertex_radiance_size(), 9);
+  EXPECT_EQ(update.updated_vertex_irradiance_size(), 9);
+  for (uint64_t v : update.updated_vertex_ids()) EXPECT_TRUE(mirror.HoldsVertex(VertexId(v)));
 }
 
 TEST(SampleCacheTest, StoresOnceAndGrows) {

@@ -23,6 +23,15 @@ DeltaBuilder& DeltaBuilder::Vertex(uint64_t id, const Vec3& position, const Rgb&
   return *this;
 }
 
+DeltaBuilder& DeltaBuilder::Update(uint64_t id, const Rgb& radiance, const Rgb& irradiance) {
+  delta_.add_updated_vertex_ids(id);
+  for (int c = 0; c < 3; ++c) {
+    delta_.add_updated_vertex_radiance(radiance[c]);
+    delta_.add_updated_vertex_irradiance(irradiance[c]);
+  }
+  return *this;
+}
+
 DeltaBuilder& DeltaBuilder::Triangle(uint64_t id, const std::array<uint64_t, 3>& vertices, uint32_t material,
                                      const std::optional<std::array<float, 6>>& uvs) {
   delta_.add_triangle_ids(id);

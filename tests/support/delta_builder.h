@@ -20,6 +20,8 @@ class DeltaBuilder {
   /// Adds a triangle; `uvs` (u0 v0 u1 v1 u2 v2) only for textured materials.
   DeltaBuilder& Triangle(uint64_t id, const std::array<uint64_t, 3>& vertices, uint32_t material = 0,
                          const std::optional<std::array<float, 6>>& uvs = std::nullopt);
+  /// A better estimate of a vertex the client holds (IMPROVED deltas).
+  DeltaBuilder& Update(uint64_t id, const Rgb& radiance, const Rgb& irradiance = Rgb(0.0f));
   DeltaBuilder& Pending(uint32_t samples);
   DeltaBuilder& Converged(bool converged = true);
 

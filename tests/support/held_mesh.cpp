@@ -63,6 +63,23 @@ Status HeldMesh::Apply(const wire::Delta& d) {
   // A vertex sent but used by no triangle would leak on the client.
   for (const auto& [id, v] : vertices_)
     if (v.refs == 0) return Fail(fmt::format("vertex {} held by no triangle", id));
+  const int nu = d.updated_vertex_ids_size();
+  if (d.updated_vertex_radiance_size() != 3 * nu || d.updated_vertex_irradiance_size() != 3 * nu)
+    return Fail("updated vertex arrays disagree in length");
+  if (d.kind() == wire::DELTA_KIND_IMPROVED && (nv > 0 || nt > 0 || d.removed_triangles_size() > 0))
+    return Fail("an IMPROVED delta carries triangles or new vertices");
+  for (int i = 0; i < nu; ++i) {
+    auto it = vertices_.find(d.updated_vertex_ids(i));
+    if (it == vertices_.end()) return Fail(fmt::format("update of vertex {} not held", d.updated_vertex_ids(i)));
+    const Rgb radiance(d.updated_vertex_radiance(3 * i), d.updated_vertex_radiance(3 * i + 1),
+                       d.updated_vertex_radiance(3 * i + 2));
+    const Rgb irradiance(d.updated_vertex_irradiance(3 * i), d.updated_vertex_irradiance(3 * i + 1),
+                         d.updated_vertex_irradiance(3 * i + 2));
+    if (!IsFinite(radiance) || !IsFinite(irradiance)) return Fail("an updated vertex is not finite");
+    it->second.radiance = radiance;
+    it->second.irradiance = irradiance;
+    ++updates;
+  }
   viewId_ = d.view_id();
   converged_ = d.converged();
   pending_ = d.pending_samples();

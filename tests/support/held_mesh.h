@@ -44,6 +44,8 @@ class HeldMesh {
   /// Triangles added and removed by each DeltaKind, over all deltas.
   std::map<int, uint64_t> added;
   std::map<int, uint64_t> removed;
+  /// Vertex radiance updates applied (IMPROVED deltas), over all deltas.
+  uint64_t updates = 0;
 
  private:
   std::map<uint64_t, std::array<uint64_t, 3>> triangles_;

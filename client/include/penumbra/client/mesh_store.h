@@ -125,6 +125,7 @@ class MeshStore {
 
   // Luminance bookkeeping (MeasureLuminance's rules: only positive values).
   void CountLuminance(float luminance);
+  Status UpdateVertex(const wire::Delta& d, int i);
   void UncountLuminance(float luminance);
 
   std::vector<int32_t> materialTextures_;

@@ -104,6 +104,7 @@ struct ShadeOutput {
   /// estimates: how far this sample may be from the true value by noise
   /// alone (0 when every path agrees, e.g. an unoccluded uniform sky).
   float irradianceStdErr = 0.0f;
+  uint32_t paths = 0;  // paths averaged (adaptive sampling may trace more than asked)
 };
 
 /// Work done, for statistics and benchmarks.

@@ -41,6 +41,9 @@ class ClientMirror {
   size_t AppendChanges(std::span<const NodeId> removals, std::span<const NodeId> additions,
                        const Hierarchy& hierarchy, const SampleCache& cache, wire::Delta& delta);
 
+  /// Appends to `delta` the cache's current radiance of every vertex of
+  /// `vertices` the client holds (updated_vertex_*). Returns how many.
+  size_t AppendUpdates(std::span<const VertexId> vertices, const SampleCache& cache, wire::Delta& delta) const;
   /// Forgets everything (the client reconnected or was reset).
   void Clear();
 

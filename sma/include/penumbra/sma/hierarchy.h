@@ -121,6 +121,8 @@ class Hierarchy {
   size_t BaseTriangleCount() const { return scene_.triangles.size(); }
   /// Whether base triangles have back roots (the scene is two-sided).
   bool TwoSided() const { return scene_.twoSided; }
+  /// Base vertices (the scene's, per side); every later vertex is a midpoint.
+  size_t BaseVertexCount() const { return (TwoSided() ? 2 : 1) * scene_.vertices.size(); }
   /// Roots: one per base triangle and side.
   size_t RootCount() const { return (TwoSided() ? 2 : 1) * BaseTriangleCount(); }
   /// The root of the side of `baseTriangle` that a ray meets first when it

@@ -8,8 +8,14 @@
 //  * Every vertex is requested at most once while its request is alive:
 //    queued, in flight, or answered but not yet stored. Asking again for such
 //    a vertex only raises its interest.
-//  * Two priorities. Visible requests (a client's view needs the vertex)
-//    go before background ones (refinement, or views since superseded). A
+//  * Three priorities. Visible requests (a client's view needs the vertex)
+//    go before background ones (refinement, or views since superseded), and
+//    both before improvements (a further estimate of a shaded vertex, to be
+//    averaged into it; SampleCache::Improve). A batch holds one priority
+//    only, and asks for that priority's paths per sample: few for visible
+//    samples (a first complete image soon), the default for refinement,
+//    `improvePaths` for an improvement. An improvement round k of vertex v
+//    is the wire sample id v + k * 2^32: its own random stream. A
 //    visible request carries one unit of *interest* per asking view; when
 //    every view that asked has moved on (ReleaseInterest), it is demoted to
 //    background the next time the scheduler meets it.
@@ -52,18 +58,21 @@ struct SampleRequest {
   Vec3 normal;
   uint32_t triangle = 0;
   Vec2 bary{0.0f};
+  uint16_t round = 0;  // 0: first shading; k > 0: the k-th improvement (Priority::kImprove)
 };
 
 /// Builds the request for vertex `v` of `hierarchy`.
 SampleRequest MakeSampleRequest(const Hierarchy& hierarchy, VertexId v);
 
-enum class Priority : uint8_t { kVisible, kBackground };
+enum class Priority : uint8_t { kVisible, kBackground, kImprove };
 
 struct RendererPoolOptions {
   std::vector<HostPort> renderers;
   uint64_t sceneHash = 0;
   std::string name = "penumbra-sma";
-  uint32_t pathsPerSample = 0;           // 0: each renderer's default
+  uint32_t pathsPerSample = 0;           // background samples (refinement); 0: each renderer's default
+  uint32_t firstPaths = 16;              // visible samples (stage 1); 0: as pathsPerSample
+  uint32_t improvePaths = 64;            // each improvement round
   uint32_t creditsPerRenderer = 4;       // batches in flight per renderer (and at most its own limit)
   uint32_t minBatchSamples = 8;
   uint32_t maxBatchSamples = 2048;       // and at most the renderer's own limit
@@ -96,6 +105,7 @@ struct RendererStatus {
 struct RendererPoolStats {
   uint64_t queuedVisible = 0;
   uint64_t queuedBackground = 0;
+  uint64_t queuedImprove = 0;
   uint64_t inFlight = 0;
   uint64_t requested = 0;    // distinct samples queued since start
   uint64_t shaded = 0;       // samples answered since start
@@ -151,7 +161,7 @@ class RendererPool : public std::enable_shared_from_this<RendererPool> {
   void RequeueLocked(Link& link);
   void RejectReplyLocked(Link& link, const std::string& reason);
   void DispatchLocked();
-  bool TakeNextLocked(VertexId& out);
+  bool TakeNextLocked(Priority priority, VertexId& out);
   struct Entry;
   void RequeueEntryLocked(VertexId v, Entry& entry);
 
@@ -161,6 +171,7 @@ class RendererPool : public std::enable_shared_from_this<RendererPool> {
     uint32_t interest = 0;
     EntryState state = EntryState::kQueued;
     bool inVisibleQueue = false;
+    bool improve = false;  // an improvement (request.round > 0), in the improvement queue
     uint8_t invalidReplies = 0;
     uint64_t batch = 0;  // while in flight: the batch carrying it
   };
@@ -177,10 +188,12 @@ class RendererPool : public std::enable_shared_from_this<RendererPool> {
   std::unordered_map<VertexId, Entry> entries_;
   std::deque<VertexId> visibleQueue_;
   std::deque<VertexId> backgroundQueue_;
+  std::deque<VertexId> improveQueue_;
   std::vector<std::shared_ptr<Link>> links_;
   std::vector<std::vector<tcp::endpoint>> resolved_;  // per configured renderer
   uint64_t nextBatchId_ = 1;
   uint64_t queuedVisible_ = 0;  // entries queued and in the visible deque
+  uint64_t queuedImprove_ = 0;  // entries queued in the improvement deque
   uint64_t queuedTotal_ = 0;
   uint64_t inFlight_ = 0;
   uint64_t requested_ = 0;

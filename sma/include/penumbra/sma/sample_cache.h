@@ -1,7 +1,10 @@
 #pragma once
 // The object-space sample cache: one shading sample per hierarchy vertex,
 // shared by every client (paper §2). A sample is either shaded, with its
-// radiance and irradiance, or not yet; who asked for it and whether it is on
+// radiance and irradiance, or not yet. A shaded sample can be improved in
+// place: a further, independent estimate (an improvement round, with a random
+// stream of its own) is averaged in, weighted by the paths of each, so that
+// the noise of what clients see falls as a view rests; who asked for it and whether it is on
 // its way is the renderer pool's business, not the cache's.
 //
 // Threads: not synchronised; the SMA guards it with its state lock (readers
@@ -24,6 +27,8 @@ struct ShadedSample {
   Rgb radiance{0.0f};
   Rgb irradiance{0.0f};
   float irradianceStdErr = 0.0f;  // standard error of Luminance(irradiance), from the renderer
+  uint32_t paths = 1;             // paths the estimate averages
+  uint16_t round = 0;             // 0: the first estimate; k > 0: the k-th improvement
 };
 
 /// What a renderer's sample can physically be in one scene, so that a bad or
@@ -53,13 +58,25 @@ class SampleCache {
   const Rgb& Radiance(VertexId v) const { return radiance_[v]; }
   const Rgb& Irradiance(VertexId v) const { return irradiance_[v]; }
   float IrradianceStdErr(VertexId v) const { return irradianceStdErr_[v]; }
+  /// Paths averaged into a shaded sample, and the improvement rounds so far.
+  uint32_t Paths(VertexId v) const { return paths_[v]; }
+  uint16_t Rounds(VertexId v) const { return rounds_[v]; }
+  /// Relative standard error of a shaded sample's irradiance luminance (0
+  /// for a sample that reads black with no spread: nothing to improve).
+  float RelativeError(VertexId v) const;
   /// Luminance of the shaded radiance (0 when unshaded).
   float Luminance(VertexId v) const { return IsShaded(v) ? penumbra::Luminance(radiance_[v]) : 0.0f; }
 
-  /// Stores results; a vertex beyond Size() grows the cache. Storing a
-  /// vertex twice keeps the first value (samples are deterministic, so a
-  /// second one can only be a duplicate). Returns how many were new.
+  /// Stores first estimates (round 0); a vertex beyond Size() grows the
+  /// cache. Storing a vertex twice keeps the first value (samples are
+  /// deterministic, so a second one can only be a duplicate). Returns how
+  /// many were new.
   size_t Store(std::span<const ShadedSample> samples);
+  /// Averages improvements (round k > 0) into shaded samples, weighted by
+  /// paths; the standard errors combine accordingly. An improvement of an
+  /// unshaded vertex, or whose round is not the vertex's next, is ignored.
+  /// Returns the vertices that changed.
+  std::vector<VertexId> Improve(std::span<const ShadedSample> samples);
 
   size_t ShadedCount() const { return shadedCount_; }
 
@@ -77,6 +94,8 @@ class SampleCache {
   std::vector<Rgb> radiance_;
   std::vector<Rgb> irradiance_;
   std::vector<float> irradianceStdErr_;
+  std::vector<uint32_t> paths_;
+  std::vector<uint16_t> rounds_;
   size_t shadedCount_ = 0;
   mutable std::atomic<uint64_t> hits_{0};
   mutable std::atomic<uint64_t> misses_{0};

@@ -48,6 +48,14 @@ struct SmaOptions {
   std::chrono::milliseconds refreshInterval{100}; // min time between re-mapping a view after new samples
   std::chrono::milliseconds statsInterval{10000};
   ToneMappingDefaults toneMapping;
+  /// Improvement (SampleCache::Improve): once a view is shaded, its visible
+  /// samples whose irradiance has a relative standard error above
+  /// `improveTargetError` get further rounds of `pool.improvePaths` paths,
+  /// averaged in and re-sent to every client holding them, until they reach
+  /// it or `improveMaxPaths`; the view converges only then. 0 paths: off.
+  float improveTargetError = 0.02f;
+  uint32_t improveMaxPaths = 1024;
+  uint32_t improveBatch = 4096;  // improvements in flight per session
 };
 
 class SmaServer {
