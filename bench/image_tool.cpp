@@ -1,7 +1,9 @@
 // penumbra-image-tool: the image side of experiments.
 //
-//   penumbra-image-tool compare REFERENCE.exr IMAGE.exr
-//       One JSON line: {"rel_mae": .., "ssim": ..} (common/image_metrics.h).
+//   penumbra-image-tool compare REFERENCE.exr IMAGE.exr [--blur R]
+//       One JSON line: {"rel_mae": .., "ssim": .., "mean_ratio": ..}
+//       (common/image_metrics.h), after a box blur of radius R of both
+//       (default 0; 2 takes a noisy reference's noise out).
 //   penumbra-image-tool tonemap IN.exr OUT.png [--like REFERENCE.exr] [--exposure STOPS]
 //       Drago 2003 (common/tonemap.h) with the luminance statistics of
 //       REFERENCE (default: of IN itself), so that every image of one view
@@ -43,20 +45,23 @@ Expected<RgbImage> Load(const std::string& path) {
   return out;
 }
 
-int Compare(const std::string& referencePath, const std::string& imagePath) {
+int Compare(const std::string& referencePath, const std::string& imagePath, int blur) {
   auto reference = Load(referencePath);
   auto image = Load(imagePath);
   if (!reference || !image) {
     std::fprintf(stderr, "penumbra-image-tool: %s\n", (!reference ? reference : image).error().message.c_str());
     return 1;
   }
-  auto mae = RelativeMeanAbsoluteError(*image, *reference);
-  auto ssim = ToneMappedSsim(*image, *reference);
-  if (!mae || !ssim) {
-    std::fprintf(stderr, "penumbra-image-tool: %s\n", (!mae ? mae.error() : ssim.error()).message.c_str());
+  const RgbImage a = BoxBlur(*image, blur), b = BoxBlur(*reference, blur);
+  auto mae = RelativeMeanAbsoluteError(a, b);
+  auto ssim = ToneMappedSsim(a, b);
+  auto ratio = MeanLuminanceRatio(a, b);
+  if (!mae || !ssim || !ratio) {
+    std::fprintf(stderr, "penumbra-image-tool: %s\n",
+                 (!mae ? mae.error() : !ssim ? ssim.error() : ratio.error()).message.c_str());
     return 1;
   }
-  std::printf("{\"rel_mae\": %.6f, \"ssim\": %.6f}\n", *mae, *ssim);
+  std::printf("{\"rel_mae\": %.6f, \"ssim\": %.6f, \"mean_ratio\": %.6f}\n", *mae, *ssim, *ratio);
   return 0;
 }
 
@@ -151,6 +156,9 @@ int main(int argc, char** argv) {
   auto* compare = app.add_subcommand("compare", "Relative MAE and tone-mapped SSIM of IMAGE against REFERENCE");
   compare->add_option("reference", a, "Reference image (linear EXR)")->required();
   compare->add_option("image", b, "Image to judge (linear EXR)")->required();
+  int blur = 0;
+  compare->add_option("--blur", blur, "Box-blur both by this radius first (2: a 5x5 window)")
+      ->check(CLI::Range(0, 64))->capture_default_str();
   auto* tonemap = app.add_subcommand("tonemap", "Drago-map a linear image to PNG");
   tonemap->add_option("in", a, "Linear image")->required();
   tonemap->add_option("out", b, "Output PNG")->required();
@@ -160,7 +168,7 @@ int main(int argc, char** argv) {
   cornell->add_option("image", a, "Tone-mapped PNG of the front preset")->required();
   CLI11_PARSE(app, argc, argv);
   penumbra::SetupLogging("warn");
-  if (*compare) return penumbra::Compare(a, b);
+  if (*compare) return penumbra::Compare(a, b, blur);
   if (*cornell) return penumbra::CheckCornellBox(a);
   return penumbra::ToneMap(a, b, like, exposure);
 }

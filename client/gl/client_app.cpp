@@ -225,7 +225,10 @@ Status ClientApp::Init() {
   }
   if (options_.headless && options_.cameraPath) {
     player_.emplace(*options_.cameraPath);
-    if (auto ok = targets_.Resize({options_.cameraPath->width, options_.cameraPath->height}); !ok) return ok;
+    if (auto ok = targets_.Resize({options_.cameraPath->width * options_.supersample,
+                                   options_.cameraPath->height * options_.supersample});
+        !ok)
+      return ok;
   }
   if (!options_.statsPath.empty()) {
     auto stats = StatsLineWriter::Open(options_.statsPath);
@@ -325,7 +328,7 @@ bool ClientApp::EnsureCamera() {
       return false;
     }
     player_.emplace(StillPath(info->cameras(preset), options_.size.x, options_.size.y));
-    if (auto ok = targets_.Resize(options_.size); !ok) {
+    if (auto ok = targets_.Resize(options_.size * options_.supersample); !ok) {
       Failed(ok.error().message);
       return false;
     }
@@ -411,7 +414,11 @@ void ClientApp::OnKey(const KeyPress& key) {
 std::optional<CameraView> ClientApp::CurrentView(Clock::time_point now) const {
   if (options_.headless) {
     if (!player_ || !pathStart_) return std::nullopt;
-    return player_->ViewAt(now - *pathStart_);
+    // The SMA's visibility samples the pixel centres of what is rendered.
+    CameraView view = player_->ViewAt(now - *pathStart_);
+    view.width *= options_.supersample;
+    view.height *= options_.supersample;
+    return view;
   }
   if (!cameraReady_) return std::nullopt;
   return CameraView{camera_.Pose(), fovYDeg_, targets_.Size().x, targets_.Size().y};
@@ -584,8 +591,20 @@ int ClientApp::Finish() {
 
 Status ClientApp::WriteScreenshot(const std::filesystem::path& path) {
   const glm::ivec2 size = targets_.Size();
-  const std::vector<float> pixels = IsRadianceFile(path) ? targets_.ReadRadiance() : targets_.ReadDisplay();
-  return WriteImage(path, size.x, size.y, pixels);
+  std::vector<float> pixels = IsRadianceFile(path) ? targets_.ReadRadiance() : targets_.ReadDisplay();
+  const int n = options_.supersample;
+  if (n <= 1) return WriteImage(path, size.x, size.y, pixels);
+  // A box of n x n samples per pixel (the display image too: an
+  // approximation that resolves edges the way a multisampled display does).
+  const int w = size.x / n, h = size.y / n;
+  std::vector<float> filtered(size_t(w) * size_t(h) * 3, 0.0f);
+  const float weight = 1.0f / float(n * n);
+  for (int y = 0; y < h * n; ++y)
+    for (int x = 0; x < w * n; ++x)
+      for (int c = 0; c < 3; ++c)
+        filtered[(size_t(y / n) * size_t(w) + size_t(x / n)) * 3 + size_t(c)] +=
+            weight * pixels[(size_t(y) * size_t(size.x) + size_t(x)) * 3 + size_t(c)];
+  return WriteImage(path, w, h, filtered);
 }
 
 void ClientApp::SaveInteractiveScreenshot() {

@@ -34,6 +34,10 @@ struct ClientOptions {
   /// Preset to start from (window) or to show (headless); empty: the first.
   std::string cameraPreset;
   glm::ivec2 size{1280, 720};  // window size, or a headless still view's
+  /// Headless: render (and ask the SMA for visibility) at this many samples
+  /// per pixel side, and write images box-filtered down to the view's size:
+  /// the pixel filter of offline references (a box of one pixel).
+  int supersample = 1;
   /// Headless: written when the run ends; .exr/.hdr hold linear radiance,
   /// .png/.jpg the tone-mapped image. Empty: none.
   std::filesystem::path screenshot;

@@ -106,13 +106,19 @@ int main(int argc, char** argv) {
       app.add_option("--timeout", convergeTimeout, "Headless, --until-converged: fail after S seconds")
           ->check(CLI::Range(1, 86400))
           ->capture_default_str();
+  auto* supersampleOption =
+      app.add_option("--supersample", options.supersample,
+                     "Headless: N x N samples per pixel (the SMA's visibility too), images box-filtered to the "
+                     "view's size, as offline references filter them")
+          ->check(CLI::Range(1, 8))
+          ->capture_default_str();
   auto* snapshotOption = app.add_option("--snapshot-every", options.snapshotEvery,
                                         "Headless: every S seconds, when the image changed, write the linear "
                                         "radiance to PREFIX_<frame>.exr (frame as in --stats)");
   auto* prefixOption = app.add_option("--snapshot-prefix", snapshotPrefix, "Headless: path prefix of --snapshot-every's files");
   snapshotOption->needs(prefixOption);
   for (CLI::Option* o : {glOption, pathOption, screenshotOption, convergedFlag, framesOption, secondsOption,
-                         connectTimeoutOption, timeoutOption, snapshotOption, prefixOption})
+                         connectTimeoutOption, timeoutOption, snapshotOption, prefixOption, supersampleOption})
     o->needs(headless);
 
   try {

@@ -1,5 +1,6 @@
 #include "penumbra/common/image_metrics.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include <fmt/format.h>
@@ -51,6 +52,42 @@ Expected<double> RelativeMeanAbsoluteError(const RgbImage& image, const RgbImage
     }
   if (!(total > 0.0)) return Fail("the reference is black");
   return error / total;
+}
+
+Expected<double> MeanLuminanceRatio(const RgbImage& image, const RgbImage& reference) {
+  if (auto ok = SameSize(image, reference); !ok) return ok.error();
+  double a = 0.0, b = 0.0;
+  for (size_t i = 0; i < image.pixels.size(); ++i) {
+    a += Luminance(image.pixels[i]);
+    b += Luminance(reference.pixels[i]);
+  }
+  if (!(b > 0.0)) return Fail("the reference is black");
+  return a / b;
+}
+
+RgbImage BoxBlur(const RgbImage& image, int radius) {
+  if (radius <= 0 || image.pixels.empty()) return image;
+  const int w = image.width, h = image.height;
+  // Separable: rows, then columns, each a running window clamped at the borders.
+  const auto pass = [radius](const std::vector<Rgb>& in, int n, int lines, bool alongRows) {
+    std::vector<Rgb> out(in.size());
+    for (int line = 0; line < lines; ++line) {
+      const auto at = [&](int k) -> const Rgb& {
+        k = std::clamp(k, 0, n - 1);
+        return in[alongRows ? size_t(line) * size_t(n) + size_t(k) : size_t(k) * size_t(lines) + size_t(line)];
+      };
+      for (int k = 0; k < n; ++k) {
+        Rgb sum(0.0f);
+        for (int d = -radius; d <= radius; ++d) sum += at(k + d);
+        out[alongRows ? size_t(line) * size_t(n) + size_t(k) : size_t(k) * size_t(lines) + size_t(line)] =
+            sum / float(2 * radius + 1);
+      }
+    }
+    return out;
+  };
+  RgbImage out{w, h, pass(image.pixels, w, h, true)};
+  out.pixels = pass(out.pixels, h, w, false);
+  return out;
 }
 
 std::vector<float> DisplayLuma(const RgbImage& image, const ViewLuminance& view, const DragoParams& params) {

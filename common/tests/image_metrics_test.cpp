@@ -29,6 +29,30 @@ TEST(ImageMetricsTest, RelativeErrorOfAScaledImage) {
   EXPECT_NEAR(*RelativeMeanAbsoluteError(b, a), 0.1, 1e-6);
 }
 
+TEST(ImageMetricsTest, MeanRatioOfAScaledImage) {
+  const RgbImage a = Noise(16, 16, 3);
+  RgbImage b = a;
+  for (Rgb& p : b.pixels) p *= 0.9f;
+  EXPECT_NEAR(*MeanLuminanceRatio(b, a), 0.9, 1e-6);
+}
+
+// A box blur keeps flat regions and the mean of a periodic pattern, and takes
+// pixel noise down by the square root of its window.
+TEST(ImageMetricsTest, BoxBlurAveragesItsWindow) {
+  RgbImage flat{8, 6, std::vector<Rgb>(48, Rgb(0.5f, 1.0f, 2.0f))};
+  for (const Rgb& p : BoxBlur(flat, 2).pixels) EXPECT_EQ(p, Rgb(0.5f, 1.0f, 2.0f));
+  const RgbImage noise = Noise(200, 200, 4);
+  const RgbImage blurred = BoxBlur(noise, 2);
+  double mean = 0.0, varianceBefore = 0.0, varianceAfter = 0.0;
+  for (const Rgb& p : noise.pixels) mean += p.r;
+  mean /= double(noise.pixels.size());
+  for (size_t i = 0; i < noise.pixels.size(); ++i) {
+    varianceBefore += (noise.pixels[i].r - mean) * (noise.pixels[i].r - mean);
+    varianceAfter += (blurred.pixels[i].r - mean) * (blurred.pixels[i].r - mean);
+  }
+  EXPECT_NEAR(varianceAfter / varianceBefore, 1.0 / 25.0, 0.01);
+}
+
 TEST(ImageMetricsTest, SsimDropsWithNoiseAndIsTheLuminanceTermOnFlatImages) {
   const int w = 64, h = 48;
   RgbImage smooth{w, h, {}};

@@ -1,0 +1,87 @@
+#!/usr/bin/env bash
+# Fidelity of the full stack on real emitter-lit scenes, against an
+# independent renderer (Blender Cycles, ../shared/tools/cycles_reference.py)
+# and against penumbra-reference (our per-pixel path tracer, itself checked
+# against Cycles first). Writes a Markdown table to stdout and images to OUT.
+#
+# Usage: bench/fidelity/run.sh [OUT]   (default bench/fidelity/results; needs
+#   a build, ../shared, and Blender: apt-get install blender python3-numpy)
+# Each case: scene file, camera preset, OBJ (for Cycles), image size.
+# Metrics after a box blur of radius 2 (the references' noise): relative
+# mean absolute error and mean luminance ratio (common/image_metrics.h). The
+# client renders 4 x 4 samples per pixel (--supersample 4) and box-filters
+# them, the pixel filter of the references.
+set -euo pipefail
+root="$(cd "$(dirname "$0")/../.." && pwd)"
+shared="$root/../shared"
+out="${1:-$root/bench/fidelity/results}"
+build="$root/build"
+cycles_samples="${CYCLES_SAMPLES:-256}"
+ref_spp="${REF_SPP:-1024}"
+mkdir -p "$out"
+tool="$build/bench/penumbra-image-tool"
+
+cases=(
+  # name            scene file                      camera       obj (relative to ../shared or the repo)            size
+  "cornell-front    scenes/cornell-box.json          front        scenes/cornell-box/CornellBox-Original.obj          320x240"
+  "inverted-walls   tests/data/inverted_room.json    walls        @tests/data/inverted_room.obj                       320x240"
+  "bathroom-source  scenes/bathroom.json             source       scenes/contemporary-bathroom/contemporary-bathroom.obj 480x270"
+  "bathroom-window  scenes/bathroom.json             from-window  scenes/contemporary-bathroom/contemporary-bathroom.obj 480x270"
+)
+
+# Camera of a preset, as Cycles arguments, from penumbra-scene-info.
+camera_args() {
+  "$build/common/tools/penumbra-scene-info" --scene "$root/$1" |
+    awk -v cam="$2" '$1 == "camera" && $2 == cam":" {
+      gsub(/[(),]/, " "); print "--eye", $4, $5, $6, "--target", $8, $9, $10, "--up", $12, $13, $14, "--fov-y", $16 }'
+}
+
+metric() { "$tool" compare "$1" "$2" --blur 2; }
+field() { sed -E "s/.*\"$1\": ([0-9.eE+-]+).*/\\1/"; }
+
+echo "| view | reference (box) vs Cycles | Penumbra vs Cycles | reference (pixel centres) vs Cycles | Penumbra vs reference (box) | first complete image | converged |"
+echo "|---|---|---|---|---|---|---|"
+for c in "${cases[@]}"; do
+  read -r name scene camera obj size <<<"$c"
+  w="${size%x*}"; h="${size#*x}"
+  objpath="$shared/$obj"; [ "${obj#@}" != "$obj" ] && objpath="$root/${obj#@}"
+  [ -f "$objpath" ] || { echo "| $name | skipped: $objpath absent | | | | | |"; continue; }
+  cycles="$out/$name-cycles"
+  if [ ! -s "$cycles.exr" ]; then
+    (cd "$shared" && blender -b --python-exit-code 1 -P tools/cycles_reference.py -- render --obj "$objpath" \
+       $(camera_args "$scene" "$camera") --width "$w" --height "$h" --samples "$cycles_samples" --out "$cycles") \
+       >"$out/$name-cycles.log" 2>&1
+  fi
+  for filter in box centre; do
+    [ -s "$out/$name-ref-$filter.exr" ] ||
+      "$build/renderer/penumbra-reference" --scene "$root/$scene" --camera "$camera" --width "$w" --height "$h" \
+        --spp "$ref_spp" --pixel-filter "$filter" --out "$out/$name-ref-$filter.exr" --log-level warn
+  done
+  # The full stack, NLD_OS, until converged; the client's statistics give the times.
+  logs="$(mktemp -d)"
+  "$build/renderer/penumbra-renderer" --scene "$root/$scene" --listen 127.0.0.1:0 --port-file "$logs/r.port" \
+    --log-level warn >"$logs/r.log" 2>&1 &
+  rpid=$!
+  while [ ! -s "$logs/r.port" ]; do sleep 0.2; done
+  "$build/sma/penumbra-sma" --scene "$root/$scene" --listen 127.0.0.1:0 --port-file "$logs/s.port" \
+    --renderer "127.0.0.1:$(cat "$logs/r.port")" --criterion nld_os --log-level warn >"$logs/s.log" 2>&1 &
+  spid=$!
+  while [ ! -s "$logs/s.port" ]; do sleep 0.2; done
+  "$build/client/penumbra-client" --connect "127.0.0.1:$(cat "$logs/s.port")" --headless --gl egl --camera "$camera" \
+    --size "$size" --supersample 4 --until-converged --timeout 1800 --screenshot "$out/$name-penumbra.exr" \
+    --stats "$out/$name-stats.jsonl" --log-level warn >"$logs/c.log" 2>&1 || { cat "$logs/c.log" >&2; exit 1; }
+  kill "$spid" "$rpid"; wait "$spid" "$rpid" 2>/dev/null || true
+  "$tool" tonemap "$out/$name-penumbra.exr" "$out/$name-penumbra.png" --like "$cycles.exr"
+  "$tool" tonemap "$cycles.exr" "$out/$name-cycles.png"
+  refbox="$(metric "$cycles.exr" "$out/$name-ref-box.exr")"
+  pen="$(metric "$cycles.exr" "$out/$name-penumbra.exr")"
+  refcentre="$(metric "$cycles.exr" "$out/$name-ref-centre.exr")"
+  penref="$(metric "$out/$name-ref-box.exr" "$out/$name-penumbra.exr")"
+  cell() { printf '%.1f %%, ratio %.3f' "$(echo "$1" | field rel_mae | awk '{print 100 * $1}')" "$(echo "$1" | field mean_ratio)"; }
+  # First complete image: the first frame after stage 1 (refining or converged); converged: the last frame.
+  times="$(python3 -c 'import json, sys
+lines = [json.loads(l) for l in open(sys.argv[1])]
+first = next((l["time_s"] for l in lines if l.get("refining") or l.get("converged")), float("nan"))
+print("%.2f s | %.1f s" % (first, lines[-1]["time_s"]))' "$out/$name-stats.jsonl")"
+  echo "| $name | $(cell "$refbox") | $(cell "$pen") | $(cell "$refcentre") | $(cell "$penref") | $times |"
+done
