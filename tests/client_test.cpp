@@ -241,6 +241,44 @@ TEST_F(ClientTest, HeadlessWithoutXWritesTheRadianceOfExactlyWhatTheSmaSees) {
   EXPECT_LE(held, visible.certain.size() + visible.ties.size());
 }
 
+// --supersample 2: the client draws (and asks the SMA's visibility for) 2 x 2
+// samples per pixel; the image written is the view's size, each pixel the
+// mean of its samples: the same picture as one sample per pixel but along
+// edges.
+TEST_F(ClientTest, SupersampledImagesAreBoxFilteredToTheViewsSize) {
+  Service sma = StartSma({"--criterion", "none", "--improve-paths", "0"});
+  SetDisplay("");
+  std::vector<Image> images;
+  for (const char* samples : {"1", "2"}) {
+    const std::string exr = dir_ + "/front-" + samples + ".exr";
+    ChildProcess client = StartClient({"--connect", sma.Address(), "--headless", "--camera-path", FrontPathFile(),
+                                       "--supersample", samples, "--until-converged", "--screenshot", exr},
+                                      dir_ + "/client-" + samples + ".log");
+    const auto exit = client.WaitExit(120s);
+    ASSERT_TRUE(exit.has_value()) << client.LogTail();
+    ASSERT_EQ(*exit, 0) << client.LogTail();
+    auto image = ReadImage(exr);
+    ASSERT_TRUE(image.ok()) << image.error().message;
+    ASSERT_EQ(image->width, kWidth);
+    ASSERT_EQ(image->height, kHeight);
+    images.push_back(std::move(*image));
+  }
+  double one = 0.0, two = 0.0;
+  size_t interiorDiffers = 0;
+  const PixelClasses classes = ClassifyPixels(*scene_, FrontView());
+  for (size_t i = 0; i < size_t(kWidth * kHeight); ++i) {
+    one += Luminance(PixelOf(images[0], i));
+    two += Luminance(PixelOf(images[1], i));
+  }
+  // Red wall pixels well inside the wall (not on an edge) read the same.
+  for (size_t i : classes.red) {
+    const Rgb a = PixelOf(images[0], i), b = PixelOf(images[1], i);
+    interiorDiffers += std::abs(Luminance(a) - Luminance(b)) > 0.1f * Luminance(a) ? 1 : 0;
+  }
+  EXPECT_NEAR(two / one, 1.0, 0.03);
+  EXPECT_LT(interiorDiffers, classes.red.size() / 10);
+}
+
 // GLFW with a hidden window on a private Xvfb: the tone-mapped PNG shows the
 // box, and nothing inside it is background. (Refinement stays off in the
 // image tests: the SMA's refined meshes can hold T-junctions where a split

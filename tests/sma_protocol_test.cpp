@@ -283,6 +283,13 @@ TEST_F(SmaProtocolTest, MalformedInputClosesOnlyThatClient) {
     ASSERT_TRUE(c.Wire().Send(e));
     expectClosedWith(c.Wire(), wire::ERROR_CODE_UNEXPECTED_MESSAGE);
   }
+  {  // a 4 MiB peer name (it is logged): refused, named by its size only
+    auto w = WireClient::Connect("127.0.0.1", sma_->port);
+    ASSERT_TRUE(w.ok());
+    auto welcome = w->Handshake(wire::ROLE_CLIENT, scene_->identity, 0, std::string(size_t(4) << 20, 'x'));
+    ASSERT_FALSE(welcome.ok());
+    EXPECT_NE(welcome.error().message.find("peer_name"), std::string::npos) << welcome.error().message;
+  }
   {  // a view before the handshake
     auto w = WireClient::Connect("127.0.0.1", sma_->port);
     ASSERT_TRUE(w.ok());

@@ -354,8 +354,8 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
     lastSentViewId_ = 0;
     backoff_ = options_.reconnectMin;
     SetState(ConnectionState::kConnected, /*connected=*/true);
-    log_->info("connected to SMA {} ('{}'), scene '{}' (connection {})", address_, welcome_.server_name(), info.name(),
-               connectionNumber_);
+    log_->info("connected to SMA {} ('{}'), scene '{}' (connection {})", address_, Printable(welcome_.server_name()),
+               Printable(info.name()), connectionNumber_);
     Push(Connected{connectionNumber_, welcome_, std::move(info)});
     if (sessionOptions_) SendSessionOptions();
     if (view_) SendView();

@@ -1,5 +1,9 @@
 #include "penumbra/common/logging.h"
 
+#include <algorithm>
+
+#include <fmt/format.h>
+
 #include "penumbra/common/check.h"
 
 #include <mutex>
@@ -40,6 +44,25 @@ std::shared_ptr<spdlog::logger> Logger(const std::string& name) {
   logger->flush_on(spdlog::level::info);
   spdlog::register_logger(logger);
   return logger;
+}
+
+}  // namespace penumbra
+
+namespace penumbra {
+
+std::string Printable(std::string_view text, size_t maxBytes) {
+  std::string out;
+  const size_t shown = std::min(text.size(), maxBytes);
+  out.reserve(shown + 16);
+  for (size_t i = 0; i < shown; ++i) {
+    const unsigned char c = static_cast<unsigned char>(text[i]);
+    if (c >= 0x20 && c < 0x7f && c != '\\')
+      out += char(c);
+    else
+      out += fmt::format("\\x{:02x}", c);
+  }
+  if (shown < text.size()) out += fmt::format("... ({} bytes)", text.size());
+  return out;
 }
 
 }  // namespace penumbra

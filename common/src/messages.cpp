@@ -70,6 +70,11 @@ Status CheckPeer(uint32_t version, wire::Role role, uint64_t hash, wire::Role ex
 
 Status ValidateHello(const wire::Hello& hello, wire::Role expectedRole, uint64_t sceneHash,
                      wire::ErrorCode* code) {
+  if (hello.peer_name().size() > kMaxPeerNameBytes) {
+    if (code) *code = wire::ERROR_CODE_INVALID_REQUEST;
+    return Fail(fmt::format("peer_name has {} bytes; at most {} are allowed", hello.peer_name().size(),
+                            kMaxPeerNameBytes));
+  }
   return CheckPeer(hello.protocol_version(), hello.role(), hello.scene_hash(), expectedRole, sceneHash, code);
 }
 

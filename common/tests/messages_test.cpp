@@ -4,6 +4,7 @@
 
 #include "penumbra/common/endpoint.h"
 #include "penumbra/common/framing.h"
+#include "penumbra/common/logging.h"
 
 namespace penumbra {
 namespace {
@@ -77,6 +78,23 @@ TEST(EndpointTest, RejectsMalformed) {
   EXPECT_FALSE(ParseHostPort("localhost:12ab").ok());
   EXPECT_FALSE(ParseHostPort("localhost:0").ok());
   EXPECT_FALSE(ParseHostPort("::1:80").ok());
+}
+
+// A peer's name is logged: control characters (a forged "[critical]" line)
+// are escaped and a long name cut; an over-long Hello is refused.
+TEST(PrintableTest, EscapesControlBytesAndCutsLongText) {
+  EXPECT_EQ(Printable("renderer-1"), "renderer-1");
+  EXPECT_EQ(Printable("evil\n[critical] x"), "evil\\x0a[critical] x");
+  EXPECT_EQ(Printable(std::string(100, 'a'), 8), "aaaaaaaa... (100 bytes)");
+  wire::Hello hello;
+  hello.set_protocol_version(kProtocolVersion);
+  hello.set_role(wire::ROLE_CLIENT);
+  hello.set_peer_name(std::string(kMaxPeerNameBytes + 1, 'n'));
+  wire::ErrorCode code = wire::ERROR_CODE_UNSPECIFIED;
+  EXPECT_FALSE(ValidateHello(hello, wire::ROLE_CLIENT, 0, &code).ok());
+  EXPECT_EQ(code, wire::ERROR_CODE_INVALID_REQUEST);
+  hello.set_peer_name("fine");
+  EXPECT_TRUE(ValidateHello(hello, wire::ROLE_CLIENT, 0, &code).ok());
 }
 
 }  // namespace

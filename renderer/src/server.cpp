@@ -186,7 +186,7 @@ class RendererServer::Impl::Session : public std::enable_shared_from_this<Sessio
     w->set_paths_per_sample(uint32_t(server_.GetShader().Settings().pathsPerSample));
     w->set_max_batches_in_flight(options.maxBatchesInFlight);
     connection_->Send(envelope);
-    log_->info("{}: handshake with '{}' done", connection_->Id(), hello.peer_name());
+    log_->info("{}: handshake with '{}' done", connection_->Id(), Printable(hello.peer_name()));
   }
 
   void OnShadeRequest(wire::ShadeRequest& request) {

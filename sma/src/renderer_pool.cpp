@@ -308,7 +308,7 @@ void RendererPool::OnMessage(const std::shared_ptr<Link>& link, wire::Envelope&&
         return;
       }
       link->state = Link::State::kReady;
-      link->peerName = w.server_name();
+      link->peerName = Printable(w.server_name());
       link->credits = std::max(1u, std::min(options_.creditsPerRenderer, w.max_batches_in_flight()));
       link->maxBatch = std::max(1u, std::min(options_.maxBatchSamples, w.max_batch_samples()));
       link->defaultPaths = std::max(1u, w.paths_per_sample());

@@ -434,7 +434,7 @@ void SmaServer::Impl::Session::OnHello(const wire::Hello& hello) {
     ToWire(scene.sky->ground, sky->mutable_ground());
   }
   connection_->Send(infoEnvelope);
-  log_->info("{}: client '{}' joined", connection_->Id(), hello.peer_name());
+  log_->info("{}: client '{}' joined", connection_->Id(), Printable(hello.peer_name()));
 }
 
 void SmaServer::Impl::Session::OnView(const wire::View& v) {

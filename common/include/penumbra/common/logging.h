@@ -20,4 +20,10 @@ bool SetupLogging(std::string_view level = "info");
 /// Thread-safe.
 std::shared_ptr<spdlog::logger> Logger(const std::string& name);
 
+/// `text` from a peer, made safe to log: printable ASCII kept, every other
+/// byte (newlines, escapes, UTF-8) as \xNN, and cut after `maxBytes` of
+/// input with a note of the full length -- so a peer can neither forge log
+/// lines nor flood the log.
+std::string Printable(std::string_view text, size_t maxBytes = 64);
+
 }  // namespace penumbra

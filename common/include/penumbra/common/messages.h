@@ -12,6 +12,8 @@
 namespace penumbra {
 
 inline constexpr uint32_t kProtocolVersion = wire::PROTOCOL_VERSION_CURRENT;
+/// The longest Hello.peer_name accepted (it is logged, escaped: Printable).
+inline constexpr size_t kMaxPeerNameBytes = 256;
 
 /// Serializes `envelope` into one frame (length prefix + payload).
 std::string EncodeEnvelopeFrame(const wire::Envelope& envelope);
