@@ -10,6 +10,7 @@
 #include <functional>
 #include <map>
 #include <memory>
+#include <optional>
 #include <set>
 #include <thread>
 
@@ -471,6 +472,32 @@ wire::ShadeReply ReplyWith(const wire::ShadeRequest& request, int count, float r
   return reply;
 }
 
+// An SMA served by `hostile` and an honest renderer, and a client whose
+// front view converges through them once both are connected.
+struct BesideAHostileRenderer {
+  explicit BesideAHostileRenderer(const FakeRenderer& hostile)
+      : hostile(hostile),
+        honest(StartRenderer("honest")),
+        sma(StartSma({hostile.Address(), honest.Address()}, "hostile-sma")) {}
+
+  void ConvergeTheFrontView() {
+    auto connected = SmaTestClient::Connect(sma.port);
+    ASSERT_TRUE(connected.ok()) << connected.error().message;
+    client.emplace(std::move(*connected));
+    ASSERT_TRUE(WaitForCounter(*client, "renderers_connected", [](double n) { return n == 2.0; }, 10s));
+    view = FrontView(*client, kWidth, kHeight);
+    ASSERT_TRUE(client->SendView(view, 1));
+    ASSERT_TRUE(client->WaitConverged(1, 120s).ok()) << sma.process.LogTail();
+    EXPECT_TRUE(hostile.Answered());
+  }
+
+  const FakeRenderer& hostile;
+  Service honest;
+  Service sma;
+  std::optional<SmaTestClient> client;
+  CameraView view;
+};
+
 // Ends with every sample the SMA asked for stored once, nothing in flight.
 void ExpectNothingLost(SmaTestClient& c) {
   auto requested = c.Counter("samples_requested");
@@ -492,16 +519,10 @@ TEST(SmaHostileRendererTest, AGoodSampleBeforeABadOneInOneReplyIsNotLost) {
     reply.set_sample_ids(1, uint64_t(1) << 40);  // a sample it was not asked for
     return reply;
   });
-  Service honest = StartRenderer("honest");
-  Service sma = StartSma({hostile.Address(), honest.Address()}, "hostile-sma");
-  auto c = SmaTestClient::Connect(sma.port);
-  ASSERT_TRUE(c.ok()) << c.error().message;
-  ASSERT_TRUE(WaitForCounter(*c, "renderers_connected", [](double n) { return n == 2.0; }, 10s));
-  const CameraView view = FrontView(*c, kWidth, kHeight);
-  ASSERT_TRUE(c->SendView(view, 1));
-  ASSERT_TRUE(c->WaitConverged(1, 120s).ok()) << sma.process.LogTail();
-  EXPECT_TRUE(hostile.Answered());
-  ExpectHeldIsVisibleSet(*scene, view, c->Mesh());
+  BesideAHostileRenderer run(hostile);
+  ASSERT_NO_FATAL_FAILURE(run.ConvergeTheFrontView());
+  auto& c = run.client;
+  ExpectHeldIsVisibleSet(*scene, run.view, c->Mesh());
   ExpectNothingLost(*c);
   auto bad = c->Counter("renderer." + hostile.Address() + ".bad_replies");
   ASSERT_TRUE(bad.ok());
@@ -519,15 +540,9 @@ TEST(SmaHostileRendererTest, ImpossibleRadianceIsRejectedAndItsRendererQuarantin
     SCOPED_TRACE(poison);
     FakeRenderer hostile(scene->identity,
                          [poison](const wire::ShadeRequest& request) { return ReplyWith(request, 64, poison); });
-    Service honest = StartRenderer("honest");
-    Service sma = StartSma({hostile.Address(), honest.Address()}, "poisoned-sma");
-    auto c = SmaTestClient::Connect(sma.port);
-    ASSERT_TRUE(c.ok()) << c.error().message;
-    ASSERT_TRUE(WaitForCounter(*c, "renderers_connected", [](double n) { return n == 2.0; }, 10s));
-    const CameraView view = FrontView(*c, kWidth, kHeight);
-    ASSERT_TRUE(c->SendView(view, 1));
-    ASSERT_TRUE(c->WaitConverged(1, 120s).ok()) << sma.process.LogTail();
-    EXPECT_TRUE(hostile.Answered());
+    BesideAHostileRenderer run(hostile);
+    ASSERT_NO_FATAL_FAILURE(run.ConvergeTheFrontView());
+    auto& c = run.client;
     for (const auto& [id, v] : c->Mesh().Vertices())
       for (int ch = 0; ch < 3; ++ch) {
         ASSERT_GE(v.radiance[ch], 0.0f) << "vertex " << id;
