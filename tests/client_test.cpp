@@ -453,6 +453,15 @@ TEST_F(ClientTest, AHostileSceneInfoIsRefusedWithoutAllocatingWhatItAnnounces) {
   EXPECT_TRUE(client.WaitExit(10s).has_value());
 }
 
+TEST(VersionTest, EveryExecutableSaysItsRelease) {
+  for (const char* exe : {PENUMBRA_RENDERER_EXE, PENUMBRA_SMA_EXE, PENUMBRA_CLIENT_EXE}) {
+    auto out = RunCommand(exe, {"--version"});
+    ASSERT_TRUE(out.ok()) << exe << ": " << out.error().message;
+    EXPECT_NE(out->find(PENUMBRA_VERSION), std::string::npos) << exe << " said: " << *out;
+    EXPECT_NE(out->find("penumbra-"), std::string::npos) << *out;
+  }
+}
+
 // Exit codes and their one-line explanations.
 TEST_F(ClientTest, FailuresEndWithOneClearLineAndAnExitCode) {
   auto run = [&](const std::vector<std::string>& args, const std::string& name) {

@@ -8,6 +8,7 @@
 #include <CLI/CLI.hpp>
 
 #include "gl/client_app.h"
+#include "penumbra/common/version.h"
 #include "penumbra/client/path_player.h"
 #include "penumbra/common/logging.h"
 
@@ -35,6 +36,7 @@ int main(int argc, char** argv) {
   using gl::ClientOptions;
 
   CLI::App app{"penumbra-client: walk through a scene an SMA streams, shaded by Penumbra's renderers"};
+  app.set_version_flag("--version", "penumbra-client " + std::string(kVersion));
   ClientOptions options;
   std::string connect;
   std::string backend = "auto";
@@ -123,6 +125,8 @@ int main(int argc, char** argv) {
 
   try {
     app.parse(argc, argv);
+  } catch (const CLI::CallForVersion& e) {
+    return app.exit(e);
   } catch (const CLI::CallForHelp& e) {
     return app.exit(e);
   } catch (const CLI::ParseError& e) {

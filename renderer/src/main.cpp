@@ -6,6 +6,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "penumbra/common/version.h"
 #include "penumbra/common/endpoint.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/scene.h"
@@ -16,6 +17,7 @@
 int main(int argc, char** argv) {
   using namespace penumbra;
   CLI::App app{"penumbra-renderer: a path-tracing shading service for Penumbra SMAs"};
+  app.set_version_flag("--version", "penumbra-renderer " + std::string(kVersion));
   std::string scenePath;
   std::string listen = "127.0.0.1:7100";
   std::string portFile;

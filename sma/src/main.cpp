@@ -6,6 +6,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "penumbra/common/version.h"
 #include "penumbra/common/endpoint.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/scene.h"
@@ -15,6 +16,7 @@ int main(int argc, char** argv) {
   using namespace penumbra;
   using namespace penumbra::sma;
   CLI::App app{"penumbra-sma: shading cache, visibility, refinement and deltas for Penumbra clients"};
+  app.set_version_flag("--version", "penumbra-sma " + std::string(kVersion));
   SmaOptions options;
   std::string scenePath;
   std::string listen = "127.0.0.1:7200";

@@ -63,6 +63,7 @@ struct RendererPool::Link {
   uint64_t shaded = 0;
   uint32_t failures = 0;
   uint32_t badReplies = 0;
+  uint32_t connectFailures = 0;  // in a row; 0 once connected
 };
 
 std::shared_ptr<RendererPool> RendererPool::Create(asio::io_context& io, RendererPoolOptions options,
@@ -175,8 +176,14 @@ void RendererPool::Connect(const std::shared_ptr<Link>& link) {
   net::AsyncConnect(io_, link->endpoint, options_.connectTimeout,
                     [self = shared_from_this(), link](const error_code& ec, tcp::socket socket) {
                       if (ec) {
-                        Logger("sma.renderers")->debug("renderer {}: connect failed: {}", link->label, ec.message());
                         std::lock_guard lock(self->mutex_);
+                        // Said at warning level the first time and then about every reconnectMax, so that an
+                        // operator (and the log) hears of a renderer that cannot be reached without a flood.
+                        const bool say = link->connectFailures++ == 0 || link->backoff >= self->options_.reconnectMax;
+                        Logger("sma.renderers")
+                            ->log(say ? spdlog::level::warn : spdlog::level::debug,
+                                  "renderer {}: cannot connect ({}); {} sample(s) waiting", link->label, ec.message(),
+                                  self->queuedTotal_);
                         self->ScheduleReconnect(link);
                         return;
                       }
@@ -308,6 +315,7 @@ void RendererPool::OnMessage(const std::shared_ptr<Link>& link, wire::Envelope&&
         return;
       }
       link->state = Link::State::kReady;
+      link->connectFailures = 0;
       link->peerName = Printable(w.server_name());
       link->credits = std::max(1u, std::min(options_.creditsPerRenderer, w.max_batches_in_flight()));
       link->maxBatch = std::max(1u, std::min(options_.maxBatchSamples, w.max_batch_samples()));

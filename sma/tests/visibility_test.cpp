@@ -377,11 +377,15 @@ TEST(TwoSidedVisibilityTest, AHitMapsToTheSideTheRayMet) {
         if (hit.triangle == kNoHit) continue;
         const float along = glm::dot(camera.DirectionThrough(float(x) + 0.5f, float(y) + 0.5f),
                                      scene.GeometricNormal(hit.triangle));
-        if (std::abs(along) > 1e-3f) EXPECT_EQ(hit.backFace, along > 0.0f) << "pixel " << i;
+        if (std::abs(along) > 1e-3f) {
+          EXPECT_EQ(hit.backFace, along > 0.0f) << "pixel " << i;
+        }
         EXPECT_EQ(hierarchy.IsBack(visible.pixelNode[i]), hit.backFace) << "pixel " << i;
         EXPECT_EQ(hierarchy.GetNode(visible.pixelNode[i]).baseTriangle, hit.triangle);
         (hit.backFace ? back : front) += 1;
-        if (underTheFloor && hit.triangle < 32) EXPECT_TRUE(hit.backFace) << "floor pixel " << i;
+        if (underTheFloor && hit.triangle < 32) {
+          EXPECT_TRUE(hit.backFace) << "floor pixel " << i;
+        }
       }
     EXPECT_GT(underTheFloor ? back : front, 1000);
   }
