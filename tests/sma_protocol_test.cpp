@@ -284,12 +284,21 @@ TEST_F(SmaProtocolTest, MalformedInputClosesOnlyThatClient) {
     ASSERT_TRUE(c.Wire().Send(e));
     expectClosedWith(c.Wire(), wire::ERROR_CODE_UNEXPECTED_MESSAGE);
   }
-  {  // a 4 MiB peer name (it is logged): refused, named by its size only
+  {  // a 4 kB peer name (it is logged): refused, named by its size only
     auto w = WireClient::Connect("127.0.0.1", sma_->port);
     ASSERT_TRUE(w.ok());
-    auto welcome = w->Handshake(wire::ROLE_CLIENT, scene_->identity, 0, std::string(size_t(4) << 20, 'x'));
+    auto welcome = w->Handshake(wire::ROLE_CLIENT, scene_->identity, 0, std::string(4096, 'x'));
     ASSERT_FALSE(welcome.ok());
     EXPECT_NE(welcome.error().message.find("peer_name"), std::string::npos) << welcome.error().message;
+  }
+  {  // before its handshake a peer may not declare a large frame (and trickle it)
+    auto w = WireClient::Connect("127.0.0.1", sma_->port);
+    ASSERT_TRUE(w.ok());
+    const uint32_t declared = 16u << 20;
+    const std::string header = std::string{char(declared & 0xff), char((declared >> 8) & 0xff),
+                                           char((declared >> 16) & 0xff), char((declared >> 24) & 0xff)};
+    ASSERT_TRUE(w->SendRaw(header + "partial"));
+    expectClosedWith(*w, wire::ERROR_CODE_FRAME_TOO_LARGE);
   }
   {  // a view before the handshake
     auto w = WireClient::Connect("127.0.0.1", sma_->port);
@@ -304,6 +313,32 @@ TEST_F(SmaProtocolTest, MalformedInputClosesOnlyThatClient) {
   ASSERT_TRUE(bystander.SendView(view, 1));
   ASSERT_TRUE(bystander.WaitConverged(1).ok());
   ExpectHeldIsVisibleSet(*scene_, view, bystander.Mesh());
+}
+
+// A peer that connects and never says Hello (or only heartbeats) is dropped
+// after the handshake timeout: idle connections cannot pile up.
+TEST(SmaHandshakeTest, APeerWithoutHelloIsDroppedAfterTheHandshakeTimeout) {
+  Service renderer = StartRenderer("hs-renderer");
+  Service sma = StartSma({renderer.Address()}, "hs-sma", {"--handshake-timeout-ms", "500"});
+  auto w = WireClient::Connect("127.0.0.1", sma.port);
+  ASSERT_TRUE(w.ok());
+  const auto start = std::chrono::steady_clock::now();
+  bool timedOut = false;
+  for (int i = 0; i < 10 && !timedOut; ++i) {
+    wire::Envelope heartbeat;
+    heartbeat.mutable_heartbeat();
+    (void)w->Send(heartbeat);  // alive, but never a Hello
+    auto e = w->Receive(1s);
+    timedOut = e.ok() && e->has_error() && e->error().code() == wire::ERROR_CODE_TIMEOUT && e->error().fatal();
+  }
+  EXPECT_TRUE(timedOut);
+  EXPECT_TRUE(w->WaitClosed());
+  EXPECT_LT(std::chrono::steady_clock::now() - start, 5s);
+  // A well-behaved client is unaffected.
+  auto c = SmaTestClient::Connect(sma.port);
+  ASSERT_TRUE(c.ok()) << c.error().message;
+  ASSERT_TRUE(c->SendView(FrontView(*c, kWidth, kHeight), 1));
+  EXPECT_TRUE(c->WaitConverged(1).ok());
 }
 
 // A client that falls behind is sent nothing until its queue drains, then

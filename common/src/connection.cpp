@@ -34,8 +34,11 @@ Connection::Connection(tcp::socket socket, ConnectionOptions options, std::strin
       options_(options),
       id_(std::move(id)),
       log_(Logger("net")),
-      decoder_(options.maxFrameBytes),
+      decoder_(options.maxFrameBytesBeforeHandshake > 0 ? std::min(options.maxFrameBytes, options.maxFrameBytesBeforeHandshake)
+                                                        : options.maxFrameBytes),
       readBuffer_(kReadChunkBytes) {
+  handshakeDone_ = options.handshakeTimeout.count() <= 0 && options.maxFrameBytesBeforeHandshake == 0;
+  handshakeDeadline_ = std::chrono::steady_clock::now() + options.handshakeTimeout;
   error_code ec;
   socket_.set_option(tcp::no_delay(true), ec);  // small deltas and replies must not wait for Nagle
 }
@@ -210,10 +213,19 @@ void Connection::ArmTick() {
   }));
 }
 
+void Connection::MarkHandshakeDone() {
+  handshakeDone_ = true;
+  decoder_.SetMaxFrameBytes(options_.maxFrameBytes);
+}
+
 void Connection::OnTick() {
   if (closed_) return;
   const auto now = Clock::now();
-  if (draining_) {
+  if (!handshakeDone_ && !draining_ && options_.handshakeTimeout.count() > 0 && now > handshakeDeadline_) {
+    const std::string why = fmt::format("no handshake within {} ms", options_.handshakeTimeout.count());
+    log_->warn("{}: {}", id_, why);
+    FailAndClose(MakeError(0, wire::ERROR_CODE_TIMEOUT, why, true), why);
+  } else if (draining_) {
     if (now >= drainDeadline_) {
       DoClose(drainReason_ + " (flush timed out)");
       return;

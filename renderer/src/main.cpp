@@ -29,6 +29,7 @@ int main(int argc, char** argv) {
   uint32_t maxFrameBytes = options.connection.maxFrameBytes;
   int heartbeatMs = int(options.connection.heartbeatInterval.count());
   int readTimeoutMs = int(options.connection.readTimeout.count());
+  int handshakeTimeoutMs = int(options.connection.handshakeTimeout.count());
   int statsSeconds = 10;
 
   app.add_option("--scene", scenePath, "Scene description (.json) or mesh file (.obj, .gltf, .glb, ...)")->required();
@@ -56,6 +57,9 @@ int main(int argc, char** argv) {
   app.add_option("--max-frame-bytes", maxFrameBytes, "Largest frame accepted; larger frames close the connection")
       ->check(CLI::Range(1024u, 1u << 30))->capture_default_str();
   app.add_option("--heartbeat-ms", heartbeatMs, "Idle interval after which a heartbeat is sent")
+      ->check(CLI::Range(10, 3600000))->capture_default_str();
+  app.add_option("--handshake-timeout-ms", handshakeTimeoutMs,
+                 "A peer that has not completed its Hello by then is dropped")
       ->check(CLI::Range(10, 3600000))->capture_default_str();
   app.add_option("--read-timeout-ms", readTimeoutMs, "Silence after which a peer is dropped")
       ->check(CLI::Range(10, 3600000))->capture_default_str();
@@ -95,6 +99,7 @@ int main(int argc, char** argv) {
   options.connection.maxFrameBytes = maxFrameBytes;
   options.connection.heartbeatInterval = std::chrono::milliseconds(heartbeatMs);
   options.connection.readTimeout = std::chrono::milliseconds(readTimeoutMs);
+  options.connection.handshakeTimeout = std::chrono::milliseconds(handshakeTimeoutMs);
   options.statsInterval = std::chrono::seconds(statsSeconds);
 
   RendererServer server(shader, options);

@@ -186,6 +186,7 @@ class RendererServer::Impl::Session : public std::enable_shared_from_this<Sessio
     w->set_paths_per_sample(uint32_t(server_.GetShader().Settings().pathsPerSample));
     w->set_max_batches_in_flight(options.maxBatchesInFlight);
     connection_->Send(envelope);
+    connection_->MarkHandshakeDone();
     log_->info("{}: handshake with '{}' done", connection_->Id(), Printable(hello.peer_name()));
   }
 

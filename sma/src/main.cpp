@@ -26,6 +26,7 @@ int main(int argc, char** argv) {
   uint32_t maxFrameBytes = options.clientConnection.maxFrameBytes;
   int heartbeatMs = int(options.clientConnection.heartbeatInterval.count());
   int readTimeoutMs = int(options.clientConnection.readTimeout.count());
+  int handshakeTimeoutMs = int(options.clientConnection.handshakeTimeout.count());
   int rendererTimeoutMs = int(options.pool.connection.readTimeout.count());
   int statsSeconds = 10;
   int resolveSeconds = int(options.pool.resolveInterval.count() / 1000);
@@ -91,6 +92,9 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(1024u, 1u << 30))->capture_default_str();
   app.add_option("--heartbeat-ms", heartbeatMs, "Idle interval after which a heartbeat is sent")
       ->check(CLI::Range(10, 3600000))->capture_default_str();
+  app.add_option("--handshake-timeout-ms", handshakeTimeoutMs,
+                 "A peer that has not completed its Hello by then is dropped")
+      ->check(CLI::Range(10, 3600000))->capture_default_str();
   app.add_option("--read-timeout-ms", readTimeoutMs, "Silence after which a peer is dropped")
       ->check(CLI::Range(10, 3600000))->capture_default_str();
   app.add_option("--renderer-read-timeout-ms", rendererTimeoutMs,
@@ -144,6 +148,7 @@ int main(int argc, char** argv) {
   options.clientConnection.maxFrameBytes = maxFrameBytes;
   options.clientConnection.heartbeatInterval = std::chrono::milliseconds(heartbeatMs);
   options.clientConnection.readTimeout = std::chrono::milliseconds(readTimeoutMs);
+  options.clientConnection.handshakeTimeout = std::chrono::milliseconds(handshakeTimeoutMs);
   options.pool.connection.heartbeatInterval = std::chrono::milliseconds(heartbeatMs);
   options.pool.connection.readTimeout = std::chrono::milliseconds(rendererTimeoutMs);
   options.pool.resolveInterval = std::chrono::seconds(resolveSeconds);

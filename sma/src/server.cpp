@@ -434,6 +434,7 @@ void SmaServer::Impl::Session::OnHello(const wire::Hello& hello) {
     ToWire(scene.sky->ground, sky->mutable_ground());
   }
   connection_->Send(infoEnvelope);
+  connection_->MarkHandshakeDone();
   log_->info("{}: client '{}' joined", connection_->Id(), Printable(hello.peer_name()));
 }
 

@@ -37,6 +37,13 @@ struct ConnectionOptions {
   size_t maxQueuedBytes = size_t(64) << 20;        // Send() refuses beyond this
   std::chrono::milliseconds readTimeout{20000};    // silence longer than this closes
   std::chrono::milliseconds heartbeatInterval{5000};  // idle sender sends a Heartbeat
+  /// For servers: a peer must complete its handshake (the owner calls
+  /// MarkHandshakeDone) within this time, and until then frames larger than
+  /// maxFrameBytesBeforeHandshake close the connection -- so that idle or
+  /// trickling anonymous peers cost neither descriptors for long nor memory.
+  /// 0: no such limit (connecting sides, whose peer they chose).
+  std::chrono::milliseconds handshakeTimeout{0};
+  uint32_t maxFrameBytesBeforeHandshake = 0;
 };
 
 class Connection : public std::enable_shared_from_this<Connection> {
@@ -66,6 +73,11 @@ class Connection : public std::enable_shared_from_this<Connection> {
   void CloseAfterFlush(std::string reason);
   /// Closes now; queued writes are dropped. Thread-safe, idempotent.
   void Close(std::string reason);
+
+  /// The peer has completed its handshake: frames up to maxFrameBytes from
+  /// now on, and no handshake deadline. Call on the strand (from the
+  /// message handler), so that the next frame is read with the new limit.
+  void MarkHandshakeDone();
 
   /// Backpressure: while paused no reads are issued and the read timeout is
   /// suspended. Thread-safe.
@@ -97,6 +109,8 @@ class Connection : public std::enable_shared_from_this<Connection> {
   asio::steady_timer tick_;
   ConnectionOptions options_;
   std::string id_;
+  bool handshakeDone_ = false;  // strand
+  std::chrono::steady_clock::time_point handshakeDeadline_;
   std::shared_ptr<spdlog::logger> log_;
 
   // Strand-owned state.

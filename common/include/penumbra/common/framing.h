@@ -42,6 +42,8 @@ class FrameDecoder {
   /// Bytes received but not yet returned as frames.
   size_t Buffered() const { return buffer_.size() - readPos_; }
   uint32_t MaxFrameBytes() const { return maxFrameBytes_; }
+  /// Changes the limit for frames not yet begun (a handshake raises it).
+  void SetMaxFrameBytes(uint32_t maxFrameBytes) { maxFrameBytes_ = maxFrameBytes; }
 
  private:
   uint32_t maxFrameBytes_;

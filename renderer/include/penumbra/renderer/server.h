@@ -33,7 +33,8 @@ struct RendererServerOptions {
   int workerThreads = 0;  // 0: one per hardware thread
   ShadeLimits limits;
   uint32_t maxBatchesInFlight = 64;  // per connection; more gets OVERLOADED
-  net::ConnectionOptions connection;
+  net::ConnectionOptions connection{.handshakeTimeout = std::chrono::milliseconds(10000),
+                                    .maxFrameBytesBeforeHandshake = 64 * 1024};
   std::chrono::milliseconds statsInterval{10000};  // periodic counters in the log
   std::chrono::milliseconds drainTimeout{30000};   // longest graceful shutdown
 };

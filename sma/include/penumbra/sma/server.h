@@ -40,7 +40,8 @@ struct SmaOptions {
   std::string name = "penumbra-sma";
   RendererPoolOptions pool;            // renderers, scene hash (filled in), credits, timeouts
   RefinementParams refinement;         // each session starts with these; clients may change theirs
-  net::ConnectionOptions clientConnection;
+  net::ConnectionOptions clientConnection{.handshakeTimeout = std::chrono::milliseconds(10000),
+                                          .maxFrameBytesBeforeHandshake = 64 * 1024};
   int ioThreads = 1;
   int viewThreads = 2;                 // visibility jobs in parallel (each also uses TBB inside)
   size_t clientSoftQueueBytes = size_t(4) << 20;  // beyond this, a client's deltas are coalesced
