@@ -19,6 +19,7 @@
 # The Debian mirror is the one this machine's apt sources name; nothing about it
 # is written into the repository. Needs root, debootstrap and unshare.
 set -euo pipefail
+export PATH="/usr/local/sbin:/usr/sbin:/sbin:$PATH"  # debootstrap, chroot: root's tools, wherever PATH was cut
 root="$(cd "$(dirname "$0")/.." && pwd)"
 cache="${PENUMBRA_FRESH_CACHE:-/var/cache/penumbra-fresh-machine}"
 keep=0
