@@ -23,7 +23,10 @@ export PATH="/usr/local/sbin:/usr/sbin:/sbin:$PATH"  # debootstrap, chroot: root
 root="$(cd "$(dirname "$0")/.." && pwd)"
 cache="${PENUMBRA_FRESH_CACHE:-/var/cache/penumbra-fresh-machine}"
 keep=0
-if [ "${1:-}" = "--keep" ]; then keep=1; shift; fi
+case "${1:-}" in
+  -h|--help) sed -n '2,20p' "$0"; exit 0 ;;
+  --keep) keep=1; shift ;;
+esac
 if [ $# -eq 0 ]; then set -- scripts/test.sh; fi
 
 say() { echo "fresh-machine: $*"; }
