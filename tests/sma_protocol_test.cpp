@@ -270,6 +270,13 @@ TEST_F(SmaProtocolTest, MalformedInputClosesOnlyThatClient) {
     ASSERT_TRUE(c.SendView(v, 1));
     expectClosedWith(c.Wire(), wire::ERROR_CODE_INVALID_REQUEST);
   }
+  {  // within the camera's limits, beyond what the SMA serves (8192 x 4608 by default)
+    SmaTestClient c = Client("large");
+    CameraView v = Preset(c, "front");
+    v.width = v.height = 16384;
+    ASSERT_TRUE(c.SendView(v, 1));
+    expectClosedWith(c.Wire(), wire::ERROR_CODE_INVALID_REQUEST);
+  }
   {  // absurd viewport
     SmaTestClient c = Client("huge");
     CameraView v = Preset(c, "front");

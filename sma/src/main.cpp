@@ -92,6 +92,9 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(1024u, 1u << 30))->capture_default_str();
   app.add_option("--heartbeat-ms", heartbeatMs, "Idle interval after which a heartbeat is sent")
       ->check(CLI::Range(10, 3600000))->capture_default_str();
+  app.add_option("--max-view-pixels", options.maxViewPixels,
+                 "Largest view (width x height) a client may ask for; visibility costs time and memory per pixel")
+      ->check(CLI::Range(uint64_t(1), uint64_t(1) << 28))->capture_default_str();
   app.add_option("--handshake-timeout-ms", handshakeTimeoutMs,
                  "A peer that has not completed its Hello by then is dropped")
       ->check(CLI::Range(10, 3600000))->capture_default_str();

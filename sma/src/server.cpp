@@ -447,6 +447,11 @@ void SmaServer::Impl::Session::OnView(const wire::View& v) {
   view.height = int(std::min<uint32_t>(v.height(), 1u << 30));
   if (auto ok = ValidateCameraView(view); !ok)
     return Fatal(wire::ERROR_CODE_INVALID_REQUEST, fmt::format("view {}: {}", v.view_id(), ok.error().message));
+  // Visibility costs time and memory per pixel (a 16384^2 view took 4.2 GiB).
+  if (uint64_t(view.width) * uint64_t(view.height) > server_.options_.maxViewPixels)
+    return Fatal(wire::ERROR_CODE_INVALID_REQUEST,
+                 fmt::format("view {}: {}x{} pixels; this SMA serves at most {} per view", v.view_id(), view.width,
+                             view.height, server_.options_.maxViewPixels));
   if (hasView_ && v.view_id() <= viewId_) {
     connection_->Send(MakeError(v.view_id(), wire::ERROR_CODE_INVALID_REQUEST,
                                 fmt::format("view id {} does not increase (last {}); ignored", v.view_id(), viewId_),

@@ -46,6 +46,7 @@ struct SmaOptions {
   int viewThreads = 2;                 // visibility jobs in parallel (each also uses TBB inside)
   size_t clientSoftQueueBytes = size_t(4) << 20;  // beyond this, a client's deltas are coalesced
   uint32_t maxTrianglesPerDelta = 16384;          // larger changes go in several deltas
+  uint64_t maxViewPixels = uint64_t(8192) * 4608;  // larger views are refused (visibility's time and memory)
   std::chrono::milliseconds refreshInterval{100}; // min time between re-mapping a view after new samples
   std::chrono::milliseconds statsInterval{10000};
   ToneMappingDefaults toneMapping;
