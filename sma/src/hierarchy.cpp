@@ -3,6 +3,8 @@
 #include <cstring>
 #include <deque>
 
+#include <fmt/format.h>
+
 #include "penumbra/common/hash.h"
 
 namespace penumbra::sma {
@@ -240,6 +242,28 @@ RefineResult Hierarchy::Refine(NodeId leaf, const RefineOptions& options) {
     }
   }
   return result;
+}
+
+Status Hierarchy::ApplySplit(NodeId node, uint8_t childCount, uint8_t splitEdge) {
+  if (node >= nodes_.size()) return Fail(fmt::format("node {} does not exist ({} nodes)", node, nodes_.size()));
+  if (!nodes_[node].IsLeaf()) return Fail(fmt::format("node {} is split already", node));
+  RefineResult ignored;
+  if (childCount == 4) {
+    if (nodes_[node].depth >= kMaxSplitDepth)
+      return Fail(fmt::format("node {} is at depth {}, too deep for a 1 -> 4 split", node, nodes_[node].depth));
+    Split4(node, ignored);
+  } else if (childCount == 2 && splitEdge < 3) {
+    Split2(node, splitEdge, ignored);
+  } else {
+    return Fail(fmt::format("node {}: no split into {} children across edge {}", node, childCount, splitEdge));
+  }
+  return Status::Ok();
+}
+
+bool Hierarchy::Conforming() const {
+  for (const auto& [key, leaves] : leavesOfPointEdge_)
+    if (!leaves.empty() && midpointOfPointEdge_.contains(key)) return false;
+  return true;
 }
 
 boost::container::small_vector<NodeId, 2> Hierarchy::EdgeNeighbours(NodeId leaf, int edge) const {

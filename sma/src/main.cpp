@@ -113,6 +113,16 @@ int main(int argc, char** argv) {
   app.add_option("--name", options.name, "Name reported in handshakes and logs")->capture_default_str();
   app.add_option("--port-file", portFile, "Write the bound client port to this file once listening");
   app.add_option("--log-level", logLevel, "trace, debug, info, warn, error, critical or off")->capture_default_str();
+  // Cache on disk (issue 12)
+  app.add_option("--cache-dir", options.cacheDir,
+                 "Keep the sample cache in this directory: restored at start when it holds a snapshot of this "
+                 "scene, snapshotted periodically and at SIGTERM/SIGINT (see sma/README.md, \"Cache on disk\")");
+  app.add_option_function<int>(
+         "--cache-snapshot-interval",
+         [&options](const int& seconds) { options.cacheSnapshotInterval = std::chrono::seconds(seconds); },
+         "Seconds between cache snapshots (taken only when the cache changed): what a kill -9 can lose")
+      ->check(CLI::Range(1, 86400))
+      ->default_str(std::to_string(options.cacheSnapshotInterval.count() / 1000));
   CLI11_PARSE(app, argc, argv);
 
   if (!SetupLogging(logLevel)) {

@@ -68,6 +68,7 @@ std::vector<VertexId> SampleCache::Improve(std::span<const ShadedSample> samples
     rounds_[v] = s.round;
     changed.push_back(v);
   }
+  changes_ += changed.size();
   return changed;
 }
 
@@ -85,6 +86,26 @@ size_t SampleCache::Store(std::span<const ShadedSample> samples) {
     ++added;
   }
   shadedCount_ += added;
+  changes_ += added;
+  return added;
+}
+
+size_t SampleCache::Restore(std::span<const ShadedSample> samples) {
+  size_t added = 0;
+  for (const ShadedSample& s : samples) {
+    if (s.vertex == kNoVertex) continue;
+    if (s.vertex >= shaded_.size()) Reserve(size_t(s.vertex) + 1);
+    if (shaded_[s.vertex]) continue;
+    shaded_[s.vertex] = 1;
+    radiance_[s.vertex] = s.radiance;
+    irradiance_[s.vertex] = s.irradiance;
+    irradianceStdErr_[s.vertex] = s.irradianceStdErr;
+    paths_[s.vertex] = s.paths;
+    rounds_[s.vertex] = s.round;
+    ++added;
+  }
+  shadedCount_ += added;
+  changes_ += added;
   return added;
 }
 

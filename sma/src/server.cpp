@@ -10,6 +10,7 @@
 #include <fmt/format.h>
 
 #include "job_queue.h"
+#include "penumbra/sma/cache_snapshot.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
 #include "penumbra/sma/delta.h"
@@ -56,17 +57,20 @@ class SmaServer::Impl {
  public:
   class Session;
 
-  Impl(const Scene& scene, SmaOptions options, std::unique_ptr<VisibilityTracer> tracer)
+  Impl(const Scene& scene, SmaOptions options, std::unique_ptr<VisibilityTracer> tracer,
+       std::unique_ptr<CacheSnapshotter> snapshots, std::optional<RestoredCache> restored)
       : scene_(scene),
         options_(std::move(options)),
-        hierarchy_(scene),
+        hierarchy_(restored ? std::move(restored->hierarchy) : Hierarchy(scene)),
         tracer_(std::move(tracer)),
         jobs_(options_.viewThreads),
         log_(Logger("sma")),
         signals_(io_, SIGINT, SIGTERM),
         statsTimer_(io_),
-        shutdownTimer_(io_) {
+        shutdownTimer_(io_),
+        snapshots_(std::move(snapshots)) {
     cache_.Reserve(hierarchy_.VertexCount());
+    if (restored) cache_.Restore(restored->samples);
     options_.pool.sceneHash = scene.identity;
     options_.pool.name = options_.name;
     options_.pool.radianceBounds = RadianceBounds::ForScene(scene);
@@ -90,10 +94,12 @@ class SmaServer::Impl {
     pool_->Start();
     if (listener_) listener_->Start();
     ArmStats();
+    if (snapshots_) snapshots_->Start(stateMutex_, hierarchy_, cache_);
     std::vector<std::thread> extra;
     for (int i = 1; i < options_.ioThreads; ++i) extra.emplace_back([this] { io_.run(); });
     io_.run();
     for (auto& t : extra) t.join();
+    if (snapshots_) snapshots_->Stop();  // the final snapshot
     log_->info("{}: stopped", options_.name);
   }
 
@@ -192,6 +198,8 @@ class SmaServer::Impl {
   std::mutex sessionsMutex_;
   std::unordered_map<uint64_t, std::shared_ptr<Session>> sessions_;
   uint64_t nextSessionId_ = 1;
+  // Last member: stopped (its thread joined) before the state it reads goes.
+  std::unique_ptr<CacheSnapshotter> snapshots_;
 };
 
 // One client connection. Everything here runs on the connection's strand.
@@ -1044,6 +1052,13 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
   }
   AddCounter(reply, "renderers", double(pool.renderers.size()));
   AddCounter(reply, "renderers_connected", double(connected));
+  if (snapshots_) {
+    const CacheSnapshotStats disk = snapshots_->Stats();
+    AddCounter(reply, "cache_snapshots_written", double(disk.written));
+    AddCounter(reply, "cache_snapshot_samples", double(disk.lastSamples));
+    AddCounter(reply, "cache_snapshot_bytes", double(disk.lastBytes));
+    AddCounter(reply, "cache_restored_samples", double(disk.restoredSamples));
+  }
 }
 
 void SmaServer::Impl::ArmStats() {
@@ -1123,7 +1138,16 @@ void SmaServer::Impl::PollShutdown() {
 Expected<std::unique_ptr<SmaServer>> SmaServer::Create(const Scene& scene, SmaOptions options) {
   auto tracer = VisibilityTracer::Build(scene);
   if (!tracer) return tracer.error();
-  return std::unique_ptr<SmaServer>(new SmaServer(std::make_unique<Impl>(scene, std::move(options), std::move(*tracer))));
+  std::unique_ptr<CacheSnapshotter> snapshots;
+  if (!options.cacheDir.empty()) {
+    auto opened = CacheSnapshotter::Open(options.cacheDir, options.cacheSnapshotInterval);
+    if (!opened) return opened.error();
+    snapshots = std::move(*opened);
+  }
+  std::optional<RestoredCache> restored =
+      snapshots ? snapshots->Restore(scene, RadianceBounds::ForScene(scene)) : std::optional<RestoredCache>();
+  return std::unique_ptr<SmaServer>(new SmaServer(std::make_unique<Impl>(
+      scene, std::move(options), std::move(*tracer), std::move(snapshots), std::move(restored))));
 }
 
 SmaServer::SmaServer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}

@@ -146,6 +146,7 @@ TEST(HierarchyTest, RandomRefinementPreservesAreaAndConformity) {
     const auto leaves = Leaves(h);
     h.Refine(leaves[rng() % leaves.size()], RefineOptions{});
     ASSERT_EQ(CountTVertices(h), 0u) << "after step " << step;
+    ASSERT_TRUE(h.Conforming()) << "after step " << step;
   }
   for (NodeId root = 0; root < s.triangles.size(); ++root) {
     double area = 0.0;

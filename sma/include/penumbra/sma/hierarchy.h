@@ -40,7 +40,11 @@
 // triangle index t; back root id == BaseTriangleCount() + t. Front base
 // vertex id == scene vertex index v; back base vertex id == scene vertex
 // count + v. Clients key their triangles and vertices by these ids (widened
-// to 64 bits on the wire).
+// to 64 bits on the wire). Every other id is assigned by a split, in the order
+// splits happen: the same splits made in the same order give the same ids,
+// which is how a cache snapshot (cache_snapshot.h) brings them back after a
+// restart. A change to how Split4/Split2 number children or midpoints must
+// bump CacheSnapshot's format version.
 //
 // Threads: not synchronised. The SMA guards a Hierarchy with its state lock;
 // const member functions may run concurrently with each other.
@@ -53,6 +57,7 @@
 
 #include <boost/container/small_vector.hpp>
 
+#include "penumbra/common/expected.h"
 #include "penumbra/common/math.h"
 #include "penumbra/common/scene.h"
 
@@ -90,6 +95,10 @@ struct Node {
   bool IsLeaf() const { return childCount == 0; }
 };
 
+/// Nodes at this depth are never split 1 -> 4 (float precision); 1 -> 2
+/// splits, which keep the mesh conforming, still may be.
+inline constexpr uint8_t kMaxSplitDepth = 20;
+
 struct RefineOptions {
   /// A neighbour whose height over the shared edge is below this multiple of
   /// the edge's length is "slim": it splits 1 -> 2 and propagation stops.
@@ -100,7 +109,7 @@ struct RefineOptions {
   /// Most 1 -> 4 splits one Refine() makes; beyond it neighbours split 1 -> 2
   /// (which always ends propagation), so a pathological mesh stays bounded.
   uint32_t maxSplits4 = 4096;
-  uint8_t maxDepth = 20;  // nodes at this depth are never split 1 -> 4 (float precision); 1 -> 2 still conforms
+  uint8_t maxDepth = kMaxSplitDepth;  // at most kMaxSplitDepth: nodes this deep are never split 1 -> 4
 };
 
 /// What one Refine() did.
@@ -151,6 +160,19 @@ class Hierarchy {
   /// Splits leaf `leaf` 1 -> 4 and propagates to neighbours as described
   /// above. Returns what changed; splitting a non-leaf does nothing.
   RefineResult Refine(NodeId leaf, const RefineOptions& options);
+
+  /// Repeats one split exactly as Refine() made it, without propagation
+  /// (replaying a snapshot): `childCount` 4 for 1 -> 4, 2 for 1 -> 2 across
+  /// `splitEdge`. The splits Refine() made, repeated in the order it made
+  /// them (the order of their children's ids), give the same node and vertex
+  /// ids. Fails, changing nothing, for a node that is not a leaf, an unknown
+  /// shape, or a 1 -> 4 split at kMaxSplitDepth.
+  Status ApplySplit(NodeId node, uint8_t childCount, uint8_t splitEdge);
+
+  /// Whether no leaf edge has been split on its other side (a T-vertex made
+  /// by splits; the scene's own T-junctions do not count): always true after
+  /// Refine(), and what replayed splits must restore.
+  bool Conforming() const;
 
   /// The leaves whose edge joins the same two points as edge `edge` of leaf
   /// `leaf` (the leaf itself excluded).

@@ -78,7 +78,15 @@ class SampleCache {
   /// Returns the vertices that changed.
   std::vector<VertexId> Improve(std::span<const ShadedSample> samples);
 
+  /// Puts back samples as a snapshot saved them (CacheSnapshot), with their
+  /// paths and improvement rounds, into vertices not yet shaded; a vertex
+  /// beyond Size() grows the cache. Returns how many were put back.
+  size_t Restore(std::span<const ShadedSample> samples);
+
   size_t ShadedCount() const { return shadedCount_; }
+  /// Counts every sample stored, improved or restored: a snapshot is due when
+  /// it moved since the last one.
+  uint64_t Changes() const { return changes_; }
 
   /// Lookup statistics for the hit rate: a lookup of a vertex a view needed.
   /// Thread-safe (counted by readers holding the state lock shared).
@@ -97,6 +105,7 @@ class SampleCache {
   std::vector<uint32_t> paths_;
   std::vector<uint16_t> rounds_;
   size_t shadedCount_ = 0;
+  uint64_t changes_ = 0;
   mutable std::atomic<uint64_t> hits_{0};
   mutable std::atomic<uint64_t> misses_{0};
 };

@@ -58,6 +58,11 @@ struct SmaOptions {
   float improveTargetError = 0.02f;
   uint32_t improveMaxPaths = 1024;
   uint32_t improveBatch = 4096;  // improvements in flight per session
+  /// Cache on disk (cache_snapshot.h): empty for none; else the cache is
+  /// restored from this directory at start and snapshotted to it every
+  /// interval (when it changed) and at shutdown.
+  std::string cacheDir;
+  std::chrono::milliseconds cacheSnapshotInterval{30000};
 };
 
 class SmaServer {
