@@ -30,7 +30,10 @@ RUN apt-get update \
  && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
       libembree3-3 libtbb12 libprotobuf32 libspdlog1.10 libfmt9 libassimp5 libopenimageio2.4 \
  && rm -rf /var/lib/apt/lists/* \
- && useradd --system --uid 10001 --no-create-home --shell /usr/sbin/nologin penumbra
+ && useradd --system --uid 10001 --no-create-home --shell /usr/sbin/nologin penumbra \
+ && install -d -o penumbra -g penumbra -m 0750 /var/lib/penumbra-sma
+# --cache-dir for the compose file's sma-cache volume: a new named volume
+# takes this directory's owner, so the non-root SMA can write its snapshots.
 COPY --from=build /src/build/sma/penumbra-sma /usr/local/bin/penumbra-sma
 USER penumbra
 EXPOSE 7200

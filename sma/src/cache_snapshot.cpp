@@ -272,6 +272,13 @@ Expected<RestoredCache> DecodeCacheSnapshot(std::span<const char> bytes, const S
   return RestoredCache{std::move(hierarchy), std::move(samples), splitCount};
 }
 
+std::vector<VertexId> UnshadedMidpoints(const Hierarchy& hierarchy, const SampleCache& cache) {
+  std::vector<VertexId> out;
+  for (VertexId v = VertexId(hierarchy.BaseVertexCount()); v < hierarchy.VertexCount(); ++v)
+    if (!cache.IsShaded(v)) out.push_back(v);
+  return out;
+}
+
 // --- Files -------------------------------------------------------------------
 
 Status WriteFileAtomically(const std::filesystem::path& path, std::string_view bytes) {

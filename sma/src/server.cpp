@@ -76,6 +76,12 @@ class SmaServer::Impl {
     options_.pool.radianceBounds = RadianceBounds::ForScene(scene);
     pool_ = RendererPool::Create(io_, options_.pool,
                                  [this](std::vector<ShadedSample>&& samples) { OnResults(std::move(samples)); });
+    if (restored) {
+      std::vector<SampleRequest> requests;
+      for (VertexId v : UnshadedMidpoints(hierarchy_, cache_)) requests.push_back(MakeSampleRequest(hierarchy_, v));
+      pool_->Request(requests, Priority::kBackground);
+      log_->info("cache: {} restored midpoints were still unshaded: asked for", requests.size());
+    }
   }
 
   Expected<tcp::endpoint> Listen() {

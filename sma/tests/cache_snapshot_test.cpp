@@ -178,6 +178,18 @@ TEST(CacheSnapshotTest, RoundTripGivesBackEveryIdAndSample) {
       improved += cache.Rounds(v) > 0;
     }
     EXPECT_GT(improved, 0u);
+    // What was on its way when the snapshot was taken is what the SMA asks
+    // for again: every midpoint without a sample, and nothing else.
+    const std::vector<VertexId> unshaded = UnshadedMidpoints(restored->hierarchy, cache);
+    ASSERT_FALSE(unshaded.empty());
+    size_t expected = 0;
+    for (VertexId v = VertexId(live->hierarchy.BaseVertexCount()); v < live->hierarchy.VertexCount(); ++v)
+      expected += !live->cache.IsShaded(v);
+    EXPECT_EQ(unshaded.size(), expected);
+    for (VertexId v : unshaded) {
+      EXPECT_GE(v, restored->hierarchy.BaseVertexCount());
+      EXPECT_FALSE(cache.IsShaded(v));
+    }
 
     // The restored hierarchy refines on exactly like the original: its edge
     // maps came back too.

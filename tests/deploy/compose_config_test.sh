@@ -45,11 +45,15 @@ expect "$work/defaults.yml" "    - 127.0.0.1:7200:7200/tcp" "SMA port published 
 expect "$work/defaults.yml" "    - --until-converged" "client job runs until converged"
 expect "$work/defaults.yml" "    - --camera-path=/scenes/cornell-box.json#walk" "client job walks the scene's path"
 expect "$work/defaults.yml" "    - --connect=sma:7200" "client job connects to the SMA service"
+expect "$work/defaults.yml" "    - --cache-dir=/var/lib/penumbra-sma" "SMA keeps its cache on disk"
+expect "$work/defaults.yml" "    - --cache-snapshot-interval=30" "default cache snapshot interval"
+expect "$work/defaults.yml" "    - sma-cache:/var/lib/penumbra-sma:rw" "SMA cache directory on a volume"
 [ -f "$src/scenes/cornell-box.json" ] || fail "the default scene scenes/cornell-box.json is missing"
 
 PENUMBRA_RENDERERS=5 PENUMBRA_SCENE=sponza.json PENUMBRA_SCENES_DIR=/srv/scenes PENUMBRA_SPP=256 \
   PENUMBRA_RENDERER_THREADS=3 PENUMBRA_SMA_PORT=9200 PENUMBRA_SMA_BIND=0.0.0.0 PENUMBRA_RESOLVE_INTERVAL=2 \
   PENUMBRA_CAMERA_PATH=orbit PENUMBRA_CLIENT_TIMEOUT=60 PENUMBRA_LOG_LEVEL=debug PENUMBRA_TAG=v9 \
+  PENUMBRA_CACHE_SNAPSHOT_INTERVAL=120 \
   docker-compose -f "$compose_file" config >"$work/overridden.yml"
 expect "$work/overridden.yml" "      replicas: 5" "PENUMBRA_RENDERERS"
 expect "$work/overridden.yml" "    scale: 5" "PENUMBRA_RENDERERS (scale)"
@@ -63,6 +67,7 @@ expect "$work/overridden.yml" "    - --camera-path=/scenes/sponza.json#orbit" "P
 expect "$work/overridden.yml" "    - --timeout=60" "PENUMBRA_CLIENT_TIMEOUT"
 expect "$work/overridden.yml" "    - --log-level=debug" "PENUMBRA_LOG_LEVEL"
 expect "$work/overridden.yml" "    image: penumbra-renderer:v9" "PENUMBRA_TAG"
+expect "$work/overridden.yml" "    - --cache-snapshot-interval=120" "PENUMBRA_CACHE_SNAPSHOT_INTERVAL"
 
 # Every service builds from a Dockerfile that exists, with the repository as
 # its context.

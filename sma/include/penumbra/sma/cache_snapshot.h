@@ -118,6 +118,13 @@ std::string EncodeCacheSnapshot(const CacheSnapshotData& data);
 Expected<RestoredCache> DecodeCacheSnapshot(std::span<const char> bytes, const Scene& scene,
                                             const RadianceBounds& bounds);
 
+/// The midpoints of `hierarchy`'s splits that `cache` has no sample for. After
+/// a restore these are the samples that were on their way when the snapshot
+/// was taken: no view asks for them again (visibility shows a split's parent
+/// until they arrive, and refinement never splits a node twice), so the SMA
+/// asks for them itself. Caller holds the state lock.
+std::vector<VertexId> UnshadedMidpoints(const Hierarchy& hierarchy, const SampleCache& cache);
+
 /// Writes `bytes` to `path` so that a crash at any moment leaves either the
 /// old file or the new one whole: a temporary file beside it, fsync, rename,
 /// fsync of the directory.
