@@ -128,6 +128,7 @@ CacheSnapshotData CaptureCacheSnapshot(std::shared_mutex& stateMutex, const Hier
       id += parent.childCount;
     }
   }
+  data.samples.reserve(data.vertexCount);  // no reallocation while the lock is held
   for (VertexId v = 0; v < data.vertexCount;) {
     std::shared_lock lock(stateMutex);
     const VertexId stop = VertexId(std::min<size_t>(data.vertexCount, size_t(v) + chunk));
@@ -233,6 +234,7 @@ Expected<RestoredCache> DecodeCacheSnapshot(std::span<const char> bytes, const S
     return Fail(fmt::format("{} nodes, {} vertices and {} samples cannot come from {} splits", nodeCount, vertexCount,
                             sampleCount, splitCount));
 
+  hierarchy.Reserve(nodeCount, vertexCount);  // both bounded by the file's size just above
   for (uint32_t i = 0; i < splitCount; ++i) {
     const NodeId node = r.Get<uint32_t>();
     const uint8_t shape = r.Get<uint8_t>();

@@ -260,6 +260,16 @@ Status Hierarchy::ApplySplit(NodeId node, uint8_t childCount, uint8_t splitEdge)
   return Status::Ok();
 }
 
+void Hierarchy::Reserve(size_t nodes, size_t vertices) {
+  nodes_.reserve(nodes);
+  vertices_.reserve(vertices);
+  const size_t midpoints = vertices > vertices_.size() ? vertices - vertices_.size() : 0;
+  midpointOfVertexEdge_.reserve(midpointOfVertexEdge_.size() + midpoints);
+  midpointOfPointEdge_.reserve(midpointOfPointEdge_.size() + midpoints);
+  // About 3/4 of the nodes are leaves, with 3 edges each, most shared by two.
+  leavesOfPointEdge_.reserve(std::max(leavesOfPointEdge_.size(), nodes + nodes / 8));
+}
+
 bool Hierarchy::Conforming() const {
   for (const auto& [key, leaves] : leavesOfPointEdge_)
     if (!leaves.empty() && midpointOfPointEdge_.contains(key)) return false;

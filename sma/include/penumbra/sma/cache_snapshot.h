@@ -106,7 +106,7 @@ struct RestoredCache {
 /// or the other, never a mix: each vertex is copied under one lock).
 /// Any thread; `hierarchy` and `cache` must be those `stateMutex` guards.
 CacheSnapshotData CaptureCacheSnapshot(std::shared_mutex& stateMutex, const Hierarchy& hierarchy,
-                                       const SampleCache& cache, size_t chunk = 65536);
+                                       const SampleCache& cache, size_t chunk = 16384);
 
 /// The file's bytes for `data` (header and payload).
 std::string EncodeCacheSnapshot(const CacheSnapshotData& data);

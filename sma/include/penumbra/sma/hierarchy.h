@@ -169,6 +169,10 @@ class Hierarchy {
   /// shape, or a 1 -> 4 split at kMaxSplitDepth.
   Status ApplySplit(NodeId node, uint8_t childCount, uint8_t splitEdge);
 
+  /// Makes room for `nodes` nodes and `vertices` vertices in all, so that a
+  /// replay of known size does not grow its tables step by step.
+  void Reserve(size_t nodes, size_t vertices);
+
   /// Whether no leaf edge has been split on its other side (a T-vertex made
   /// by splits; the scene's own T-junctions do not count): always true after
   /// Refine(), and what replayed splits must restore.
