@@ -377,8 +377,8 @@ std::optional<RestoredCache> CacheSnapshotter::Restore(const Scene& scene, const
     log_->info("cache: no snapshot in {}: starting with an empty cache", dir_.string());
     return std::nullopt;
   }
-  // A snapshot of this scene's hierarchy at its limits (every node id used)
-  // would be about 5 bytes per split and 38 per sample: 64 GiB bounds it.
+  // Far above any real cache (a million samples take 40 MB); the read
+  // allocates the file's size and no more, and decoding checks every count.
   auto bytes = ReadWholeFile(file_, uint64_t(1) << 36);
   if (!bytes) {
     log_->warn("cache: snapshot {} ignored: {}; starting with an empty cache", file_.string(), bytes.error().message);
