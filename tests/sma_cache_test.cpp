@@ -162,6 +162,55 @@ TEST(SmaCacheOnDiskTest, AKilledSmaRestartsWithItsCacheAndShadesNothingTheSnapsh
   std::filesystem::remove_all(cacheDir);
 }
 
+// A snapshot taken while refinement samples are on their way holds splits
+// whose midpoints have no sample. Nothing would ask for them after a restart
+// (visibility shows a split's parent until they arrive, refinement never
+// splits a node twice), so the restarted SMA asks for them itself.
+TEST(SmaCacheOnDiskTest, SplitsSavedBeforeTheirSamplesAreShadedAfterARestart) {
+  Service renderer = StartRenderer("cache-mid-renderer");
+  const std::string cacheDir = MakeTempDir("penumbra-sma-cache-mid");
+  // Refinement samples of 65536 paths each: seconds of work per step on one
+  // renderer thread, so snapshots happen while they are on their way.
+  std::vector<std::string> slow = SmaArgs(renderer, cacheDir, 1, Mode::kRefine);
+  slow.insert(slow.end(), {"--first-paths", "16", "--paths", "65536"});
+  auto sma = StartService(PENUMBRA_SMA_EXE, slow, "cache-mid-sma");
+  ASSERT_TRUE(sma.ok()) << sma.error().message;
+  {
+    auto c = SmaTestClient::Connect(sma->port);
+    ASSERT_TRUE(c.ok()) << c.error().message;
+    ASSERT_TRUE(c->SendView(Preset(*c, "front"), 1));
+    ASSERT_TRUE(WaitFor([&] { return MustCounter(*c, "client_refinement_pending") > 0.0; }, 120s))
+        << sma->process.LogTail();
+    // Two snapshots later, one was surely taken after those splits.
+    const double written = MustCounter(*c, "cache_snapshots_written");
+    ASSERT_TRUE(WaitFor([&] { return MustCounter(*c, "cache_snapshots_written") >= written + 2.0; }, 60s))
+        << sma->process.LogTail();
+  }
+  sma->process.Signal(SIGKILL);
+  ASSERT_TRUE(sma->process.WaitExit(10s).has_value());
+
+  // Restarted with fast samples and no client at all.
+  std::vector<std::string> fast = SmaArgs(renderer, cacheDir, 1, Mode::kRefine);
+  fast.insert(fast.end(), {"--paths", "16"});
+  auto again = StartService(PENUMBRA_SMA_EXE, fast, "cache-mid-sma-2");
+  ASSERT_TRUE(again.ok()) << again.error().message;
+  const std::string log = ReadLog(*again);
+  const std::string marker = " restored midpoints were still unshaded";
+  const size_t at = log.find(marker);
+  ASSERT_NE(at, std::string::npos) << log;
+  const size_t start = log.rfind(' ', at - 1) + 1;
+  const double unshaded = std::stod(log.substr(start, at - start));
+  ASSERT_GT(unshaded, 0.0) << "every refinement sample arrived before the last snapshot: " << log;
+  auto c = SmaTestClient::Connect(again->port);
+  ASSERT_TRUE(c.ok()) << c.error().message;
+  const double restored = MustCounter(*c, "cache_restored_samples");
+  EXPECT_TRUE(WaitFor([&] { return MustCounter(*c, "cache_shaded") == restored + unshaded; }, 120s))
+      << "restored " << restored << " + unshaded " << unshaded << ", shaded " << MustCounter(*c, "cache_shaded")
+      << "\n" << again->process.LogTail();
+  EXPECT_EQ(MustCounter(*c, "samples_requested"), unshaded);
+  std::filesystem::remove_all(cacheDir);
+}
+
 TEST(SmaCacheOnDiskTest, ASigtermedSmaWritesItsFinalSnapshot) {
   Service renderer = StartRenderer("cache-term-renderer");
   const std::string cacheDir = MakeTempDir("penumbra-sma-cache-term");
