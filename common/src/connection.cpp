@@ -1,6 +1,9 @@
 #include "penumbra/common/connection.h"
 
+#include <sys/resource.h>
+
 #include <algorithm>
+#include <array>
 
 #include <fmt/format.h>
 
@@ -303,15 +306,60 @@ void Listener::DoAccept() {
   acceptor_.async_accept(asio::make_strand(io_), [self = shared_from_this()](const error_code& ec, tcp::socket socket) {
     if (self->stopped_ || ec == asio::error::operation_aborted) return;
     if (ec) {
-      // Out of descriptors and similar: log, wait a little, keep accepting.
-      Logger("net")->warn("accept failed: {}", ec.message());
-      auto timer = std::make_shared<asio::steady_timer>(self->io_, std::chrono::milliseconds(100));
+      // Out of descriptors and similar: the pending connections wait in the
+      // backlog while we pause, longer while it lasts; the log hears of it
+      // once per throttle interval, not at every retry.
+      self->acceptPause_ = std::clamp(self->acceptPause_ * 2, std::chrono::milliseconds(100), std::chrono::milliseconds(2000));
+      if (const uint64_t failures = self->acceptFailures_.Note())
+        Logger("net")->warn("accept failed: {} ({} time(s) since the last report); pausing accepts for {} ms",
+                            ec.message(), failures, self->acceptPause_.count());
+      auto timer = std::make_shared<asio::steady_timer>(self->io_, self->acceptPause_);
       timer->async_wait([self, timer](const error_code&) { self->DoAccept(); });
       return;
     }
+    self->acceptPause_ = std::chrono::milliseconds(0);
     self->onAccept_(std::move(socket));
     self->DoAccept();
   });
+}
+
+// --- Limits -----------------------------------------------------------------
+
+uint64_t LogThrottle::Note() {
+  std::lock_guard lock(mutex_);
+  ++held_;
+  const auto now = Clock::now();
+  if (reported_ && now - lastReport_ < interval_) return 0;
+  reported_ = true;
+  lastReport_ = now;
+  return std::exchange(held_, 0);
+}
+
+void RefuseConnection(tcp::socket socket, const wire::Envelope& error) {
+  error_code ec;
+  socket.non_blocking(true, ec);
+  const std::string frame = EncodeEnvelopeFrame(error);
+  asio::write(socket, asio::buffer(frame), ec);  // non-blocking: what does not fit now is dropped
+  // Closing a socket with unread input sends a reset, which may destroy the
+  // error at the peer before it is read: take in what has arrived (a Hello,
+  // usually) first. Bounded: a peer cannot keep us here.
+  std::array<char, 4096> sink;
+  for (int i = 0; i < 16 && !ec; ++i) socket.read_some(asio::buffer(sink), ec);
+  socket.shutdown(tcp::socket::shutdown_both, ec);
+  socket.close(ec);
+}
+
+size_t FitConnectionsToDescriptorLimit(size_t connections, size_t headroom) {
+  rlimit limit{};
+  if (getrlimit(RLIMIT_NOFILE, &limit) != 0) return connections;
+  const rlim_t wanted = rlim_t(connections + headroom);
+  if (limit.rlim_cur != RLIM_INFINITY && limit.rlim_cur < wanted) {
+    rlimit raised = limit;
+    raised.rlim_cur = limit.rlim_max == RLIM_INFINITY ? wanted : std::min(wanted, limit.rlim_max);
+    if (setrlimit(RLIMIT_NOFILE, &raised) == 0) limit = raised;
+  }
+  if (limit.rlim_cur == RLIM_INFINITY || limit.rlim_cur >= wanted) return connections;
+  return limit.rlim_cur > headroom ? size_t(limit.rlim_cur - headroom) : 1;
 }
 
 // --- Client-side helpers ----------------------------------------------------

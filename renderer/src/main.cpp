@@ -68,6 +68,11 @@ int main(int argc, char** argv) {
   app.add_option("--name", name, "Name reported in the handshake and logs")->capture_default_str();
   app.add_option("--port-file", portFile, "Write the bound port to this file once listening (for scripts/tests)");
   app.add_option("--log-level", logLevel, "trace, debug, info, warn, error, critical or off")->capture_default_str();
+  // Connection limits and shutdown (issue 12)
+  app.add_option("--max-connections", options.maxConnections,
+                 "Connections (SMAs, and peers yet to say Hello) served at once; more are refused with "
+                 "TOO_MANY_CONNECTIONS and closed at once")
+      ->check(CLI::Range(size_t(1), size_t(1) << 20))->capture_default_str();
   CLI11_PARSE(app, argc, argv);
 
   if (!SetupLogging(logLevel)) {

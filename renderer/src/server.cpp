@@ -39,6 +39,13 @@ class RendererServer::Impl {
   class Session;
 
   Expected<tcp::endpoint> Listen() {
+    // Descriptors for every connection allowed, and some for everything else.
+    const size_t fit = net::FitConnectionsToDescriptorLimit(options_.maxConnections, 64);
+    if (fit < options_.maxConnections) {
+      log_->warn("the descriptor limit (ulimit -n) allows only {} connections; --max-connections {} lowered to that",
+                 fit, options_.maxConnections);
+      options_.maxConnections = fit;
+    }
     listener_ = net::Listener::Create(io_, [this](tcp::socket socket) { Accept(std::move(socket)); });
     auto bound = listener_->Listen(options_.listen);
     if (bound) log_->info("{}: listening on {}:{}", options_.name, bound->address().to_string(), bound->port());
@@ -59,14 +66,7 @@ class RendererServer::Impl {
   }
 
   void Shutdown() {
-    asio::post(io_, [this] {
-      if (draining_.exchange(true)) return;
-      if (listener_) listener_->Stop();
-      signals_.cancel();
-      drainDeadline_ = Clock::now() + options_.drainTimeout;
-      log_->info("draining: {} connection(s), {} sample(s) queued", SessionCount(), pool_.GetTotals().samplesQueued);
-      PollDrain();
-    });
+    asio::post(io_, [this] { BeginShutdown(); });
   }
 
   bool Draining() const { return draining_.load(); }
@@ -85,6 +85,7 @@ class RendererServer::Impl {
 
  private:
   void Accept(tcp::socket socket);
+  void BeginShutdown();
   void PollDrain();
 
   void ArmStats() {
@@ -113,6 +114,7 @@ class RendererServer::Impl {
   asio::steady_timer drainTimer_;
   std::atomic<bool> draining_{false};
   Clock::time_point drainDeadline_;
+  net::LogThrottle refusals_{std::chrono::seconds(10)};
   Clock::time_point started_ = Clock::now();
   ShadingPool::Totals lastTotals_;
 
@@ -122,7 +124,7 @@ class RendererServer::Impl {
 };
 
 // One SMA connection. All members are touched on the connection's strand
-// only, except inFlightCount_ (read by the drain poll).
+// only, except inFlightCount_ (an atomic copy of the count, for other threads).
 class RendererServer::Impl::Session : public std::enable_shared_from_this<Session> {
  public:
   Session(Impl& server, std::shared_ptr<net::Connection> connection, uint64_t id)
@@ -139,6 +141,9 @@ class RendererServer::Impl::Session : public std::enable_shared_from_this<Sessio
   }
 
   size_t InFlight() const { return inFlightCount_.load(); }
+  /// Drops this connection's queued work and stops its running samples.
+  /// Thread-safe. Returns the queued samples dropped.
+  size_t AbandonWork() { return server_.Pool().Cancel(source_); }
   net::Connection& Connection() { return *connection_; }
 
  private:
@@ -291,11 +296,29 @@ class RendererServer::Impl::Session : public std::enable_shared_from_this<Sessio
 };
 
 void RendererServer::Impl::Accept(tcp::socket socket) {
-  if (draining_) return;  // the socket closes as it goes out of scope
+  if (draining_) {
+    net::RefuseConnection(std::move(socket),
+                          MakeError(0, wire::ERROR_CODE_SHUTTING_DOWN, "renderer is shutting down", true));
+    return;
+  }
   const std::string peer = net::PeerAddress(socket);
   std::shared_ptr<Session> session;
   {
     std::lock_guard lock(sessionsMutex_);
+    if (sessions_.size() >= options_.maxConnections) {
+      // Refused at once: idle or anonymous peers cannot exhaust descriptors,
+      // and the SMAs already connected are served as before.
+      if (const uint64_t n = refusals_.Note())
+        log_->warn("{} connection(s) refused, latest from {}: at the cap of {} connections (--max-connections)", n,
+                   peer, options_.maxConnections);
+      net::RefuseConnection(
+          std::move(socket),
+          MakeError(0, wire::ERROR_CODE_TOO_MANY_CONNECTIONS,
+                    fmt::format("this renderer serves at most {} connections at once; try again later",
+                                options_.maxConnections),
+                    true));
+      return;
+    }
     const uint64_t id = nextSessionId_++;
     auto connection =
         net::Connection::Create(std::move(socket), options_.connection, fmt::format("sma#{} {}", id, peer));
@@ -306,23 +329,40 @@ void RendererServer::Impl::Accept(tcp::socket socket) {
   session->Start();
 }
 
-void RendererServer::Impl::PollDrain() {
+void RendererServer::Impl::BeginShutdown() {
+  if (draining_.exchange(true)) return;
+  if (listener_) listener_->Stop();
+  signals_.cancel();
+  drainDeadline_ = Clock::now() + options_.drainTimeout;
+  // Abandon the work rather than finish it (a deep queue once took 19 s):
+  // the SMAs send the samples to other renderers.
   std::vector<std::shared_ptr<Session>> sessions;
   {
     std::lock_guard lock(sessionsMutex_);
     for (auto& [id, s] : sessions_) sessions.push_back(s);
   }
-  const bool timedOut = Clock::now() >= drainDeadline_;
-  bool busy = false;
-  for (auto& s : sessions) busy |= s->InFlight() > 0;
-  if (sessions.empty()) {
+  size_t abandoned = 0;
+  for (auto& s : sessions) abandoned += s->AbandonWork();
+  log_->info("shutting down: {} connection(s), {} queued sample(s) abandoned", sessions.size(), abandoned);
+  for (auto& s : sessions)
+    s->Connection().FailAndClose(MakeError(0, wire::ERROR_CODE_SHUTTING_DOWN, "renderer is shutting down", true),
+                                 "renderer shutting down");
+  PollDrain();
+}
+
+void RendererServer::Impl::PollDrain() {
+  size_t remaining = 0;
+  {
+    std::lock_guard lock(sessionsMutex_);
+    remaining = sessions_.size();
+  }
+  // Every connection was told and is closing; stop when they are gone, or at
+  // the deadline whatever a slow peer does.
+  if (remaining == 0 || Clock::now() >= drainDeadline_) {
+    if (remaining > 0) log_->warn("{} connection(s) still closing at the shutdown deadline; dropped", remaining);
     statsTimer_.cancel();
     io_.stop();
     return;
-  }
-  if (!busy || timedOut) {
-    if (timedOut) log_->warn("drain timed out; closing {} connection(s) with work in flight", sessions.size());
-    for (auto& s : sessions) s->Connection().CloseAfterFlush("renderer shutting down");
   }
   drainTimer_.expires_after(std::chrono::milliseconds(20));
   drainTimer_.async_wait([this](const boost::system::error_code& ec) {

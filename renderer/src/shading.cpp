@@ -281,7 +281,8 @@ Shader::Shader(Shader&&) noexcept = default;
 const ShadingSettings& Shader::Settings() const { return impl_->settings; }
 const Scene& Shader::GetScene() const { return impl_->scene; }
 
-ShadeOutput Shader::Shade(const ShadeInput& in, int paths, ShadeCounters* counters) const {
+ShadeOutput Shader::Shade(const ShadeInput& in, int paths, ShadeCounters* counters,
+                          const std::atomic<bool>* cancel) const {
   const Impl& s = *impl_;
   const int pathCount = paths > 0 ? paths : s.settings.pathsPerSample;
   const Vec3 normal = glm::normalize(in.normal);
@@ -317,13 +318,21 @@ ShadeOutput Shader::Shade(const ShadeInput& in, int paths, ShadeCounters* counte
   };
   const int round = std::max(pathCount, 16);
   const int maxPaths = std::max(pathCount, s.settings.maxPathsPerSample);
+  bool abandoned = false;
   for (int target = pathCount; traced < target;) {
     for (; traced < target; ++traced) {
+      // Every 32 paths: cheap, and a shutdown need not wait for a sample of
+      // thousands of paths. The caller drops an abandoned result.
+      if (cancel && traced % 32 == 31 && cancel->load(std::memory_order_relaxed)) {
+        abandoned = true;
+        break;
+      }
       const Rgb estimate = s.TracePath(start, rng, work);
       sum += estimate;
       const double l = Luminance(estimate);
       luminanceSquares += l * l;
     }
+    if (abandoned) break;
     // Adaptive sampling: another round while the estimate is too uncertain.
     const double mean = Luminance(sum) / traced;
     if (traced < maxPaths && standardError() > double(s.settings.targetRelativeError) * mean)

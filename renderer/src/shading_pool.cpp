@@ -107,9 +107,10 @@ void ShadingPool::RunChunk(Source& source, const Chunk& chunk) {
   ShadeCounters counters;
   size_t done = chunk.begin;
   for (; done < chunk.end; ++done) {
-    // A closed connection stops its work between samples, not after the chunk.
+    // A closed connection (or a shutdown) stops its work between samples,
+    // and within a sample between paths, not after the chunk.
     if (source.cancelled.load(std::memory_order_relaxed)) break;
-    job.outputs[done] = shader_.Shade(job.inputs[done], job.paths, &counters);
+    job.outputs[done] = shader_.Shade(job.inputs[done], job.paths, &counters, &source.cancelled);
   }
   const size_t shaded = done - chunk.begin;
   samplesShaded_ += shaded;

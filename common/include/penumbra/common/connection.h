@@ -17,6 +17,7 @@
 #include <deque>
 #include <functional>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -135,7 +136,40 @@ class Connection : public std::enable_shared_from_this<Connection> {
   std::atomic<uint64_t> bytesReceived_{0};
 };
 
+/// Says at most once per interval that something keeps happening (an accept
+/// failing, connections refused over a cap), with how often it happened, so
+/// that a flood costs one log line per interval. Thread-safe.
+class LogThrottle {
+ public:
+  explicit LogThrottle(std::chrono::milliseconds interval) : interval_(interval) {}
+  /// Counts one occurrence. Returns how many occurrences to report now (this
+  /// one and those held back since the last report), or 0: stay quiet.
+  uint64_t Note();
+
+ private:
+  std::mutex mutex_;
+  std::chrono::milliseconds interval_;
+  std::chrono::steady_clock::time_point lastReport_{};
+  bool reported_ = false;
+  uint64_t held_ = 0;
+};
+
+/// Refuses a just-accepted connection that a server cannot take: sends
+/// `error` (fatal) without blocking -- a new socket's send buffer holds it --
+/// and closes at once, so the refusal costs no descriptor, strand or timer
+/// beyond this call. Call on any thread.
+void RefuseConnection(tcp::socket socket, const wire::Envelope& error);
+
+/// Makes room for `connections` peer connections plus `headroom` other
+/// descriptors (files, outgoing links): raises the soft RLIMIT_NOFILE toward
+/// the hard limit when it is lower. Returns how many connections fit, which
+/// is `connections` unless even the hard limit is too low.
+size_t FitConnectionsToDescriptorLimit(size_t connections, size_t headroom);
+
 /// Accepts TCP connections; each accepted socket gets its own strand.
+/// When accepting fails (out of descriptors: EMFILE, ENFILE) it pauses, from
+/// 100 ms doubling to 2 s while the failures last, and logs at most one line
+/// per 10 s, so that neither the CPU nor the log is flooded.
 /// Start/Stop are thread-safe.
 class Listener : public std::enable_shared_from_this<Listener> {
  public:
@@ -157,6 +191,8 @@ class Listener : public std::enable_shared_from_this<Listener> {
   tcp::acceptor acceptor_;
   AcceptHandler onAccept_;
   std::atomic<bool> stopped_{false};
+  std::chrono::milliseconds acceptPause_{0};  // io_context; grows while accepting fails
+  LogThrottle acceptFailures_{std::chrono::seconds(10)};
 };
 
 /// Resolves `where` to every address it names (a DNS name behind which

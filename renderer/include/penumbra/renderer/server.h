@@ -10,9 +10,11 @@
 //    session's strand.
 //  * A session owns its connection and the ids of its batches in flight; the
 //    server owns the sessions (by id), the listener and the pool.
-// Shutdown (SIGTERM, SIGINT or Shutdown()): stop accepting, answer new
-// batches with SHUTTING_DOWN, finish and send the batches in flight, close
-// every connection, return from Run().
+// Shutdown (SIGTERM, SIGINT or Shutdown()): stop accepting, abandon every
+// batch (queued chunks dropped, workers stop within a few dozen paths; the
+// SMAs send the samples elsewhere), tell every SMA with a fatal
+// SHUTTING_DOWN error, close, return from Run() -- within about a second.
+// Connections beyond `maxConnections` are refused (TOO_MANY_CONNECTIONS).
 
 #include <chrono>
 #include <cstdint>
@@ -36,7 +38,11 @@ struct RendererServerOptions {
   net::ConnectionOptions connection{.handshakeTimeout = std::chrono::milliseconds(10000),
                                     .maxFrameBytesBeforeHandshake = 64 * 1024};
   std::chrono::milliseconds statsInterval{10000};  // periodic counters in the log
-  std::chrono::milliseconds drainTimeout{30000};   // longest graceful shutdown
+  /// Longest wait, on shutdown, for the SMAs to be sent SHUTTING_DOWN.
+  std::chrono::milliseconds drainTimeout{1000};
+  /// Connections (SMAs, and peers that have not said Hello yet) served at
+  /// once; more are refused with TOO_MANY_CONNECTIONS and closed at once.
+  size_t maxConnections = 64;
 };
 
 class RendererServer {

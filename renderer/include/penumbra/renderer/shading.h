@@ -58,6 +58,7 @@
 // any thread (with flush-to-zero set, see EnableFlushToZero), in any batch,
 // on any renderer process.
 
+#include <atomic>
 #include <cstdint>
 #include <memory>
 
@@ -144,7 +145,11 @@ class Shader {
   /// more under adaptive sampling (ShadingSettings::maxPathsPerSample).
   /// Input must have passed ValidateShadeInput. Adds the work done to
   /// `counters` when it is not null. Thread-safe; deterministic.
-  ShadeOutput Shade(const ShadeInput& input, int paths, ShadeCounters* counters) const;
+  /// When `cancel` is set (it is looked at every few dozen paths, so that a
+  /// sample of thousands of paths does not hold up a shutdown), the sample
+  /// is abandoned: the result is meaningless and must be dropped.
+  ShadeOutput Shade(const ShadeInput& input, int paths, ShadeCounters* counters,
+                    const std::atomic<bool>* cancel = nullptr) const;
 
   const ShadingSettings& Settings() const;
   const Scene& GetScene() const;

@@ -56,7 +56,8 @@ class ShadingPool {
   /// Queues a job from `source`. The job's outputs are sized here.
   void Submit(const std::shared_ptr<Source>& source, std::shared_ptr<ShadeJob> job);
   /// Drops every queued chunk of `source` (its connection closed) and stops
-  /// delivering its parts. Returns the number of samples dropped.
+  /// delivering its parts; a worker on one of its samples stops within a few
+  /// dozen paths. Returns the number of queued samples dropped.
   size_t Cancel(const std::shared_ptr<Source>& source);
 
   int Threads() const { return int(workers_.size()); }
