@@ -9,6 +9,7 @@
 #include "penumbra/common/version.h"
 #include "penumbra/common/endpoint.h"
 #include "penumbra/common/logging.h"
+#include "penumbra/common/operator_http.h"
 #include "penumbra/common/scene.h"
 #include "penumbra/renderer/ray_scene.h"
 #include "penumbra/renderer/server.h"
@@ -68,6 +69,12 @@ int main(int argc, char** argv) {
   app.add_option("--name", name, "Name reported in the handshake and logs")->capture_default_str();
   app.add_option("--port-file", portFile, "Write the bound port to this file once listening (for scripts/tests)");
   app.add_option("--log-level", logLevel, "trace, debug, info, warn, error, critical or off")->capture_default_str();
+  // Operator HTTP endpoint (issue 16)
+  std::string httpListen, httpPortFile;
+  app.add_option("--http", httpListen,
+                 "Serve /metrics (Prometheus), /healthz and /readyz on HOST:PORT (port 0: any free port); "
+                 "ready once the scene is loaded");
+  app.add_option("--http-port-file", httpPortFile, "Write the bound --http port to this file once listening");
   CLI11_PARSE(app, argc, argv);
 
   if (!SetupLogging(logLevel)) {
@@ -81,6 +88,12 @@ int main(int argc, char** argv) {
     return 2;
   }
 
+  // Before the scene loads: liveness holds while it loads, readiness not.
+  auto http = OperatorEndpoint::FromFlags(httpListen, httpPortFile, "penumbra_renderer");
+  if (!http) {
+    std::fprintf(stderr, "penumbra-renderer: %s\n", http.error().message.c_str());
+    return 1;
+  }
   auto scene = LoadScene(scenePath);
   if (!scene) {
     std::fprintf(stderr, "penumbra-renderer: %s\n", scene.error().message.c_str());
@@ -121,6 +134,11 @@ int main(int argc, char** argv) {
       return 1;
     }
   }
+  if (*http) {
+    (*http)->Attach({[&server](metrics::ExpositionWriter& out) { server.WriteMetrics(out); },
+                     [&server] { return server.NotReadyReason(); }});
+  }
   server.Run();
+  if (*http) (*http)->Detach();
   return 0;
 }

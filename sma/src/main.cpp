@@ -9,6 +9,7 @@
 #include "penumbra/common/version.h"
 #include "penumbra/common/endpoint.h"
 #include "penumbra/common/logging.h"
+#include "penumbra/common/operator_http.h"
 #include "penumbra/common/scene.h"
 #include "penumbra/sma/server.h"
 
@@ -113,6 +114,12 @@ int main(int argc, char** argv) {
   app.add_option("--name", options.name, "Name reported in handshakes and logs")->capture_default_str();
   app.add_option("--port-file", portFile, "Write the bound client port to this file once listening");
   app.add_option("--log-level", logLevel, "trace, debug, info, warn, error, critical or off")->capture_default_str();
+  // Operator HTTP endpoint (issue 16)
+  std::string httpListen, httpPortFile;
+  app.add_option("--http", httpListen,
+                 "Serve /metrics (Prometheus), /healthz and /readyz on HOST:PORT (port 0: any free port); "
+                 "ready once a renderer is connected");
+  app.add_option("--http-port-file", httpPortFile, "Write the bound --http port to this file once listening");
   CLI11_PARSE(app, argc, argv);
 
   if (!SetupLogging(logLevel)) {
@@ -159,6 +166,12 @@ int main(int argc, char** argv) {
   options.pool.quarantine = std::chrono::seconds(quarantineSeconds);
   options.statsInterval = std::chrono::seconds(statsSeconds);
 
+  // Before the scene loads: liveness holds while it loads, readiness not.
+  auto http = OperatorEndpoint::FromFlags(httpListen, httpPortFile, "penumbra_sma");
+  if (!http) {
+    std::fprintf(stderr, "penumbra-sma: %s\n", http.error().message.c_str());
+    return 1;
+  }
   auto scene = LoadScene(scenePath);
   if (!scene) {
     std::fprintf(stderr, "penumbra-sma: %s\n", scene.error().message.c_str());
@@ -183,6 +196,12 @@ int main(int argc, char** argv) {
       return 1;
     }
   }
+  if (*http) {
+    SmaServer* sma = server->get();
+    (*http)->Attach({[sma](metrics::ExpositionWriter& out) { sma->WriteMetrics(out); },
+                     [sma] { return sma->NotReadyReason(); }});
+  }
   (*server)->Run();
+  if (*http) (*http)->Detach();
   return 0;
 }
