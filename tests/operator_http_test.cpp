@@ -16,6 +16,7 @@
 #include <thread>
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include "penumbra/common/metrics.h"
 #include "support/http_client.h"
@@ -133,7 +134,8 @@ class OperatorHttpTest : public ::testing::Test {
     rendererPort_ = FreePort();
     sma_ = Start(PENUMBRA_SMA_EXE,
                  {"--scene", kScene, "--listen", "127.0.0.1:0", "--renderer",
-                  "127.0.0.1:" + std::to_string(rendererPort_), "--criterion", "none", "--resolve-interval", "1"},
+                  "127.0.0.1:" + std::to_string(rendererPort_), "--criterion", "none", "--resolve-interval", "1",
+                  "--log-format", "json"},
                  "ops-sma");
     ASSERT_NE(sma_.httpPort, 0);
     ASSERT_NE(sma_.port, 0);
@@ -316,6 +318,19 @@ TEST_F(OperatorHttpTest, HostileRequestsGet4xxAndDoNotDisturbTheService) {
   ASSERT_TRUE(client->SendView(ViewFromPreset(*front, 64, 48), 1));
   EXPECT_TRUE(client->WaitConverged(1, 120s).ok()) << sma_.process.LogTail();
   Scrape(port);
+
+  // --log-format json: every line of the SMA's log is one JSON object.
+  std::ifstream log(sma_.process.LogPath());
+  std::string line;
+  int lines = 0;
+  while (std::getline(log, line)) {
+    if (line.empty()) continue;
+    ++lines;
+    const auto json = nlohmann::json::parse(line, nullptr, /*allow_exceptions=*/false);
+    ASSERT_FALSE(json.is_discarded()) << "not JSON: " << line;
+    EXPECT_TRUE(json.contains("level") && json.contains("logger") && json.contains("message")) << line;
+  }
+  EXPECT_GT(lines, 3);
 }
 
 }  // namespace

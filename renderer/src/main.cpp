@@ -75,10 +75,16 @@ int main(int argc, char** argv) {
                  "Serve /metrics (Prometheus), /healthz and /readyz on HOST:PORT (port 0: any free port); "
                  "ready once the scene is loaded");
   app.add_option("--http-port-file", httpPortFile, "Write the bound --http port to this file once listening");
+  std::string logFormat = "text";
+  app.add_option("--log-format", logFormat, "text, or json: one JSON object per log line")->capture_default_str();
   CLI11_PARSE(app, argc, argv);
 
   if (!SetupLogging(logLevel)) {
     std::fprintf(stderr, "penumbra-renderer: unknown --log-level '%s'\n", logLevel.c_str());
+    return 2;
+  }
+  if (!SetupLogFormat(logFormat)) {
+    std::fprintf(stderr, "penumbra-renderer: unknown --log-format '%s' (text or json)\n", logFormat.c_str());
     return 2;
   }
   auto log = Logger("renderer");
