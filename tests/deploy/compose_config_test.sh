@@ -57,6 +57,11 @@ done
 [ "$(grep -c -- "^      - --ready$" "$work/defaults.yml")" -eq 2 ] ||
   fail "the renderer's and the SMA's health checks should both be 'penumbra-stats --ready'"
 grep -q "/proc/net/tcp" "$work/defaults.yml" && fail "a health check still reads /proc/net/tcp"
+# Each image's own HEALTHCHECK asks the --http port the compose file gives.
+for tier in renderer:7101 sma:7201; do
+  grep -qF "\"127.0.0.1:${tier#*:}\"]" "$src/deploy/${tier%%:*}.Dockerfile" ||
+    fail "deploy/${tier%%:*}.Dockerfile's HEALTHCHECK does not ask 127.0.0.1:${tier#*:}, the --http port of the compose file"
+done
 expect "$work/defaults.yml" "        condition: service_healthy" "the client job waits until the SMA is ready"
 [ -f "$src/scenes/cornell-box.json" ] || fail "the default scene scenes/cornell-box.json is missing"
 
