@@ -31,6 +31,10 @@ struct HttpServer::State {
   std::atomic<size_t> connections{0};
   std::atomic<bool> stopping{false};
   std::weak_ptr<State> self;  // for the sessions to share ownership
+  // Connections refused at the limit, and when that was last logged (the
+  // server's thread only): one line per 10 s at most, however many.
+  uint64_t refused = 0;
+  std::chrono::steady_clock::time_point refusedLogged{};
   std::mutex sessionsMutex;
   std::vector<std::weak_ptr<HttpSession>> sessions;  // for Stop(); pruned on accept
 
@@ -150,9 +154,16 @@ class HttpSession : public std::enable_shared_from_this<HttpSession> {
 void HttpServer::State::Accept(tcp::socket socket) {
   if (stopping) return;
   if (connections.load() >= options.maxConnections) {
-    // Bounded: a flood of connections costs a closed socket each, no memory.
-    log->warn("{} connections open already: closing a new one from {}", options.maxConnections,
-              PeerAddress(socket));
+    // Bounded: a flood of connections costs a closed socket each, no memory,
+    // and no more than a log line per 10 s.
+    ++refused;
+    const auto now = std::chrono::steady_clock::now();
+    if (now - refusedLogged >= std::chrono::seconds(10)) {
+      log->warn("{} connections open already: closed {} new one(s), the last from {}", options.maxConnections,
+                refused, PeerAddress(socket));
+      refused = 0;
+      refusedLogged = now;
+    }
     return;  // the socket closes as it goes out of scope
   }
   auto session = std::make_shared<HttpSession>(self.lock(), std::move(socket));
