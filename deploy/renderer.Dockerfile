@@ -1,7 +1,8 @@
 # penumbra-renderer: the path-tracing shading service (renderer/README.md).
 #
 #   docker build -f deploy/renderer.Dockerfile -t penumbra-renderer .    # from the repository root
-#   docker run --rm -v "$PWD/scenes:/scenes:ro" -p 7100:7100 penumbra-renderer
+#   docker run --rm -v "$PWD/scenes:/scenes:ro" -p 7100:7100 -p 7101:7101 penumbra-renderer
+#   penumbra-stats 127.0.0.1:7101    # its metrics (or curl http://127.0.0.1:7101/metrics)
 #
 # The build stage installs the build packages of scripts/install-deps.sh and
 # configures and builds as scripts/build.sh does (tests, benchmarks and the GL
@@ -23,7 +24,7 @@ WORKDIR /src
 COPY . .
 RUN cmake -S . -B build -DCMAKE_BUILD_TYPE=RelWithDebInfo \
       -DPENUMBRA_BUILD_TESTS=OFF -DPENUMBRA_BUILD_BENCH=OFF -DPENUMBRA_BUILD_CLIENT_GUI=OFF
-RUN cmake --build build -j"$(nproc)" --target penumbra-renderer
+RUN cmake --build build -j"$(nproc)" --target penumbra-renderer penumbra-stats
 
 FROM debian:12-slim
 RUN apt-get update \
@@ -32,14 +33,15 @@ RUN apt-get update \
  && rm -rf /var/lib/apt/lists/* \
  && useradd --system --uid 10001 --no-create-home --shell /usr/sbin/nologin penumbra
 COPY --from=build /src/build/renderer/penumbra-renderer /usr/local/bin/penumbra-renderer
+COPY --from=build /src/build/common/tools/penumbra-stats /usr/local/bin/penumbra-stats
 USER penumbra
-EXPOSE 7100
-# Healthy = listening on port 7100 (hex 1BBC; state 0A is LISTEN in
-# /proc/net/tcp), which the renderer does only once the scene is loaded and
-# its BVH built; a large scene takes a while, which the start period covers.
-# Reading /proc rather than connecting keeps a session open/close out of the
-# log at every check.
+EXPOSE 7100 7101
+# Healthy = ready: /readyz on the operator HTTP endpoint (--http, below)
+# answers 200, which the renderer does once the scene is loaded and its BVH
+# built, and no longer while it drains on SIGTERM. A large scene takes a
+# while to load, which the start period covers. penumbra-stats is the
+# project's own HTTP client (the slim image has no curl).
 HEALTHCHECK --interval=15s --timeout=3s --start-period=120s --retries=3 \
-  CMD ["awk", "$4 == \"0A\" && $2 ~ /:1BBC$/ {up = 1} END {exit !up}", "/proc/net/tcp"]
+  CMD ["penumbra-stats", "--ready", "--timeout", "2", "127.0.0.1:7101"]
 ENTRYPOINT ["penumbra-renderer"]
-CMD ["--scene", "/scenes/cornell-box.json", "--listen", "0.0.0.0:7100"]
+CMD ["--scene", "/scenes/cornell-box.json", "--listen", "0.0.0.0:7100", "--http", "0.0.0.0:7101"]

@@ -2,7 +2,7 @@
 #
 #   docker build -f deploy/sma.Dockerfile -t penumbra-sma .    # from the repository root
 #   docker run --rm -v "$PWD/scenes:/scenes:ro" -p 127.0.0.1:7200:7200 penumbra-sma \
-#     --scene /scenes/cornell-box.json --listen 0.0.0.0:7200 --renderer RENDERERS:7100
+#     --scene /scenes/cornell-box.json --listen 0.0.0.0:7200 --http 0.0.0.0:7201 --renderer RENDERERS:7100
 #
 # The SMA has no useful default for --renderer, so the command line is the
 # caller's: deploy/docker-compose.yml gives it the renderer service's DNS name,
@@ -23,7 +23,7 @@ WORKDIR /src
 COPY . .
 RUN cmake -S . -B build -DCMAKE_BUILD_TYPE=RelWithDebInfo \
       -DPENUMBRA_BUILD_TESTS=OFF -DPENUMBRA_BUILD_BENCH=OFF -DPENUMBRA_BUILD_CLIENT_GUI=OFF
-RUN cmake --build build -j"$(nproc)" --target penumbra-sma
+RUN cmake --build build -j"$(nproc)" --target penumbra-sma penumbra-stats
 
 FROM debian:12-slim
 RUN apt-get update \
@@ -35,12 +35,14 @@ RUN apt-get update \
 # --cache-dir for the compose file's sma-cache volume: a new named volume
 # takes this directory's owner, so the non-root SMA can write its snapshots.
 COPY --from=build /src/build/sma/penumbra-sma /usr/local/bin/penumbra-sma
+COPY --from=build /src/build/common/tools/penumbra-stats /usr/local/bin/penumbra-stats
 USER penumbra
-EXPOSE 7200
-# Healthy = listening on port 7200 (hex 1C20; state 0A is LISTEN in
-# /proc/net/tcp, read rather than connected to, to keep the log clean): the
-# scene is loaded and the SMA takes clients, even while no renderer is
-# connected yet (views then wait for shading).
+EXPOSE 7200 7201
+# Healthy = ready: /readyz on the operator HTTP endpoint answers 200 once
+# the scene is loaded AND at least one renderer is connected (an SMA with no
+# renderer would leave every client waiting). The command line must give
+# --http 0.0.0.0:7201 (deploy/docker-compose.yml does). penumbra-stats is the
+# project's own HTTP client (the slim image has no curl).
 HEALTHCHECK --interval=15s --timeout=3s --start-period=120s --retries=3 \
-  CMD ["awk", "$4 == \"0A\" && $2 ~ /:1C20$/ {up = 1} END {exit !up}", "/proc/net/tcp"]
+  CMD ["penumbra-stats", "--ready", "--timeout", "2", "127.0.0.1:7201"]
 ENTRYPOINT ["penumbra-sma"]

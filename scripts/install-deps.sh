@@ -17,8 +17,15 @@ packages=(
   # headless OpenGL (client tests, screenshots)
   xvfb xauth libgl1-mesa-dri libglx-mesa0
   # multi-host tests and deployment checks
-  iproute2 docker-compose
+  iproute2 docker-compose yamllint
 )
+# Node.js and npm run the offline Kubernetes manifest validation
+# (deploy/k8s/validate, `npm ci`). Debian's own packages on a fresh machine;
+# a machine that already has both commands from another Node.js distribution
+# (whose nodejs package conflicts with Debian's npm) keeps them.
+if ! command -v node >/dev/null 2>&1 || ! command -v npm >/dev/null 2>&1; then
+  packages+=(nodejs npm)
+fi
 
 missing=()
 for p in "${packages[@]}"; do

@@ -9,6 +9,7 @@
 #include "penumbra/common/version.h"
 #include "penumbra/common/endpoint.h"
 #include "penumbra/common/logging.h"
+#include "penumbra/common/operator_http.h"
 #include "penumbra/common/scene.h"
 #include "penumbra/renderer/ray_scene.h"
 #include "penumbra/renderer/server.h"
@@ -73,10 +74,22 @@ int main(int argc, char** argv) {
                  "Connections (SMAs, and peers yet to say Hello) served at once; more are refused with "
                  "TOO_MANY_CONNECTIONS and closed at once")
       ->check(CLI::Range(size_t(1), size_t(1) << 20))->capture_default_str();
+  // Operator HTTP endpoint (issue 16)
+  std::string httpListen, httpPortFile;
+  app.add_option("--http", httpListen,
+                 "Serve /metrics (Prometheus), /healthz and /readyz on HOST:PORT (port 0: any free port); "
+                 "ready once the scene is loaded");
+  app.add_option("--http-port-file", httpPortFile, "Write the bound --http port to this file once listening");
+  std::string logFormat = "text";
+  app.add_option("--log-format", logFormat, "text, or json: one JSON object per log line")->capture_default_str();
   CLI11_PARSE(app, argc, argv);
 
   if (!SetupLogging(logLevel)) {
     std::fprintf(stderr, "penumbra-renderer: unknown --log-level '%s'\n", logLevel.c_str());
+    return 2;
+  }
+  if (!SetupLogFormat(logFormat)) {
+    std::fprintf(stderr, "penumbra-renderer: unknown --log-format '%s' (text or json)\n", logFormat.c_str());
     return 2;
   }
   auto log = Logger("renderer");
@@ -86,6 +99,12 @@ int main(int argc, char** argv) {
     return 2;
   }
 
+  // Before the scene loads: liveness holds while it loads, readiness not.
+  auto http = OperatorEndpoint::FromFlags(httpListen, httpPortFile, "penumbra_renderer");
+  if (!http) {
+    std::fprintf(stderr, "penumbra-renderer: %s\n", http.error().message.c_str());
+    return 1;
+  }
   auto scene = LoadScene(scenePath);
   if (!scene) {
     std::fprintf(stderr, "penumbra-renderer: %s\n", scene.error().message.c_str());
@@ -126,6 +145,11 @@ int main(int argc, char** argv) {
       return 1;
     }
   }
+  if (*http) {
+    (*http)->Attach({[&server](metrics::ExpositionWriter& out) { server.WriteMetrics(out); },
+                     [&server] { return server.NotReadyReason(); }});
+  }
   server.Run();
+  if (*http) (*http)->Detach();
   return 0;
 }

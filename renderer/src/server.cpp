@@ -11,6 +11,7 @@
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
 #include "penumbra/renderer/shading_pool.h"
+#include "renderer_metrics.h"
 
 namespace penumbra {
 
@@ -59,7 +60,6 @@ class RendererServer::Impl {
       Shutdown();
     });
     if (listener_) listener_->Start();
-    started_ = Clock::now();
     ArmStats();
     io_.run();
     log_->info("{}: stopped", options_.name);
@@ -74,6 +74,21 @@ class RendererServer::Impl {
   const RendererServerOptions& Options() const { return options_; }
   ShadingPool& Pool() { return pool_; }
   Clock::time_point Started() const { return started_; }
+  // The counters of every StatsReply and of /metrics (renderer_metrics.cpp).
+  // Any thread: the pool's totals and the session count, each under its
+  // own brief lock.
+  void AddServerCounters(wire::StatsReply* reply) const {
+    const auto totals = pool_.GetTotals();
+    AddCounter(reply, "samples_shaded", double(totals.samplesShaded));
+    AddCounter(reply, "samples_cancelled", double(totals.samplesCancelled));
+    AddCounter(reply, "samples_queued", double(totals.samplesQueued));
+    AddCounter(reply, "paths_traced", double(totals.paths));
+    AddCounter(reply, "rays_traced", double(totals.rays));
+    AddCounter(reply, "samples_buried", double(totals.buriedSamples));
+    AddCounter(reply, "worker_threads", double(pool_.Threads()));
+    AddCounter(reply, "connections", double(SessionCount()));
+    AddCounter(reply, "uptime_seconds", std::chrono::duration<double>(Clock::now() - started_).count());
+  }
   size_t SessionCount() const {
     std::lock_guard lock(sessionsMutex_);
     return sessions_.size();
@@ -244,19 +259,10 @@ class RendererServer::Impl::Session : public std::enable_shared_from_this<Sessio
   }
 
   void OnStatsRequest(const wire::StatsRequest& request) {
-    const auto totals = server_.Pool().GetTotals();
     wire::Envelope envelope;
     auto* reply = envelope.mutable_stats_reply();
     reply->set_request_id(request.request_id());
-    AddCounter(reply, "samples_shaded", double(totals.samplesShaded));
-    AddCounter(reply, "samples_cancelled", double(totals.samplesCancelled));
-    AddCounter(reply, "samples_queued", double(totals.samplesQueued));
-    AddCounter(reply, "paths_traced", double(totals.paths));
-    AddCounter(reply, "rays_traced", double(totals.rays));
-    AddCounter(reply, "samples_buried", double(totals.buriedSamples));
-    AddCounter(reply, "worker_threads", double(server_.Pool().Threads()));
-    AddCounter(reply, "connections", double(server_.SessionCount()));
-    AddCounter(reply, "uptime_seconds", std::chrono::duration<double>(Clock::now() - server_.Started()).count());
+    server_.AddServerCounters(reply);
     AddCounter(reply, "connection_batches_in_flight", double(inFlight_.size()));
     AddCounter(reply, "connection_batches_received", double(batchesReceived_));
     AddCounter(reply, "connection_samples_received", double(samplesReceived_));
@@ -376,5 +382,15 @@ RendererServer::~RendererServer() = default;
 Expected<tcp::endpoint> RendererServer::Listen() { return impl_->Listen(); }
 void RendererServer::Run() { impl_->Run(); }
 void RendererServer::Shutdown() { impl_->Shutdown(); }
+
+void RendererServer::WriteMetrics(metrics::ExpositionWriter& out) const {
+  wire::StatsReply counters;
+  impl_->AddServerCounters(&counters);
+  WriteRendererMetrics(out, counters);
+}
+
+std::string RendererServer::NotReadyReason() const {
+  return impl_->Draining() ? "draining (shutting down)" : std::string();
+}
 
 }  // namespace penumbra

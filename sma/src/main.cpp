@@ -9,6 +9,7 @@
 #include "penumbra/common/version.h"
 #include "penumbra/common/endpoint.h"
 #include "penumbra/common/logging.h"
+#include "penumbra/common/operator_http.h"
 #include "penumbra/common/scene.h"
 #include "penumbra/sma/server.h"
 
@@ -123,10 +124,22 @@ int main(int argc, char** argv) {
          "Seconds between cache snapshots (taken only when the cache changed): what a kill -9 can lose")
       ->check(CLI::Range(1, 86400))
       ->default_str(std::to_string(options.cacheSnapshotInterval.count() / 1000));
+  // Operator HTTP endpoint (issue 16)
+  std::string httpListen, httpPortFile;
+  app.add_option("--http", httpListen,
+                 "Serve /metrics (Prometheus), /healthz and /readyz on HOST:PORT (port 0: any free port); "
+                 "ready once a renderer is connected");
+  app.add_option("--http-port-file", httpPortFile, "Write the bound --http port to this file once listening");
+  std::string logFormat = "text";
+  app.add_option("--log-format", logFormat, "text, or json: one JSON object per log line")->capture_default_str();
   CLI11_PARSE(app, argc, argv);
 
   if (!SetupLogging(logLevel)) {
     std::fprintf(stderr, "penumbra-sma: unknown --log-level '%s'\n", logLevel.c_str());
+    return 2;
+  }
+  if (!SetupLogFormat(logFormat)) {
+    std::fprintf(stderr, "penumbra-sma: unknown --log-format '%s' (text or json)\n", logFormat.c_str());
     return 2;
   }
   auto where = ParseHostPort(listen, /*allowPortZero=*/true);
@@ -169,6 +182,12 @@ int main(int argc, char** argv) {
   options.pool.quarantine = std::chrono::seconds(quarantineSeconds);
   options.statsInterval = std::chrono::seconds(statsSeconds);
 
+  // Before the scene loads: liveness holds while it loads, readiness not.
+  auto http = OperatorEndpoint::FromFlags(httpListen, httpPortFile, "penumbra_sma");
+  if (!http) {
+    std::fprintf(stderr, "penumbra-sma: %s\n", http.error().message.c_str());
+    return 1;
+  }
   auto scene = LoadScene(scenePath);
   if (!scene) {
     std::fprintf(stderr, "penumbra-sma: %s\n", scene.error().message.c_str());
@@ -193,6 +212,12 @@ int main(int argc, char** argv) {
       return 1;
     }
   }
+  if (*http) {
+    SmaServer* sma = server->get();
+    (*http)->Attach({[sma](metrics::ExpositionWriter& out) { sma->WriteMetrics(out); },
+                     [sma] { return sma->NotReadyReason(); }});
+  }
   (*server)->Run();
+  if (*http) (*http)->Detach();
   return 0;
 }

@@ -18,6 +18,7 @@
 #include "penumbra/sma/refinement.h"
 #include "penumbra/sma/sample_cache.h"
 #include "penumbra/sma/visibility.h"
+#include "sma_metrics.h"
 
 namespace penumbra::sma {
 
@@ -169,9 +170,14 @@ class SmaServer::Impl {
   void AddGlobalCounters(wire::StatsReply* reply);
   // Timings of the views answered since the last stats line (any session).
   void RecordView(double traceMs, double mapMs, double firstDeltaMs) {
+    latencies_.toFirstDelta.Observe(firstDeltaMs / 1000.0);
     std::lock_guard lock(viewTimesMutex_);
     viewTimes_.push_back({traceMs, mapMs, firstDeltaMs});
   }
+  // Operator endpoint (--http; issue 16): histograms are lock-free.
+  ViewLatencyHistograms latencies_;
+  void WriteMetrics(metrics::ExpositionWriter& out);
+  std::string NotReadyReason();
   DragoParams DragoForClients() const {
     return DragoParams{options_.toneMapping.bias, options_.toneMapping.maxDisplayLuminance, options_.toneMapping.exposure};
   }
@@ -276,7 +282,10 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
     delta.set_refining(!converged && RefiningNow());
     sentConverged_ = converged;
     sentRefining_ = delta.refining();
-    if (converged && stage2Ms_ < 0.0) stage2Ms_ = Ms(Clock::now() - viewReceived_);
+    if (converged && stage2Ms_ < 0.0) {
+      stage2Ms_ = Ms(Clock::now() - viewReceived_);
+      server_.latencies_.toConverged.Observe(stage2Ms_ / 1000.0);
+    }
   }
   // Stage 1 (paper §5): every initially visible triangle of the view shaded.
   bool Stage1Done() const {
@@ -741,6 +750,7 @@ void SmaServer::Impl::Session::SendUpdates() {
 void SmaServer::Impl::Session::NoteStage1() {
   if (stage1Ms_ < 0.0 && Stage1Done()) {
     stage1Ms_ = Ms(Clock::now() - viewReceived_);
+    server_.latencies_.toShaded.Observe(stage1Ms_ / 1000.0);
     log_->debug("{}: view {}: stage 1 in {:.0f} ms, {} triangles", connection_->Id(), appliedViewId_, stage1Ms_,
                 mirror_.TriangleCount());
     // Tell the client at once that stage 2 (refinement) has begun.
@@ -1045,6 +1055,7 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
   AddCounter(reply, "samples_rejected", double(pool.rejected));
   AddCounter(reply, "samples_queued_visible", double(pool.queuedVisible));
   AddCounter(reply, "samples_queued_background", double(pool.queuedBackground));
+  AddCounter(reply, "samples_queued_improve", double(pool.queuedImprove));
   AddCounter(reply, "samples_in_flight", double(pool.inFlight));
   size_t connected = 0;
   for (const RendererStatus& r : pool.renderers) {
@@ -1065,6 +1076,24 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
     AddCounter(reply, "cache_snapshot_bytes", double(disk.lastBytes));
     AddCounter(reply, "cache_restored_samples", double(disk.restoredSamples));
   }
+}
+
+// HTTP thread (never an I/O thread): the same counters as StatsReply.
+void SmaServer::Impl::WriteMetrics(metrics::ExpositionWriter& out) {
+  wire::StatsReply counters;
+  AddGlobalCounters(&counters);
+  WriteSmaMetrics(out, counters, latencies_);
+}
+
+std::string SmaServer::Impl::NotReadyReason() {
+  if (shuttingDown_) return "shutting down";
+  const RendererPoolStats pool = pool_->Stats();
+  size_t connected = 0;
+  for (const RendererStatus& r : pool.renderers) connected += r.connected;
+  if (connected == 0)
+    return fmt::format("no renderer connected ({} address(es) known); views would wait for shading",
+                       pool.renderers.size());
+  return {};
 }
 
 void SmaServer::Impl::ArmStats() {
@@ -1161,5 +1190,7 @@ SmaServer::~SmaServer() = default;
 Expected<tcp::endpoint> SmaServer::Listen() { return impl_->Listen(); }
 void SmaServer::Run() { impl_->Run(); }
 void SmaServer::Shutdown() { impl_->Shutdown(); }
+void SmaServer::WriteMetrics(metrics::ExpositionWriter& out) { impl_->WriteMetrics(out); }
+std::string SmaServer::NotReadyReason() { return impl_->NotReadyReason(); }
 
 }  // namespace penumbra::sma

@@ -48,11 +48,29 @@ expect "$work/defaults.yml" "    - --connect=sma:7200" "client job connects to t
 expect "$work/defaults.yml" "    - --cache-dir=/var/lib/penumbra-sma" "SMA keeps its cache on disk"
 expect "$work/defaults.yml" "    - --cache-snapshot-interval=30" "default cache snapshot interval"
 expect "$work/defaults.yml" "    - sma-cache:/var/lib/penumbra-sma:rw" "SMA cache directory on a volume"
+expect "$work/defaults.yml" "    - --http=0.0.0.0:7101" "renderer serves its operator HTTP endpoint"
+expect "$work/defaults.yml" "    - --http=0.0.0.0:7201" "SMA serves its operator HTTP endpoint"
+expect "$work/defaults.yml" "    - 127.0.0.1:7201:7201/tcp" "SMA HTTP endpoint published on loopback only by default"
+# Health checks are readiness (/readyz through penumbra-stats) on each
+# tier's --http port, never a look at /proc/net/tcp.
+for port in 7101 7201; do
+  grep -qxF -- "      - 127.0.0.1:$port" "$work/defaults.yml" ||
+    fail "no health check asks /readyz on 127.0.0.1:$port"
+done
+[ "$(grep -c -- "^      - --ready$" "$work/defaults.yml")" -eq 2 ] ||
+  fail "the renderer's and the SMA's health checks should both be 'penumbra-stats --ready'"
+grep -q "/proc/net/tcp" "$work/defaults.yml" && fail "a health check still reads /proc/net/tcp"
+# Each image's own HEALTHCHECK asks the --http port the compose file gives.
+for tier in renderer:7101 sma:7201; do
+  grep -qF "\"127.0.0.1:${tier#*:}\"]" "$src/deploy/${tier%%:*}.Dockerfile" ||
+    fail "deploy/${tier%%:*}.Dockerfile's HEALTHCHECK does not ask 127.0.0.1:${tier#*:}, the --http port of the compose file"
+done
+expect "$work/defaults.yml" "        condition: service_healthy" "the client job waits until the SMA is ready"
 [ -f "$src/scenes/cornell-box.json" ] || fail "the default scene scenes/cornell-box.json is missing"
 
 PENUMBRA_RENDERERS=5 PENUMBRA_SCENE=sponza.json PENUMBRA_SCENES_DIR=/srv/scenes PENUMBRA_SPP=256 \
   PENUMBRA_RENDERER_THREADS=3 PENUMBRA_SMA_PORT=9200 PENUMBRA_SMA_BIND=0.0.0.0 PENUMBRA_RESOLVE_INTERVAL=2 \
-  PENUMBRA_CAMERA_PATH=orbit PENUMBRA_CLIENT_TIMEOUT=60 PENUMBRA_LOG_LEVEL=debug PENUMBRA_TAG=v9 \
+  PENUMBRA_SMA_HTTP_PORT=9201 PENUMBRA_CAMERA_PATH=orbit PENUMBRA_CLIENT_TIMEOUT=60 PENUMBRA_LOG_LEVEL=debug PENUMBRA_TAG=v9 \
   PENUMBRA_CACHE_SNAPSHOT_INTERVAL=120 \
   docker-compose -f "$compose_file" config >"$work/overridden.yml"
 expect "$work/overridden.yml" "      replicas: 5" "PENUMBRA_RENDERERS"
@@ -62,6 +80,7 @@ expect "$work/overridden.yml" "      source: /srv/scenes" "PENUMBRA_SCENES_DIR"
 expect "$work/overridden.yml" "    - --spp=256" "PENUMBRA_SPP"
 expect "$work/overridden.yml" "    - --threads=3" "PENUMBRA_RENDERER_THREADS"
 expect "$work/overridden.yml" "    - 0.0.0.0:9200:7200/tcp" "PENUMBRA_SMA_BIND and PENUMBRA_SMA_PORT"
+expect "$work/overridden.yml" "    - 0.0.0.0:9201:7201/tcp" "PENUMBRA_SMA_BIND and PENUMBRA_SMA_HTTP_PORT"
 expect "$work/overridden.yml" "    - --resolve-interval=2" "PENUMBRA_RESOLVE_INTERVAL"
 expect "$work/overridden.yml" "    - --camera-path=/scenes/sponza.json#orbit" "PENUMBRA_CAMERA_PATH"
 expect "$work/overridden.yml" "    - --timeout=60" "PENUMBRA_CLIENT_TIMEOUT"

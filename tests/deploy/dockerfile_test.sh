@@ -4,7 +4,9 @@
 #  1. its shape: a `debian:12 AS build` stage and a `debian:12-slim` runtime
 #     stage, a non-root USER, ENTRYPOINT in exec form naming the executable the
 #     build stage builds and copies, unless --no-healthcheck a HEALTHCHECK
-#     that looks for a listener on the EXPOSEd port;
+#     that asks `penumbra-stats --ready` (copied into the image, built by the
+#     build stage) for /readyz on an EXPOSEd port other than the first (the
+#     tier's --http port);
 #  2. every package the build stage installs is one scripts/install-deps.sh
 #     installs (so the image builds with what the project is tested with);
 #  3. the build context that /.dockerignore lets through is enough: the build
@@ -13,16 +15,22 @@
 #  4. every shared library that ldd lists for the executable built here comes
 #     from a package of the runtime stage, from one of their dependencies, or
 #     from the base image (Essential / Priority required and their
-#     dependencies) -- i.e. the runtime stage misses no library.
+#     dependencies) -- i.e. the runtime stage misses no library; the same
+#     for penumbra-stats when the image has the health check.
 #
-# Usage: dockerfile_test.sh SOURCE_DIR DOCKERFILE EXECUTABLE [--no-healthcheck]
+# Usage: dockerfile_test.sh SOURCE_DIR DOCKERFILE EXECUTABLE (--no-healthcheck | --stats STATS_EXECUTABLE)
 set -euo pipefail
 
 src="$1"
 dockerfile="$2"
 exe="$3"
 want_healthcheck=1
-[ "${4:-}" = "--no-healthcheck" ] && want_healthcheck=0
+stats_exe=""
+case "${4:-}" in
+  --no-healthcheck) want_healthcheck=0 ;;
+  --stats) stats_exe="${5:?--stats needs the penumbra-stats executable}" ;;
+  *) echo "usage: $0 SOURCE_DIR DOCKERFILE EXECUTABLE (--no-healthcheck | --stats STATS_EXECUTABLE)" >&2; exit 2 ;;
+esac
 
 name="$(basename "$dockerfile")"
 failures=0
@@ -66,13 +74,22 @@ grep -qE "^COPY --from=build /src/build/[a-z]+/$target /usr/local/bin/$target\$"
 if [ "$want_healthcheck" -eq 1 ]; then
   healthcheck="$(grep -E '^HEALTHCHECK ' "$work/runtime" || true)"
   [[ "$healthcheck" == *" CMD ["* ]] || fail "no HEALTHCHECK in exec form"
-  port="$(grep -E '^EXPOSE ' "$work/runtime" | awk '{print $2}' | head -n 1)"
-  if [ -z "$port" ]; then
-    fail "runtime stage EXPOSEs no port"
-  else  # the health check reads /proc/net/tcp, where ports are 4 hex digits
-    hex="$(printf '%04X' "$port")"
-    [[ "$healthcheck" == *":$hex\$"* ]] || fail "HEALTHCHECK does not look for a listener on the EXPOSEd port $port ($hex)"
+  # The health check is readiness (/readyz) through the project's own client.
+  read -r -a exposed <<<"$(grep -E '^EXPOSE ' "$work/runtime" | sed -e 's/^EXPOSE //' | head -n 1)"
+  if [ "${#exposed[@]}" -lt 2 ]; then
+    fail "runtime stage EXPOSEs '${exposed[*]:-}': expected the tier's port, then its --http port"
+  else
+    http_port="${exposed[1]}"
+    [[ "$healthcheck" =~ CMD\ \[\"penumbra-stats\",\ \"--ready\",.*\"127\.0\.0\.1:$http_port\"\]$ ]] ||
+      fail "HEALTHCHECK is not penumbra-stats --ready on 127.0.0.1:$http_port (the EXPOSEd --http port): $healthcheck"
+    if grep -qE '^CMD ' "$work/runtime"; then  # a default command must serve that port
+      grep -E '^CMD ' "$work/runtime" | grep -qF "\"--http\", \"0.0.0.0:$http_port\"" ||
+        fail "the default CMD does not pass --http 0.0.0.0:$http_port, which the HEALTHCHECK asks"
+    fi
   fi
+  grep -qE '^RUN cmake --build .*--target .*penumbra-stats' "$work/build" || fail "build stage does not build penumbra-stats"
+  grep -qxF 'COPY --from=build /src/build/common/tools/penumbra-stats /usr/local/bin/penumbra-stats' "$work/runtime" ||
+    fail "runtime stage does not COPY penumbra-stats (its health check client) to /usr/local/bin"
 fi
 
 # apt-get install package lists of a stage.
@@ -113,6 +130,8 @@ else
   elif ! cmake --build "$work/context/build" --target help >"$work/targets" ||
        ! grep -qE "^\.\.\. $target( |\$)" "$work/targets"; then
     fail "the configured context has no target $target"
+  elif [ -n "$stats_exe" ] && ! grep -qE "^\.\.\. penumbra-stats( |\$)" "$work/targets"; then
+    fail "the configured context has no target penumbra-stats"
   fi
 fi
 
@@ -144,7 +163,9 @@ awk -F'\t' '
     }
   }' "$work/dpkg" "$work/roots" | sort -u >"$work/available"
 
-ldd "$exe" | awk '$2 == "=>" && $3 ~ /^\// {print $3}' | sort -u >"$work/libs"
+for e in "$exe" $stats_exe; do
+  ldd "$e" | awk '$2 == "=>" && $3 ~ /^\// {print $3}'
+done | sort -u >"$work/libs"
 [ -s "$work/libs" ] || fail "ldd lists no shared library for $exe"
 # dpkg knows a library by the path its package ships: under /lib or /usr/lib
 # (merged /usr), through a symlink or not. Ask for every spelling at once.

@@ -16,6 +16,16 @@ namespace penumbra {
 /// Returns false (and leaves the level at info) for an unknown level name.
 bool SetupLogging(std::string_view level = "info");
 
+/// Chooses the line format after SetupLogging: "text" (the default) or
+/// "json", one object per line for log collectors:
+/// {"time":"2026-11-24T11:20:03.123Z","level":"info","logger":"sma",
+///  "thread":1234,"message":"..."} (UTC; the message JSON-escaped).
+/// Returns false, changing nothing, for another name.
+bool SetupLogFormat(std::string_view format);
+
+/// The JSON line formatter of SetupLogFormat("json"), for tests.
+std::unique_ptr<spdlog::formatter> MakeJsonLogFormatter();
+
 /// The named logger, created on first use with the process's sink and level.
 /// Thread-safe.
 std::shared_ptr<spdlog::logger> Logger(const std::string& name);

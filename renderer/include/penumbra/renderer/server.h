@@ -24,6 +24,7 @@
 #include "penumbra/common/connection.h"
 #include "penumbra/common/endpoint.h"
 #include "penumbra/common/expected.h"
+#include "penumbra/common/metrics.h"
 #include "penumbra/renderer/shade_batch.h"
 #include "penumbra/renderer/shading.h"
 
@@ -62,6 +63,12 @@ class RendererServer {
 
   /// Begins the graceful shutdown. Thread-safe.
   void Shutdown();
+
+  /// Writes the renderer's metric families (docs/metrics.md): StatsReply's
+  /// server counters. Thread-safe; called by the --http endpoint's thread.
+  void WriteMetrics(metrics::ExpositionWriter& out) const;
+  /// Empty when ready (serving, not draining), else the reason. Thread-safe.
+  std::string NotReadyReason() const;
 
  private:
   class Impl;

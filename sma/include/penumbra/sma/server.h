@@ -23,6 +23,7 @@
 #include "penumbra/common/connection.h"
 #include "penumbra/common/endpoint.h"
 #include "penumbra/common/expected.h"
+#include "penumbra/common/metrics.h"
 #include "penumbra/common/scene.h"
 #include "penumbra/sma/refinement.h"
 #include "penumbra/sma/renderer_pool.h"
@@ -80,6 +81,15 @@ class SmaServer {
   void Run();
   /// Thread-safe.
   void Shutdown();
+
+  /// Writes the SMA's metric families (docs/metrics.md): StatsReply's server
+  /// counters and the view latency histograms. Thread-safe; takes the state
+  /// lock shared, briefly, so it is called off the I/O threads (by the --http
+  /// endpoint's own thread).
+  void WriteMetrics(metrics::ExpositionWriter& out);
+  /// Empty when ready (not shutting down, at least one renderer connected),
+  /// else the reason. Thread-safe.
+  std::string NotReadyReason();
 
   class Impl;
 

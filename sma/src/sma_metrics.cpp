@@ -1,0 +1,72 @@
+#include "sma_metrics.h"
+
+namespace penumbra::sma {
+
+namespace {
+
+// One line per counter of AddGlobalCounters (docs/protocol.md, "SMA
+// counters"). A counter added there without a line here is still exported,
+// as a gauge named after it (metrics::WriteCounters).
+const std::vector<metrics::CounterSpec>& Specs() {
+  static const std::vector<metrics::CounterSpec> specs = {
+      {"clients", "penumbra_sma_clients", "gauge", "Client sessions connected"},
+      {"hierarchy_nodes", "penumbra_sma_hierarchy_nodes", "gauge", "Nodes of the subdivision hierarchy"},
+      {"hierarchy_vertices", "penumbra_sma_hierarchy_vertices", "gauge", "Vertices of the subdivision hierarchy"},
+      {"cache_shaded", "penumbra_sma_cache_shaded_vertices", "gauge", "Vertices with a shaded sample in the cache"},
+      {"samples_improved", "penumbra_sma_samples_improved_total", "counter",
+       "Improvement rounds that changed a cached sample"},
+      {"cache_hits", "penumbra_sma_cache_hits_total", "counter", "Cache lookups (visible triangle corners) found shaded"},
+      {"cache_misses", "penumbra_sma_cache_misses_total", "counter", "Cache lookups not yet shaded"},
+      {"cache_hit_rate", "penumbra_sma_cache_hit_ratio", "gauge", "Hits / lookups since start"},
+      {"samples_requested", "penumbra_sma_samples_requested_total", "counter",
+       "Distinct samples queued for the renderers"},
+      {"samples_shaded", "penumbra_sma_samples_shaded_total", "counter", "Samples answered by renderers (first estimates and improvement rounds)"},
+      {"samples_requeued", "penumbra_sma_samples_requeued_total", "counter", "Samples re-sent after a renderer failed"},
+      {"samples_failed", "penumbra_sma_samples_failed_total", "counter", "Samples refused as invalid (stored black)"},
+      {"samples_rejected", "penumbra_sma_samples_rejected_total", "counter",
+       "Samples answered with impossible radiance (their renderer quarantined)"},
+      {"samples_queued_visible", "penumbra_sma_samples_queued", "gauge",
+       "Samples waiting for a renderer, by priority (the autoscaling signal)", "priority", "visible"},
+      {"samples_queued_background", "penumbra_sma_samples_queued", "gauge",
+       "Samples waiting for a renderer, by priority (the autoscaling signal)", "priority", "background"},
+      {"samples_queued_improve", "penumbra_sma_samples_queued", "gauge",
+       "Samples waiting for a renderer, by priority (the autoscaling signal)", "priority", "improve"},
+      {"samples_in_flight", "penumbra_sma_samples_in_flight", "gauge", "Samples sent to renderers, not yet answered"},
+      {"renderer.*.connected", "penumbra_sma_renderer_connected", "gauge", "1 while the renderer is connected",
+       "renderer"},
+      {"renderer.*.samples_in_flight", "penumbra_sma_renderer_samples_in_flight", "gauge",
+       "Samples sent to the renderer, not yet answered", "renderer"},
+      {"renderer.*.samples_shaded", "penumbra_sma_renderer_samples_shaded_total", "counter",
+       "Samples the renderer answered", "renderer"},
+      {"renderer.*.samples_per_second", "penumbra_sma_renderer_samples_per_second", "gauge",
+       "The renderer's recent throughput as the pool measures it", "renderer"},
+      {"renderer.*.failures", "penumbra_sma_renderer_failures_total", "counter",
+       "Connection failures and timeouts of the renderer", "renderer"},
+      {"renderer.*.bad_replies", "penumbra_sma_renderer_bad_replies_total", "counter",
+       "Malformed or impossible replies (each quarantines the renderer)", "renderer"},
+      {"renderers", "penumbra_sma_renderers", "gauge", "Renderer endpoints known (resolved)"},
+      {"renderers_connected", "penumbra_sma_renderers_up", "gauge", "Renderer endpoints connected and ready"},
+  };
+  return specs;
+}
+
+}  // namespace
+
+void WriteSmaMetrics(metrics::ExpositionWriter& out, const wire::StatsReply& globalCounters,
+                     const ViewLatencyHistograms& latencies) {
+  std::vector<std::pair<std::string, double>> counters;
+  counters.reserve(size_t(globalCounters.counters_size()));
+  for (const auto& c : globalCounters.counters()) counters.emplace_back(c.name(), c.value());
+  metrics::WriteCounters(out, "penumbra_sma", counters, Specs());
+  out.WriteHistogram("penumbra_sma_view_first_delta_seconds",
+                     "New view received -> its first delta sent (visibility traced, mapped, planned)",
+                     latencies.toFirstDelta.Read());
+  out.WriteHistogram("penumbra_sma_view_shaded_seconds",
+                     "New view received -> every initially visible triangle shaded (stage 1)",
+                     latencies.toShaded.Read());
+  out.WriteHistogram("penumbra_sma_view_converged_seconds",
+                     "New view received -> converged (refinement and improvement done)",
+                     latencies.toConverged.Read());
+}
+
+}  // namespace penumbra::sma
