@@ -4,7 +4,9 @@
 add_library(penumbra_warnings INTERFACE)
 target_compile_features(penumbra_warnings INTERFACE cxx_std_20)
 target_compile_options(penumbra_warnings INTERFACE
-  -Wall -Wextra -Wpedantic -Wshadow=local -Wno-unused-parameter)
+  -Wall -Wextra -Wpedantic
+  $<$<CXX_COMPILER_ID:GNU>:-Wshadow=local> $<$<CXX_COMPILER_ID:Clang>:-Wshadow-uncaptured-local>
+  -Wno-unused-parameter)
 
 add_library(penumbra_sanitizers INTERFACE)
 if(PENUMBRA_ENABLE_ASAN AND PENUMBRA_ENABLE_TSAN)
@@ -18,6 +20,36 @@ endif()
 if(PENUMBRA_ENABLE_TSAN)
   target_compile_options(penumbra_sanitizers INTERFACE -fsanitize=thread -fno-omit-frame-pointer)
   target_link_options(penumbra_sanitizers INTERFACE -fsanitize=thread)
+endif()
+
+if(PENUMBRA_ENABLE_FUZZING)
+  if(NOT CMAKE_CXX_COMPILER_ID STREQUAL "Clang")
+    message(FATAL_ERROR "PENUMBRA_ENABLE_FUZZING needs clang (libFuzzer), not ${CMAKE_CXX_COMPILER_ID}: "
+      "configure a separate folder with -DCMAKE_CXX_COMPILER=clang++ (scripts/fuzz.sh does)")
+  endif()
+  if(PENUMBRA_ENABLE_ASAN OR PENUMBRA_ENABLE_TSAN)
+    message(FATAL_ERROR "PENUMBRA_ENABLE_FUZZING brings its own sanitizers (ASan + UBSan); "
+      "do not combine it with PENUMBRA_ENABLE_ASAN or PENUMBRA_ENABLE_TSAN")
+  endif()
+  include(CheckCXXSourceCompiles)
+  set(CMAKE_REQUIRED_FLAGS "-fsanitize=fuzzer")
+  check_cxx_source_compiles([[
+    #include <cstddef>
+    #include <cstdint>
+    extern "C" int LLVMFuzzerTestOneInput(const uint8_t*, size_t) { return 0; }
+  ]] PENUMBRA_HAVE_LIBFUZZER)
+  unset(CMAKE_REQUIRED_FLAGS)
+  if(NOT PENUMBRA_HAVE_LIBFUZZER)
+    message(FATAL_ERROR "clang cannot link -fsanitize=fuzzer: install libclang-rt-14-dev (scripts/install-deps.sh)")
+  endif()
+  # Every library the fuzz targets link is instrumented for coverage
+  # (fuzzer-no-link) and checked by ASan and UBSan; only the fuzz targets
+  # themselves link libFuzzer's main (penumbra_fuzzer below).
+  target_compile_options(penumbra_sanitizers INTERFACE
+    -fsanitize=fuzzer-no-link,address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=undefined)
+  target_link_options(penumbra_sanitizers INTERFACE -fsanitize=address,undefined)
+  add_library(penumbra_fuzzer INTERFACE)
+  target_link_options(penumbra_fuzzer INTERFACE -fsanitize=fuzzer)
 endif()
 
 # Convenience: the two interface targets every Penumbra target links.

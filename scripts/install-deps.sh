@@ -6,6 +6,8 @@ set -euo pipefail
 packages=(
   # toolchain
   cmake g++ make pkg-config ca-certificates
+  # libFuzzer targets (scripts/fuzz.sh): clang and its runtimes (libFuzzer, ASan, UBSan)
+  clang libclang-rt-14-dev
   # libraries
   libboost-dev libprotobuf-dev protobuf-compiler libembree-dev libopenimageio-dev
   libglfw3-dev libglm-dev libspdlog-dev libassimp-dev libcli11-dev nlohmann-json3-dev

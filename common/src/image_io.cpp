@@ -42,10 +42,7 @@ Expected<Image> Decode(const std::string& fileName, OIIO::Filesystem::IOProxy* p
   if (spec.width < 1 || spec.height < 1 || spec.depth != 1 || spec.nchannels < 1)
     return Fail(fmt::format("{}: unsupported image shape {}x{}x{} with {} channels", nameForMessages,
                             spec.width, spec.height, spec.depth, spec.nchannels));
-  if (spec.width > kMaxImageSide || spec.height > kMaxImageSide ||
-      int64_t(spec.width) * spec.height > kMaxImagePixels)
-    return Fail(fmt::format("{}: image of {}x{} pixels is larger than the supported {} pixels", nameForMessages,
-                            spec.width, spec.height, kMaxImagePixels));
+  if (auto ok = CheckImageSize(spec.width, spec.height, nameForMessages); !ok) return ok.error();
 
   // Grey (+ alpha) reads one channel, colour (+ alpha) reads three.
   const int channels = spec.nchannels >= 3 ? 3 : 1;
@@ -68,6 +65,19 @@ Expected<Image> Decode(const std::string& fileName, OIIO::Filesystem::IOProxy* p
 }
 
 }  // namespace
+
+Status CheckImageSize(int64_t width, int64_t height, const std::string& nameForMessages) {
+  if (width < 1 || height < 1)
+    return Fail(fmt::format("{}: unsupported image shape {}x{}", nameForMessages, width, height));
+  if (width > kMaxImageSide || height > kMaxImageSide || width * height > kMaxImagePixels)
+    return Fail(fmt::format("{}: image of {}x{} pixels is larger than the supported {} pixels", nameForMessages,
+                            width, height, kMaxImagePixels));
+  const int64_t decodedBytes = width * height * 3 * int64_t(sizeof(float));
+  if (decodedBytes > kMaxImageBytes)
+    return Fail(fmt::format("{}: image of {}x{} pixels would take {} MiB decoded; at most {} MiB are supported",
+                            nameForMessages, width, height, decodedBytes >> 20, kMaxImageBytes >> 20));
+  return Status::Ok();
+}
 
 Status WriteImage(const fs::path& path, int width, int height, std::span<const float> linearRgb) {
   const std::string name = path.string();

@@ -19,6 +19,11 @@ namespace penumbra {
 /// Errors (unreadable or malformed file, a file it refers to that cannot be
 /// opened, a texture that cannot be decoded) name `meshPath`. May throw only
 /// what assimp or the allocator throws; LoadScene catches it.
+/// Most bytes the decoded textures of one mesh file may take in all (each is
+/// also bounded by kMaxImageBytes): a file embedding many small images that
+/// decode large cannot take any amount of memory.
+inline constexpr int64_t kMaxSceneTextureBytes = int64_t(1) << 30;
+
 Status ImportMesh(const std::filesystem::path& meshPath, SceneBuilder& builder);
 
 }  // namespace penumbra

@@ -603,6 +603,53 @@ TEST(SceneLoaderTest, RandomBytesNeverCrash) {
   }
 }
 
+std::string Le32(uint32_t v) {
+  return std::string{char(v & 0xff), char((v >> 8) & 0xff), char((v >> 16) & 0xff), char(v >> 24)};
+}
+
+// The attack run's 24-byte GLB declaring a 2 GB chunk took 13.6 s and
+// 2.1 GiB before its error: declared sizes are checked against the file
+// before assimp reads it.
+TEST(SceneLoaderTest, GlbDeclaringMoreBytesThanItHasIsRefusedBeforeReading) {
+  ScratchDir dir;
+  const long rssBefore = testing::PeakRssMiB();
+  const std::string json = Le32(0x4E4F534Au);  // "JSON"
+  const fs::path chunk =
+      dir.Write("chunk.glb", "glTF" + Le32(2) + Le32(24) + Le32(2000000000u) + json + std::string(4, ' '));
+  auto scene = LoadScene(chunk);
+  ASSERT_FALSE(scene.ok());
+  EXPECT_NE(scene.error().message.find("chunk.glb: GLB chunk 0 declares 2000000000 bytes but only 4 follow"),
+            std::string::npos)
+      << scene.error().message;
+  const fs::path total = dir.Write("total.glb", "glTF" + Le32(2) + Le32(0x7fffffffu) + Le32(2) + json + "{}");
+  scene = LoadScene(total);
+  ASSERT_FALSE(scene.ok());
+  EXPECT_NE(scene.error().message.find("total.glb: the GLB header declares 2147483647 bytes but the file has 22"),
+            std::string::npos)
+      << scene.error().message;
+  EXPECT_LT(testing::PeakRssMiB() - rssBefore, 64) << "MiB taken by refused files";
+  // The committed GLB (chunks that fit) still loads.
+  EXPECT_TRUE(LoadScene(TestData("two_materials.glb")).ok());
+}
+
+// A texture whose header declares more than kMaxImageBytes of decoded
+// pixels fails the scene with the texture named, without allocating them.
+TEST(SceneLoaderTest, TextureThatWouldDecodeTooLargeFailsTheSceneBeforeAllocating) {
+  ScratchDir dir;
+  const long rssBefore = testing::PeakRssMiB();
+  dir.Write("big.png", testing::PngDeclaringSize(8192, 8191));
+  dir.Write("quad.mtl", "newmtl tex\nKd 1 1 1\nmap_Kd big.png\n");
+  const fs::path obj = dir.Write("quad.obj",
+                                 "mtllib quad.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nvt 0 0\nvt 1 0\nvt 1 1\n"
+                                 "usemtl tex\nf 1/1 2/2 3/3\n");
+  auto scene = LoadScene(obj);
+  ASSERT_FALSE(scene.ok());
+  EXPECT_NE(scene.error().message.find("big.png: image of 8192x8191 pixels would take 767 MiB decoded"),
+            std::string::npos)
+      << scene.error().message;
+  EXPECT_LT(testing::PeakRssMiB() - rssBefore, 64) << "MiB taken by the refused texture";
+}
+
 // --- The repository's default scene ------------------------------------------
 
 TEST(RepositoryScenesTest, CornellBoxSceneHasItsLightCamerasAndPaths) {

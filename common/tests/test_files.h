@@ -3,12 +3,14 @@
 // scratch directory per test.
 
 #include <algorithm>
+#include <cstdint>
 #include <filesystem>
 #include <fstream>
 #include <string>
 #include <string_view>
 
 #include <gtest/gtest.h>
+#include <sys/resource.h>
 #include <unistd.h>
 
 namespace penumbra::testing {
@@ -53,5 +55,36 @@ class ScratchDir {
  private:
   std::filesystem::path path_;
 };
+
+/// A PNG of `width` x `height` 8-bit RGB pixels whose image data is a valid
+/// but empty zlib stream: its header is all a decoder needs to decide how
+/// much to allocate, and the file stays 57 bytes whatever the size declared.
+inline std::string PngDeclaringSize(uint32_t width, uint32_t height) {
+  auto be32 = [](uint32_t v) {
+    return std::string{char(v >> 24), char((v >> 16) & 0xff), char((v >> 8) & 0xff), char(v & 0xff)};
+  };
+  auto crc32 = [](std::string_view bytes) {
+    uint32_t c = 0xffffffffu;
+    for (unsigned char b : bytes) {
+      c ^= b;
+      for (int k = 0; k < 8; ++k) c = (c & 1) ? 0xedb88320u ^ (c >> 1) : c >> 1;
+    }
+    return ~c;
+  };
+  auto chunk = [&](std::string_view type, const std::string& data) {
+    const std::string body = std::string(type) + data;
+    return be32(uint32_t(data.size())) + body + be32(crc32(body));
+  };
+  const std::string ihdr = be32(width) + be32(height) + std::string("\x08\x02\x00\x00\x00", 5);
+  return std::string("\x89PNG\r\n\x1a\n", 8) + chunk("IHDR", ihdr) +
+         chunk("IDAT", std::string("\x78\x9c\x03\x00\x00\x00\x00\x01", 8)) + chunk("IEND", "");
+}
+
+/// Peak resident memory of this process so far (getrusage), in MiB.
+inline long PeakRssMiB() {
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  return usage.ru_maxrss / 1024;
+}
 
 }  // namespace penumbra::testing

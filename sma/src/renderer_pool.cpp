@@ -301,6 +301,26 @@ void RendererPool::CheckTimeouts() {
 
 // --- Messages from renderers ------------------------------------------------
 
+Status CheckShadeReplyArrays(const wire::ShadeReply& reply) {
+  const int n = reply.sample_ids_size();
+  if (reply.radiance_size() != 3 * n || reply.irradiance_size() != 3 * n || reply.irradiance_stderr_size() != n ||
+      (reply.sample_paths_size() != 0 && reply.sample_paths_size() != n))
+    return Fail(fmt::format("inconsistent arrays ({} ids, {} radiance, {} irradiance, {} stderr, {} path values)", n,
+                            reply.radiance_size(), reply.irradiance_size(), reply.irradiance_stderr_size(),
+                            reply.sample_paths_size()));
+  return Status::Ok();
+}
+
+Expected<ShadedSample> ShadedSampleFromReply(const wire::ShadeReply& reply, int i, uint32_t batchPaths) {
+  const uint64_t id = reply.sample_ids(i);
+  const uint32_t paths = reply.sample_paths_size() == reply.sample_ids_size() ? reply.sample_paths(i) : batchPaths;
+  if (paths == 0 || paths > (1u << 24)) return Fail(fmt::format("sample {} averages {} paths", id, paths));
+  return ShadedSample{VertexId(id & 0xffffffffu),
+                      Rgb(reply.radiance(3 * i), reply.radiance(3 * i + 1), reply.radiance(3 * i + 2)),
+                      Rgb(reply.irradiance(3 * i), reply.irradiance(3 * i + 1), reply.irradiance(3 * i + 2)),
+                      reply.irradiance_stderr(i), paths, uint16_t(id >> 32)};
+}
+
 void RendererPool::OnMessage(const std::shared_ptr<Link>& link, wire::Envelope&& envelope) {
   auto log = Logger("sma.renderers");
   switch (envelope.body_case()) {
@@ -378,15 +398,13 @@ void RendererPool::OnReply(const std::shared_ptr<Link>& link, const wire::ShadeR
       return RejectReplyLocked(*link, fmt::format("reply for unknown batch {}", reply.batch_id()));
     Batch& batch = it->second;
     const int n = reply.sample_ids_size();
-    if (reply.radiance_size() != 3 * n || reply.irradiance_size() != 3 * n || reply.irradiance_stderr_size() != n)
-      return RejectReplyLocked(*link, fmt::format("reply for batch {} has inconsistent arrays", batch.id));
+    if (auto ok = CheckShadeReplyArrays(reply); !ok)
+      return RejectReplyLocked(*link, fmt::format("reply for batch {}: {}", batch.id, ok.error().message));
     // The whole part is checked before any of it is taken: a bad sample after
     // good ones drops the link, and every sample of the batch (the good ones
     // too) must then still be in flight so that it is requeued, not lost.
     results.reserve(size_t(n));
     std::set<uint64_t> seen;
-    if (reply.sample_paths_size() != 0 && reply.sample_paths_size() != n)
-      return RejectReplyLocked(*link, fmt::format("reply for batch {} has inconsistent arrays", batch.id));
     for (int i = 0; i < n; ++i) {
       const uint64_t id = reply.sample_ids(i);
       const VertexId vertex = VertexId(id & 0xffffffffu);
@@ -396,14 +414,10 @@ void RendererPool::OnReply(const std::shared_ptr<Link>& link, const wire::ShadeR
           e->second.request.round != round || !seen.insert(id).second)
         return RejectReplyLocked(*link, fmt::format("reply for batch {} names sample {}, which it was not asked for",
                                                     batch.id, id));
-      const uint32_t paths = reply.sample_paths_size() == n ? reply.sample_paths(i) : batch.paths;
-      if (paths == 0 || paths > (1u << 24))
-        return RejectReplyLocked(*link, fmt::format("reply for batch {}: sample {} averages {} paths", batch.id, id,
-                                                    paths));
-      ShadedSample sample{vertex,
-                          Rgb(reply.radiance(3 * i), reply.radiance(3 * i + 1), reply.radiance(3 * i + 2)),
-                          Rgb(reply.irradiance(3 * i), reply.irradiance(3 * i + 1), reply.irradiance(3 * i + 2)),
-                          reply.irradiance_stderr(i), paths, uint16_t(round)};
+      auto decoded = ShadedSampleFromReply(reply, i, batch.paths);
+      if (!decoded)
+        return RejectReplyLocked(*link, fmt::format("reply for batch {}: {}", batch.id, decoded.error().message));
+      const ShadedSample sample = *decoded;
       if (auto ok = options_.radianceBounds.Check(sample); !ok) {
         ++rejectedSamples_;
         return RejectReplyLocked(*link, fmt::format("reply for batch {}: sample {}: {}", batch.id, id,

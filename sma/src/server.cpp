@@ -13,6 +13,7 @@
 #include "penumbra/sma/cache_snapshot.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
+#include "penumbra/sma/client_requests.h"
 #include "penumbra/sma/delta.h"
 #include "penumbra/sma/hierarchy.h"
 #include "penumbra/sma/refinement.h"
@@ -40,8 +41,6 @@ void ToWire(const Vec3& v, wire::Vec3* out) {
   out->set_y(v.y);
   out->set_z(v.z);
 }
-
-Vec3 FromWire(const wire::Vec3& v) { return Vec3(v.x(), v.y(), v.z()); }
 
 // Descend into a node's children once every vertex its split added is
 // shaded: a parent is replaced by its children only when they can be drawn.
@@ -463,18 +462,9 @@ void SmaServer::Impl::Session::OnHello(const wire::Hello& hello) {
 
 void SmaServer::Impl::Session::OnView(const wire::View& v) {
   ++viewsReceived_;
-  CameraView view;
-  view.pose = CameraPose{FromWire(v.eye()), FromWire(v.target()), FromWire(v.up())};
-  view.fovYDeg = v.fov_y_deg();
-  view.width = int(std::min<uint32_t>(v.width(), 1u << 30));
-  view.height = int(std::min<uint32_t>(v.height(), 1u << 30));
-  if (auto ok = ValidateCameraView(view); !ok)
-    return Fatal(wire::ERROR_CODE_INVALID_REQUEST, fmt::format("view {}: {}", v.view_id(), ok.error().message));
-  // Visibility costs time and memory per pixel (a 16384^2 view took 4.2 GiB).
-  if (uint64_t(view.width) * uint64_t(view.height) > server_.options_.maxViewPixels)
-    return Fatal(wire::ERROR_CODE_INVALID_REQUEST,
-                 fmt::format("view {}: {}x{} pixels; this SMA serves at most {} per view", v.view_id(), view.width,
-                             view.height, server_.options_.maxViewPixels));
+  auto checked = ViewFromWire(v, server_.options_.maxViewPixels);
+  if (!checked) return Fatal(wire::ERROR_CODE_INVALID_REQUEST, checked.error().message);
+  const CameraView view = *checked;
   if (hasView_ && v.view_id() <= viewId_) {
     connection_->Send(MakeError(v.view_id(), wire::ERROR_CODE_INVALID_REQUEST,
                                 fmt::format("view id {} does not increase (last {}); ignored", v.view_id(), viewId_),
@@ -861,29 +851,12 @@ void SmaServer::Impl::Session::SendStatus() {
 }
 
 void SmaServer::Impl::Session::OnSessionOptions(const wire::SessionOptions& o) {
-  RefinementParams p = params_;
-  if (!o.criterion().empty()) {
-    auto c = ParseCriterion(o.criterion());
-    if (!c) {
-      connection_->Send(MakeError(0, wire::ERROR_CODE_INVALID_REQUEST, c.error().message, false));
-      return;
-    }
-    p.criterion = *c;
-  }
-  if (o.has_s_req()) p.sReq = o.s_req();
-  if (o.has_batch()) p.batch = o.batch();
-  if (o.has_min_pixels()) p.minPixels = o.min_pixels();
-  if (o.has_large_fraction()) p.largeFraction = o.large_fraction();
-  if (o.has_aspect_threshold()) p.aspectThreshold = o.aspect_threshold();
-  if (o.has_pixel_fraction()) p.pixelFraction = o.pixel_fraction();
-  if (o.has_noise_z()) p.noiseZ = o.noise_z();
-  if (o.has_max_depth()) p.maxDepth = uint8_t(std::clamp<uint32_t>(o.max_depth(), 0, 255));
-  if (auto ok = o.has_max_depth() && o.max_depth() > 20 ? Status(Fail(fmt::format("max_depth = {} is out of range", o.max_depth())))
-                                                        : p.Validate();
-      !ok) {
-    connection_->Send(MakeError(0, wire::ERROR_CODE_INVALID_REQUEST, "session options: " + ok.error().message, false));
+  auto checked = ApplySessionOptions(params_, o);
+  if (!checked) {
+    connection_->Send(MakeError(0, wire::ERROR_CODE_INVALID_REQUEST, checked.error().message, false));
     return;
   }
+  const RefinementParams p = *checked;
   params_ = p;
   log_->info("{}: refinement {} (S_req {}, noise z {}, R {}, min {} px)", connection_->Id(), CriterionName(p.criterion),
              p.sReq, p.noiseZ, p.batch, p.minPixels);
@@ -965,38 +938,14 @@ void SmaServer::Impl::Session::OnStatsRequest(const wire::StatsRequest& request)
 
 void SmaServer::Impl::Session::OnTextureRequest(const wire::TextureRequest& request) {
   const Scene& scene = server_.scene_;
-  if (request.texture() >= scene.textures.size()) {
-    connection_->Send(MakeError(request.texture(), wire::ERROR_CODE_INVALID_REQUEST,
-                                fmt::format("texture {} does not exist ({} textures)", request.texture(),
-                                            scene.textures.size()),
-                                false));
+  if (auto ok = CheckTextureRequest(request, scene.textures.size()); !ok) {
+    connection_->Send(MakeError(request.texture(), wire::ERROR_CODE_INVALID_REQUEST, ok.error().message, false));
     return;
   }
-  const Texture& t = scene.textures[request.texture()];
-  // Halve until the texels fit in a frame with room to spare.
+  // Half a frame, to leave room to spare.
   const size_t budget = server_.options_.clientConnection.maxFrameBytes / 2;
-  int step = 1;
-  while (size_t(t.width / step) * size_t(t.height / step) * 3 > budget && step < 1 << 12) step *= 2;
-  const int w = std::max(1, t.width / step), h = std::max(1, t.height / step);
-  std::string rgb(size_t(w) * size_t(h) * 3, '\0');
-  for (int y = 0; y < h; ++y)
-    for (int x = 0; x < w; ++x) {
-      // Box-filter the step x step block in linear space.
-      Rgb sum(0.0f);
-      for (int dy = 0; dy < step; ++dy)
-        for (int dx = 0; dx < step; ++dx)
-          sum += t.texels[size_t(std::min(t.height - 1, y * step + dy)) * size_t(t.width) +
-                          size_t(std::min(t.width - 1, x * step + dx))];
-      sum /= float(step * step);
-      for (int c = 0; c < 3; ++c)
-        rgb[(size_t(y) * size_t(w) + size_t(x)) * 3 + size_t(c)] = char(std::lround(LinearToSrgb(sum[c]) * 255.0f));
-    }
   wire::Envelope envelope;
-  auto* data = envelope.mutable_texture_data();
-  data->set_texture(request.texture());
-  data->set_width(uint32_t(w));
-  data->set_height(uint32_t(h));
-  data->set_rgb8(std::move(rgb));
+  *envelope.mutable_texture_data() = DownscaledTexture(scene.textures[request.texture()], request.texture(), budget);
   connection_->Send(envelope);
 }
 

@@ -30,6 +30,16 @@ struct Image {
 /// allocate gigabytes: 32768 pixels per side and 2^26 pixels in all.
 inline constexpr int kMaxImageSide = 32768;
 inline constexpr int64_t kMaxImagePixels = int64_t(1) << 26;
+/// ... and at most this many bytes once decoded (width * height * 3 floats,
+/// 12 bytes a pixel: 256 MiB is 22.3 million pixels, e.g. 4096 x 4096 with
+/// room to spare). Checked before anything is allocated: a 200 kB PNG just
+/// under the pixel limit used to cost 1.6 GiB (the decoded floats, then the
+/// texture made of them).
+inline constexpr int64_t kMaxImageBytes = int64_t(256) << 20;
+
+/// OK when an image of `width` x `height` pixels is within the limits above;
+/// otherwise an Error that starts with `nameForMessages`.
+Status CheckImageSize(int64_t width, int64_t height, const std::string& nameForMessages);
 
 /// Writes linear RGB (width * height * 3 floats, row 0 at the top) to `path`,
 /// choosing the format by extension (case-insensitive):

@@ -46,10 +46,22 @@
 
 #include "penumbra/common/connection.h"
 #include "penumbra/common/endpoint.h"
+#include "penumbra/common/expected.h"
 #include "penumbra/sma/hierarchy.h"
 #include "penumbra/sma/sample_cache.h"
 
 namespace penumbra::sma {
+
+/// The checks on a renderer's ShadeReply part that need no pool state, as
+/// plain functions so that they are fuzzed with bytes (tests/fuzz).
+/// OK when the part's arrays agree: per sample one id, three radiance, three
+/// irradiance and one standard-error value, and no path counts or one each.
+Status CheckShadeReplyArrays(const wire::ShadeReply& reply);
+/// Sample `i` of a part that passed CheckShadeReplyArrays: vertex (the id's
+/// low 32 bits) and round (the rest) from its id, its path count, else
+/// `batchPaths`. An error when that count is 0 or above 2^24. Values are not
+/// checked here (RadianceBounds::Check).
+Expected<ShadedSample> ShadedSampleFromReply(const wire::ShadeReply& reply, int i, uint32_t batchPaths);
 
 /// Everything a renderer needs to shade one vertex.
 struct SampleRequest {

@@ -1,0 +1,34 @@
+#pragma once
+// The checks the SMA makes on what a client sends, as plain functions of the
+// message (no session, no socket), so that they are fuzzed with bytes
+// (tests/fuzz) and the server's session only applies their result.
+
+#include <cstddef>
+#include <cstdint>
+
+#include "penumbra/common/camera.h"
+#include "penumbra/common/expected.h"
+#include "penumbra/common/scene.h"
+#include "penumbra/sma/refinement.h"
+#include "penumbra/wire.pb.h"
+
+namespace penumbra::sma {
+
+/// The camera view a View message asks for, or why it is refused: not a
+/// usable view (ValidateCameraView) or more than `maxViewPixels` pixels.
+/// Messages start with "view <id>: ". Any thread.
+Expected<CameraView> ViewFromWire(const wire::View& view, uint64_t maxViewPixels);
+
+/// `current` with the SessionOptions' fields that are set replaced, or why
+/// the options are refused (unknown criterion, a value out of range:
+/// RefinementParams::Validate). Any thread.
+Expected<RefinementParams> ApplySessionOptions(const RefinementParams& current, const wire::SessionOptions& options);
+
+/// OK when the TextureRequest names one of the scene's `textureCount` textures.
+Status CheckTextureRequest(const wire::TextureRequest& request, size_t textureCount);
+
+/// The texture as a client receives it: sRGB 8-bit, halved (box-filtered in
+/// linear space) until its texels take at most `budgetBytes`. Any thread.
+wire::TextureData DownscaledTexture(const Texture& texture, uint32_t index, size_t budgetBytes);
+
+}  // namespace penumbra::sma

@@ -1,0 +1,49 @@
+// The client's delta application (client/src/mesh_store.cpp) on its own:
+// deltas applied in order to a mesh store set up for the Cornell box's eight
+// materials, two of them textured, so that the fuzzer spends its time on
+// the store rather than on reaching it through a handshake. A refused delta
+// resets the store, as the client does when it drops the connection.
+// After every delta the store's own view must be consistent: the vertex
+// slots cover every held vertex, and every triangle slot in use names a
+// vertex slot in range. Input: a stream of frames whose envelopes carry
+// deltas (other bodies are skipped).
+
+#include "fuzz_support.h"
+#include "penumbra/client/mesh_store.h"
+
+extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
+  using namespace penumbra;
+  static const bool quiet = (fuzz::QuietLogs(), true);
+  (void)quiet;
+  // Materials 0..7; 6 and 7 use textures 0 and 1.
+  const std::vector<int32_t> materialTextures{-1, -1, -1, -1, -1, -1, 0, 1};
+  client::MeshStore store;
+  store.Reset(materialTextures, 2);
+  for (const wire::Envelope& envelope : fuzz::DecodeFrameStream(data, size)) {
+    if (!envelope.has_delta()) continue;
+    if (!store.Apply(envelope.delta())) {
+      store.Reset(materialTextures, 2);
+      continue;
+    }
+    const auto vertexSlots = store.VertexSlots();
+    PENUMBRA_CHECK(vertexSlots.size() >= store.VertexCount(), "fewer vertex slots than vertices");
+    size_t triangles = 0;
+    for (client::TriangleGroup& group : store.Groups()) {
+      PENUMBRA_CHECK(group.slots.size() >= group.allocator.HighWater(), "triangle slots behind the allocator");
+      for (size_t s = 0; s < group.allocator.HighWater(); ++s) {
+        const client::GpuTriangle& t = group.slots[s];
+        if (t.corners[0].material == client::kEmptyTriangleSlot) continue;
+        ++triangles;
+        for (const client::GpuCorner& c : t.corners)
+          PENUMBRA_CHECK(c.vertexSlot < vertexSlots.size(), "a triangle names a vertex slot out of range");
+      }
+      for (const client::SlotRange& r : group.dirty.Take())
+        PENUMBRA_CHECK(uint64_t(r.first) + r.count <= group.allocator.HighWater(), "a dirty range beyond the slots in use");
+    }
+    PENUMBRA_CHECK(triangles == store.TriangleCount(), "triangle slots disagree with the triangle count");
+    for (const client::SlotRange& r : store.DirtyVertices().Take())
+      PENUMBRA_CHECK(uint64_t(r.first) + r.count <= vertexSlots.size(), "a dirty vertex range beyond the slots in use");
+    (void)store.HeldLuminance();
+  }
+  return 0;
+}
