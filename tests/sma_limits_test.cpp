@@ -11,6 +11,7 @@
 
 #include <atomic>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -171,6 +172,49 @@ TEST(SmaVisibilityBudgetTest, AViewOverTheBudgetIsRefusedAndASmallViewIsNotHeldU
   ASSERT_TRUE(big2->SendView(bigView, 2));
   ASSERT_TRUE(big2->WaitConverged(2, 120s).ok()) << sma.process.LogTail();
   EXPECT_TRUE(sma.process.Running());
+}
+
+// Not a test: the measurement behind the visibility budget's defaults, run
+// by hand (--gtest_also_run_disabled_tests) against any penumbra-sma. Three
+// clients ask for the largest default view (8192 x 4608) and a fourth for a
+// small one; prints the small view's latency and the SMA's peak RSS.
+TEST(SmaVisibilityBudgetTest, DISABLED_MeasureThreeLargestViewsBesideASmallOne) {
+  Service renderer = StartRenderer(kCornell, "measure-renderer");
+  // PENUMBRA_MEASURE_SMA: another penumbra-sma to measure (e.g. a build before the budget).
+  const char* exe = std::getenv("PENUMBRA_MEASURE_SMA");
+  Service sma = MustStart(exe != nullptr ? exe : PENUMBRA_SMA_EXE,
+                          {"--scene", kCornell, "--renderer", renderer.Address(), "--criterion", "none"}, "measure-sma");
+  std::vector<SmaTestClient> big;
+  for (int i = 0; i < 3; ++i) {
+    auto c = SmaTestClient::Connect(sma.port, "big");
+    ASSERT_TRUE(c.ok());
+    big.push_back(std::move(*c));
+  }
+  auto small = SmaTestClient::Connect(sma.port, "small");
+  ASSERT_TRUE(small.ok());
+  for (auto& c : big) ASSERT_TRUE(c.SendView(Preset(c, "front", 8192, 4608), 1));
+  std::this_thread::sleep_for(100ms);
+  const auto start = Clock::now();
+  ASSERT_TRUE(small->SendView(Preset(*small, "front", 160, 120), 1));
+  double firstDelta = -1.0;
+  while (firstDelta < 0.0) {
+    auto e = small->Wire().Receive(300s);
+    ASSERT_TRUE(e.ok());
+    ASSERT_TRUE(small->Apply(*e).ok());
+    if (e->has_delta()) firstDelta = std::chrono::duration<double>(Clock::now() - start).count();
+  }
+  ASSERT_TRUE(small->WaitConverged(1, 300s).ok());
+  const double converged = std::chrono::duration<double>(Clock::now() - start).count();
+  int served = 0, refused = 0;
+  for (auto& c : big) {
+    auto e = c.Wire().Receive(300s);
+    ASSERT_TRUE(e.ok());
+    served += e->has_delta();
+    refused += e->has_error();
+  }
+  std::printf("3 views of 8192x4608 (%d served, %d refused) beside a 160x120 view: its first delta after %.2f s, "
+              "converged after %.2f s; SMA peak RSS %.0f MiB\n",
+              served, refused, firstDelta, converged, StatusMegabytes(sma.process.Pid(), "VmHWM"));
 }
 
 // --- 2. Refinement a client may ask for --------------------------------------
@@ -459,17 +503,34 @@ TEST(SmaNonReadingClientTest, ClientsThatNeverReadCostTheSmaLittle) {
       }
     }
   };
-  // Their queues back up within seconds (once the kernel's socket buffers
-  // are full); from then on they should cost next to nothing.
-  idle(12s);
+  // Their queues back up once the kernel's socket buffers (~4 MB each on
+  // loopback) are full; from then on they should cost next to nothing.
+  const auto start = Clock::now();
+  double backedUp = 0.0;
+  while (backedUp < 4.0 && Clock::now() - start < 120s) {
+    idle(1s);
+    auto n = normal->Counter("clients_backed_up");
+    ASSERT_TRUE(n.ok());
+    backedUp = *n;
+  }
+  ASSERT_EQ(backedUp, 4.0) << "the clients that never read never backed up\n" << sma.process.LogTail(3000);
+  std::printf("their queues backed up after %.1f s\n", std::chrono::duration<double>(Clock::now() - start).count());
+  auto traces0 = normal->Counter("visibility_traces");
+  ASSERT_TRUE(traces0.ok());
   const double cpu0 = CpuSeconds(sma.process.Pid());
   const auto t0 = Clock::now();
-  idle(4s);
+  idle(5s);
   const double cores = (CpuSeconds(sma.process.Pid()) - cpu0) / std::chrono::duration<double>(Clock::now() - t0).count();
+  auto traces1 = normal->Counter("visibility_traces");
+  ASSERT_TRUE(traces1.ok());
   uint64_t views = 0;
   for (const auto& m : mute) views += m->Sent();
-  std::printf("4 clients that never read (%llu views sent): SMA CPU %.2f cores\n", (unsigned long long)views, cores);
-  EXPECT_LT(cores, 0.5) << sma.process.LogTail(3000);  // the issue: 1.8 cores
+  std::printf("4 clients that never read (%llu views sent): over 5 s, %.0f traces, SMA CPU %.2f cores\n",
+              (unsigned long long)views, *traces1 - *traces0, cores);
+  // A trace now and then: a backed-up queue may drain a little as the kernel
+  // grows a socket's buffer.
+  EXPECT_LE(*traces1 - *traces0, 20.0);
+  EXPECT_LT(cores, 0.3) << sma.process.LogTail(3000);  // the issue: 1.8 cores
   // A normal client beside them converges on a new view.
   CameraView moved = front;
   moved.pose.eye.x += 0.5f;

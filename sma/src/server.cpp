@@ -184,6 +184,7 @@ class SmaServer::Impl {
   // never hold up ordinary views; textures_ posts its encodings there and
   // is declared first, so that the thread is joined before it goes.
   VisibilityBudget visibilityBudget_;
+  std::atomic<uint64_t> viewTraces_{0};  // visibility traces made, for every client
   TextureFrames textures_;
   JobQueue backgroundJobs_;
   std::shared_ptr<spdlog::logger> log_;
@@ -560,6 +561,7 @@ void SmaServer::Impl::Session::StartJob() {
     if (!hits) {
       hits = std::make_shared<HitBuffer>();
       server.tracer_->Trace(view, *hits);
+      ++server.viewTraces_;
     }
     auto t1 = Clock::now();
     auto visible = std::make_shared<VisibleSet>();
@@ -1050,6 +1052,11 @@ void SmaServer::Impl::Session::OnStatsRequest(const wire::StatsRequest& request)
   AddCounter(reply, "client_texture_requests_refused", double(textureRequestsRefused_));
   AddCounter(reply, "visibility_pixels_reserved", double(server_.visibilityBudget_.Used()));
   AddCounter(reply, "textures_encoded", double(server_.textures_.EncodedCount()));
+  AddCounter(reply, "visibility_traces", double(server_.viewTraces_.load()));
+  size_t backedUp = 0;
+  for (const auto& s : server_.Sessions())
+    backedUp += s->Connection().QueuedBytes() > server_.options_.clientSoftQueueBytes;
+  AddCounter(reply, "clients_backed_up", double(backedUp));
   connection_->Send(envelope);
 }
 
