@@ -55,30 +55,4 @@ Status CheckTextureRequest(const wire::TextureRequest& request, size_t textureCo
   return Status::Ok();
 }
 
-wire::TextureData DownscaledTexture(const Texture& t, uint32_t index, size_t budgetBytes) {
-  // Halve until the texels fit in the budget.
-  int step = 1;
-  while (size_t(t.width / step) * size_t(t.height / step) * 3 > budgetBytes && step < 1 << 12) step *= 2;
-  const int w = std::max(1, t.width / step), h = std::max(1, t.height / step);
-  std::string rgb(size_t(w) * size_t(h) * 3, '\0');
-  for (int y = 0; y < h; ++y)
-    for (int x = 0; x < w; ++x) {
-      // Box-filter the step x step block in linear space.
-      Rgb sum(0.0f);
-      for (int dy = 0; dy < step; ++dy)
-        for (int dx = 0; dx < step; ++dx)
-          sum += t.texels[size_t(std::min(t.height - 1, y * step + dy)) * size_t(t.width) +
-                          size_t(std::min(t.width - 1, x * step + dx))];
-      sum /= float(step * step);
-      for (int c = 0; c < 3; ++c)
-        rgb[(size_t(y) * size_t(w) + size_t(x)) * 3 + size_t(c)] = char(std::lround(LinearToSrgb(sum[c]) * 255.0f));
-    }
-  wire::TextureData data;
-  data.set_texture(index);
-  data.set_width(uint32_t(w));
-  data.set_height(uint32_t(h));
-  data.set_rgb8(std::move(rgb));
-  return data;
-}
-
 }  // namespace penumbra::sma

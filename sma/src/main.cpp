@@ -132,6 +132,30 @@ int main(int argc, char** argv) {
   app.add_option("--http-port-file", httpPortFile, "Write the bound --http port to this file once listening");
   std::string logFormat = "text";
   app.add_option("--log-format", logFormat, "text, or json: one JSON object per log line")->capture_default_str();
+  // Resource limits per client (issue 12)
+  ClientRefinementLimits& clientLimits = options.clientRefinement;
+  app.add_option("--visibility-budget-pixels", options.visibilityBudgetPixels,
+                 "Pixels of all clients' views whose visibility the SMA holds at once (~24 bytes each); a view "
+                 "that does not fit is refused with LIMIT_EXCEEDED")
+      ->check(CLI::Range(uint64_t(1), uint64_t(1) << 34))->capture_default_str();
+  app.add_option("--large-view-pixels", options.largeViewPixels,
+                 "Views above this many pixels are traced, mapped and refined on one background thread, so they "
+                 "never delay smaller views")
+      ->check(CLI::Range(uint64_t(1), uint64_t(1) << 34))->capture_default_str();
+  app.add_option("--client-min-s-req", clientLimits.minSReq, "Smallest S_req a client may ask for (SessionOptions)")
+      ->check(CLI::Range(0.0f, 1.0f))->capture_default_str();
+  app.add_option("--client-min-pixels", clientLimits.minMinPixels, "Smallest min_pixels a client may ask for")
+      ->check(CLI::Range(0.0f, 1e9f))->capture_default_str();
+  app.add_option("--client-max-depth", clientLimits.maxDepth, "Largest max_depth a client may ask for")
+      ->check(CLI::Range(1u, 20u))->capture_default_str();
+  app.add_option("--client-max-refine-batch", clientLimits.maxBatch, "Largest R (leaves per step) a client may ask for")
+      ->check(CLI::Range(1u, 1000000u))->capture_default_str();
+  app.add_option("--client-max-refinement-samples", clientLimits.maxSamplesPerView,
+                 "New vertices one client's refinement may create for one view; then its refinement ends")
+      ->check(CLI::Range(uint64_t(0), uint64_t(1) << 32))->capture_default_str();
+  app.add_option("--max-texture-requests", options.maxTextureRequests,
+                 "TextureRequests a client may have unanswered; more are refused with LIMIT_EXCEEDED")
+      ->check(CLI::Range(1u, 1u << 20))->capture_default_str();
   CLI11_PARSE(app, argc, argv);
 
   if (!SetupLogging(logLevel)) {

@@ -1,6 +1,7 @@
 #include "penumbra/sma/server.h"
 
 #include <array>
+#include <map>
 #include <csignal>
 #include <mutex>
 #include <shared_mutex>
@@ -18,6 +19,7 @@
 #include "penumbra/sma/hierarchy.h"
 #include "penumbra/sma/refinement.h"
 #include "penumbra/sma/sample_cache.h"
+#include "penumbra/sma/texture_frames.h"
 #include "penumbra/sma/visibility.h"
 #include "sma_metrics.h"
 
@@ -64,6 +66,10 @@ class SmaServer::Impl {
         hierarchy_(restored ? std::move(restored->hierarchy) : Hierarchy(scene)),
         tracer_(std::move(tracer)),
         jobs_(options_.viewThreads),
+        visibilityBudget_(options_.visibilityBudgetPixels),
+        textures_(scene, options_.clientConnection.maxFrameBytes / 2,
+                  [this](std::function<void()> job) { backgroundJobs_.Post(std::move(job)); }),
+        backgroundJobs_(1),
         log_(Logger("sma")),
         signals_(io_, SIGINT, SIGTERM),
         statsTimer_(io_),
@@ -190,6 +196,14 @@ class SmaServer::Impl {
   std::unique_ptr<VisibilityTracer> tracer_;
   std::shared_ptr<RendererPool> pool_;
   JobQueue jobs_;
+  // Resource limits per client (issue 12). Views above largeViewPixels and
+  // texture encoding run on backgroundJobs_, one job at a time, so they
+  // never hold up ordinary views; textures_ posts its encodings there and
+  // is declared first, so that the thread is joined before it goes.
+  VisibilityBudget visibilityBudget_;
+  std::atomic<uint64_t> viewTraces_{0};  // visibility traces made, for every client
+  TextureFrames textures_;
+  JobQueue backgroundJobs_;
   std::shared_ptr<spdlog::logger> log_;
 
  private:
@@ -258,6 +272,21 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   }
 
   void StartJob();
+  // Views above --large-view-pixels work on the background thread.
+  JobQueue& JobsFor(const CameraView& view) {
+    return uint64_t(view.width) * uint64_t(view.height) > server_.options_.largeViewPixels ? server_.backgroundJobs_
+                                                                                         : server_.jobs_;
+  }
+  /// This client's reservation in the visibility budget: the largest of its
+  /// latest view, the trace running for it and the buffers it holds. Never
+  /// more than OnView reserved, so it only shrinks.
+  void UpdateReservation() {
+    const auto pixels = [](const CameraView& v) { return uint64_t(v.width) * uint64_t(v.height); };
+    server_.visibilityBudget_.Resize(reservedPixels_,
+                                     std::max({pixels(view_), runningJobPixels_, hits_ ? pixels(hits_->view) : 0}));
+  }
+  void OnTextureReady(uint32_t texture, TextureFrames::Frame frame);
+  void SendTextures();
   void OnJobDone(uint64_t viewId, bool newView, std::shared_ptr<HitBuffer> hits, std::shared_ptr<VisibleSet> visible,
                  JobTimings timings, Clock::time_point started);
   void ApplyVisibility(bool newView);
@@ -367,6 +396,17 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   double stage2Ms_ = -1.0;  // view received -> converged
   bool sentConverged_ = false;  // as the last delta sent said
   bool sentRefining_ = false;
+
+  // Resource limits (issue 12). Visibility: this client's reservation in
+  // the server's budget -- the larger of its latest view and the trace
+  // running for it (one buffer at a time: a new view drops the old one's).
+  uint64_t reservedPixels_ = 0;
+  uint64_t runningJobPixels_ = 0;
+  static constexpr int kMaxNewViewsDroppedInARow = 3;
+  int newViewsDroppedInARow_ = 0;
+  // Textures asked for and not yet queued: null while being encoded.
+  std::map<uint32_t, TextureFrames::Frame> texturesOutstanding_;
+  uint64_t textureRequestsRefused_ = 0;
 };
 
 void SmaServer::Impl::NotifyArrived(const std::shared_ptr<Session>& session,
@@ -471,6 +511,26 @@ void SmaServer::Impl::Session::OnView(const wire::View& v) {
                                 false));
     return;
   }
+  // Visibility memory across clients: the new view must fit in the budget
+  // (with the superseded trace still running for this client, if larger).
+  const uint64_t pixels = uint64_t(view.width) * uint64_t(view.height);
+  if (!server_.visibilityBudget_.Resize(reservedPixels_, std::max(pixels, runningJobPixels_))) {
+    const uint64_t others = server_.visibilityBudget_.Used() - reservedPixels_;
+    log_->info("{}: view {} ({}x{}) refused: visibility budget ({} of {} pixels held by other views)", connection_->Id(),
+               v.view_id(), view.width, view.height, others, server_.visibilityBudget_.Capacity());
+    connection_->Send(MakeError(v.view_id(), wire::ERROR_CODE_LIMIT_EXCEEDED,
+                                fmt::format("view {}: {}x{} = {} pixels do not fit in this SMA's visibility budget now "
+                                            "({} of {} pixels are held by other clients' views, "
+                                            "--visibility-budget-pixels); ignored: send a smaller view or retry later",
+                                            v.view_id(), view.width, view.height, pixels, others,
+                                            server_.visibilityBudget_.Capacity()),
+                                false));
+    return;
+  }
+  // The old view's buffers are not used once a new view is taken (its
+  // refinement and improvement wait for the new view's stage 1).
+  hits_.reset();
+  visible_.reset();
   hasView_ = true;
   viewId_ = v.view_id();
   view_ = view;
@@ -486,7 +546,20 @@ void SmaServer::Impl::Session::StartJob() {
   if (jobRunning_ || !hasView_ || connection_->IsOpen() == false) return;
   const bool newView = !hits_ || appliedViewId_ != viewId_;
   if (!newView && !refreshWanted_) return;
+  // No work for a client that cannot take its results (four clients that
+  // never read once cost 1.8 cores): its latest view is traced, or the
+  // refresh made, once its queue drains.
+  if (Blocked()) {
+    WaitUntilUnblocked();
+    return;
+  }
   jobRunning_ = true;
+  runningJobPixels_ = uint64_t(view_.width) * uint64_t(view_.height);
+  if (newView) {  // one view's buffers at a time
+    hits_.reset();
+    visible_.reset();
+  }
+  UpdateReservation();
   refreshWanted_ = false;
   lastRefresh_ = Clock::now();
   auto self = shared_from_this();
@@ -494,13 +567,14 @@ void SmaServer::Impl::Session::StartJob() {
   const uint64_t id = viewId_;
   std::shared_ptr<HitBuffer> hits = newView ? nullptr : hits_;
   const auto started = Clock::now();
-  server_.jobs_.Post([self, view, id, hits, newView, started]() mutable {
+  JobsFor(view).Post([self, view, id, hits, newView, started]() mutable {
     Impl& server = self->server_;
     JobTimings t;
     auto t0 = Clock::now();
     if (!hits) {
       hits = std::make_shared<HitBuffer>();
       server.tracer_->Trace(view, *hits);
+      ++server.viewTraces_;
     }
     auto t1 = Clock::now();
     auto visible = std::make_shared<VisibleSet>();
@@ -522,11 +596,21 @@ void SmaServer::Impl::Session::OnJobDone(uint64_t viewId, bool newView, std::sha
                                          Clock::time_point started) {
   jobRunning_ = false;
   if (!connection_->IsOpen()) return;
-  if (viewId != viewId_) {  // superseded while it ran
+  runningJobPixels_ = 0;
+  // Superseded while it ran: the result is dropped and the latest view
+  // traced -- unless the last few new views were dropped too. A client
+  // sending views faster than they are traced would otherwise never receive
+  // one, and one that never reads would cost a trace per view without its
+  // queue ever backing up (issue 12). Then this slightly older view is
+  // applied, and the latest one traced next.
+  const bool stale = viewId != viewId_;
+  if (stale && (!newView || ++newViewsDroppedInARow_ < kMaxNewViewsDroppedInARow)) {
+    UpdateReservation();
     StartJob();
     return;
   }
-  const bool firstForView = appliedViewId_ != viewId || !hasVisible_;
+  if (newView) newViewsDroppedInARow_ = 0;
+  const bool firstForView = (appliedViewId_ != viewId || !hasVisible_) && !stale;
   hits_ = std::move(hits);
   visible_ = std::move(visible);
   appliedViewId_ = viewId;
@@ -545,6 +629,11 @@ void SmaServer::Impl::Session::OnJobDone(uint64_t viewId, bool newView, std::sha
                 lastFirstDeltaMs_, visible_->nodes.size(), mirror_.TriangleCount(), pending_.size(), waiting_.size());
   }
   (void)started;
+  UpdateReservation();
+  if (stale) {
+    StartJob();
+    return;
+  }
   if (refreshWanted_) ScheduleRefresh();
   NoteStage1();
   MaybeRefine();
@@ -666,6 +755,10 @@ void SmaServer::Impl::Session::OnSamplesArrived(const std::vector<VertexId>& ver
 
 void SmaServer::Impl::Session::MaybeImprove() {
   if (!ImprovementOn() || improvementDone_ || !Stage1Done() || !connection_->IsOpen()) return;
+  if (Blocked()) {  // no work for a client that cannot take it; resumed by the refresh on drain
+    WaitUntilUnblocked();
+    return;
+  }
   const SmaOptions& o = server_.options_;
   // Keep about a batch in flight: look for more once half of it is back.
   if (improvePending_.size() > o.improveBatch / 2) return;
@@ -761,6 +854,19 @@ void SmaServer::Impl::Session::MaybeRefine() {
   if (params_.criterion == Criterion::kNone || refineRunning_ || refinementDone_ || !Stage1Done() ||
       !connection_->IsOpen())
     return;
+  if (Blocked()) {  // no work for a client that cannot take it; resumed by the refresh on drain
+    WaitUntilUnblocked();
+    return;
+  }
+  // The samples one client's refinement may create for one view are capped
+  // (fuzzed options once grew the SMA by 17 MiB/s, for good).
+  if (const uint64_t cap = server_.options_.clientRefinement.maxSamplesPerView; refiner_->Requested() >= cap) {
+    log_->info("{}: view {}: refinement stopped at {} new samples (--client-max-refinement-samples {})",
+               connection_->Id(), appliedViewId_, refiner_->Requested(), cap);
+    refinementDone_ = true;
+    SyncStatus();
+    return;
+  }
   refineRunning_ = true;
   auto self = shared_from_this();
   auto refiner = refiner_;
@@ -769,7 +875,7 @@ void SmaServer::Impl::Session::MaybeRefine() {
   // Splits still waiting for samples, or shaded but not yet re-mapped: an
   // empty choice now would not mean NLD_OS is done.
   const bool outstanding = !refinementPending_.empty() || refreshWanted_ || refreshArmed_;
-  server_.jobs_.Post([self, refiner, hits, visible, outstanding] {
+  JobsFor(hits->view).Post([self, refiner, hits, visible, outstanding] {
     Impl& server = self->server_;
     std::vector<NodeId> chosen;
     {
@@ -857,6 +963,10 @@ void SmaServer::Impl::Session::OnSessionOptions(const wire::SessionOptions& o) {
     return;
   }
   const RefinementParams p = *checked;
+  if (auto ok = CheckClientRefinement(p, params_, server_.options_.clientRefinement); !ok) {
+    connection_->Send(MakeError(0, wire::ERROR_CODE_INVALID_REQUEST, "session options: " + ok.error().message, false));
+    return;
+  }
   params_ = p;
   log_->info("{}: refinement {} (S_req {}, noise z {}, R {}, min {} px)", connection_->Id(), CriterionName(p.criterion),
              p.sReq, p.noiseZ, p.batch, p.minPixels);
@@ -901,6 +1011,7 @@ void SmaServer::Impl::Session::WaitUntilUnblocked() {
       self->WaitUntilUnblocked();
       return;
     }
+    self->SendTextures();
     self->refreshWanted_ = true;
     self->StartJob();
   });
@@ -933,20 +1044,74 @@ void SmaServer::Impl::Session::OnStatsRequest(const wire::StatsRequest& request)
   AddCounter(reply, "client_refinement_splits", double(refinementSplits_));
   AddCounter(reply, "client_refinement_samples", double(refinementSamples_));
   AddCounter(reply, "client_refinement_pending", double(refinementPending_.size()));
+  AddCounter(reply, "client_visibility_pixels_reserved", double(reservedPixels_));
+  AddCounter(reply, "client_texture_requests_outstanding", double(texturesOutstanding_.size()));
+  AddCounter(reply, "client_texture_requests_refused", double(textureRequestsRefused_));
+  AddCounter(reply, "visibility_pixels_reserved", double(server_.visibilityBudget_.Used()));
+  AddCounter(reply, "textures_encoded", double(server_.textures_.EncodedCount()));
+  AddCounter(reply, "visibility_traces", double(server_.viewTraces_.load()));
+  size_t backedUp = 0;
+  for (const auto& s : server_.Sessions())
+    backedUp += s->Connection().QueuedBytes() > server_.options_.clientSoftQueueBytes;
+  AddCounter(reply, "clients_backed_up", double(backedUp));
   connection_->Send(envelope);
 }
 
 void SmaServer::Impl::Session::OnTextureRequest(const wire::TextureRequest& request) {
   const Scene& scene = server_.scene_;
+  const uint32_t texture = request.texture();
   if (auto ok = CheckTextureRequest(request, scene.textures.size()); !ok) {
-    connection_->Send(MakeError(request.texture(), wire::ERROR_CODE_INVALID_REQUEST, ok.error().message, false));
+    connection_->Send(MakeError(texture, wire::ERROR_CODE_INVALID_REQUEST, ok.error().message, false));
     return;
   }
-  // Half a frame, to leave room to spare.
-  const size_t budget = server_.options_.clientConnection.maxFrameBytes / 2;
-  wire::Envelope envelope;
-  *envelope.mutable_texture_data() = DownscaledTexture(scene.textures[request.texture()], request.texture(), budget);
-  connection_->Send(envelope);
+  // A repeat of a request not yet answered: the one answer serves both.
+  if (texturesOutstanding_.contains(texture)) return;
+  const size_t limit = server_.options_.maxTextureRequests;
+  if (!TextureRequestAllowed(texturesOutstanding_.size(), limit)) {
+    if (textureRequestsRefused_++ == 0)
+      log_->info("{}: texture requests over the limit of {} outstanding refused", connection_->Id(), limit);
+    connection_->Send(MakeError(texture, wire::ERROR_CODE_LIMIT_EXCEEDED,
+                                fmt::format("texture {}: {} texture requests are outstanding, at most {} "
+                                            "(--max-texture-requests); ignored: ask again when they have arrived",
+                                            texture, texturesOutstanding_.size(), limit),
+                                false));
+    return;
+  }
+  // Encoded once for every client, off the I/O threads; sent when this
+  // client's queue has room.
+  std::weak_ptr<Session> weak = shared_from_this();
+  auto frame = server_.textures_.Get(texture, [weak, texture](TextureFrames::Frame ready) {
+    if (auto self = weak.lock())
+      asio::post(self->connection_->Strand(), [self, texture, ready] { self->OnTextureReady(texture, ready); });
+  });
+  texturesOutstanding_.emplace(texture, frame);
+  if (frame) SendTextures();
+}
+
+void SmaServer::Impl::Session::OnTextureReady(uint32_t texture, TextureFrames::Frame frame) {
+  auto it = texturesOutstanding_.find(texture);
+  if (it == texturesOutstanding_.end()) return;
+  it->second = std::move(frame);
+  SendTextures();
+}
+
+void SmaServer::Impl::Session::SendTextures() {
+  if (!connection_->IsOpen()) return;
+  for (auto it = texturesOutstanding_.begin(); it != texturesOutstanding_.end();) {
+    if (!it->second) {
+      ++it;
+      continue;
+    }
+    if (Blocked()) {
+      WaitUntilUnblocked();  // sends the rest
+      return;
+    }
+    if (!connection_->SendFrame(it->second)) {
+      connection_->Close("client send queue overflow");
+      return;
+    }
+    it = texturesOutstanding_.erase(it);
+  }
 }
 
 void SmaServer::Impl::Session::OnClosed(const std::string& reason) {
@@ -954,6 +1119,9 @@ void SmaServer::Impl::Session::OnClosed(const std::string& reason) {
   unblockTimer_.cancel();
   server_.pool_->ReleaseInterest(interest_);
   interest_.clear();
+  server_.visibilityBudget_.Resize(reservedPixels_, 0);
+  runningJobPixels_ = 0;
+  texturesOutstanding_.clear();
   log_->info("{}: closed ({}); sent {} deltas, {} bytes", connection_->Id(), reason, deltasSent_,
              connection_->BytesSent());
   server_.RemoveSession(id_);

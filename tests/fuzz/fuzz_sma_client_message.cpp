@@ -2,13 +2,14 @@
 // check a Hello (ValidateHello), turn a View into a camera view
 // (ViewFromWire: finite, in range, at most --max-view-pixels), apply
 // SessionOptions to the refinement parameters (ApplySessionOptions), answer
-// a TextureRequest (CheckTextureRequest, then DownscaledTexture of a small
+// a TextureRequest (CheckTextureRequest, then EncodeTextureData of a small
 // texture, with a budget the request's id picks so that the halving loop
 // runs), and read a StatsRequest. Input: one frame payload.
 
 #include "fuzz_support.h"
 #include "penumbra/common/scene.h"
 #include "penumbra/sma/client_requests.h"
+#include "penumbra/sma/texture_frames.h"
 
 namespace {
 const penumbra::Texture& SmallTexture() {
@@ -54,7 +55,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
       const auto& request = envelope->texture_request();
       if (sma::CheckTextureRequest(request, 1)) {
         const size_t budget = size_t(request.texture() + 1) * 61;
-        wire::TextureData out = sma::DownscaledTexture(texture, request.texture(), budget);
+        wire::TextureData out = sma::EncodeTextureData(texture, request.texture(), budget);
         PENUMBRA_CHECK(out.rgb8().size() == size_t(out.width()) * out.height() * 3, "texture size mismatch");
       }
       break;

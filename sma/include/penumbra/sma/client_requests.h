@@ -27,8 +27,4 @@ Expected<RefinementParams> ApplySessionOptions(const RefinementParams& current, 
 /// OK when the TextureRequest names one of the scene's `textureCount` textures.
 Status CheckTextureRequest(const wire::TextureRequest& request, size_t textureCount);
 
-/// The texture as a client receives it: sRGB 8-bit, halved (box-filtered in
-/// linear space) until its texels take at most `budgetBytes`. Any thread.
-wire::TextureData DownscaledTexture(const Texture& texture, uint32_t index, size_t budgetBytes);
-
 }  // namespace penumbra::sma

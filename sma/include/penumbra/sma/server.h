@@ -9,6 +9,9 @@
 //    connection on its own strand, timers, signal handling.
 //  * View workers trace visibility and map it onto the hierarchy, so a
 //    client's view never waits behind another's.
+//  * One background worker takes the jobs of views above largeViewPixels
+//    and encodes textures (once each, for every client), so that neither
+//    delays ordinary views nor runs on an I/O thread.
 //  * State lock (shared_mutex): the hierarchy and the cache. Visibility
 //    mapping and delta planning hold it shared; storing samples and
 //    refining hold it exclusively, briefly. Lock order: state lock before the
@@ -25,6 +28,7 @@
 #include "penumbra/common/expected.h"
 #include "penumbra/common/metrics.h"
 #include "penumbra/common/scene.h"
+#include "penumbra/sma/client_limits.h"
 #include "penumbra/sma/refinement.h"
 #include "penumbra/sma/renderer_pool.h"
 
@@ -64,6 +68,16 @@ struct SmaOptions {
   /// interval (when it changed) and at shutdown.
   std::string cacheDir;
   std::chrono::milliseconds cacheSnapshotInterval{30000};
+  /// Resource limits per client (issue 12). Visibility buffers of every
+  /// client's view together (kVisibilityBytesPerPixel each): a view that
+  /// does not fit is refused with LIMIT_EXCEEDED. Views above
+  /// `largeViewPixels` are traced, mapped and refined on the background job
+  /// thread (one at a time, with texture encoding), never holding up the
+  /// view threads that answer ordinary views.
+  uint64_t visibilityBudgetPixels = uint64_t(64) << 20;
+  uint64_t largeViewPixels = uint64_t(4) << 20;
+  ClientRefinementLimits clientRefinement;  // what SessionOptions may ask
+  uint32_t maxTextureRequests = 64;         // unanswered TextureRequests per client
 };
 
 class SmaServer {
