@@ -135,6 +135,11 @@ class Connection : public std::enable_shared_from_this<Connection> {
   std::atomic<uint64_t> bytesReceived_{0};
 };
 
+/// Resolves a listen address the way Listener::Listen does, without binding,
+/// so that a main can report an unresolvable --listen host before spending
+/// seconds (or minutes) loading a scene. Blocks for the resolver.
+Status CheckListenAddress(const HostPort& where);
+
 /// Accepts TCP connections; each accepted socket gets its own strand.
 /// Start/Stop are thread-safe.
 class Listener : public std::enable_shared_from_this<Listener> {
