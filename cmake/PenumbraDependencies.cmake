@@ -30,4 +30,7 @@ if(PENUMBRA_BUILD_CLIENT_GUI)
   find_package(glfw3 3.3 REQUIRED)
   find_package(PkgConfig REQUIRED)
   pkg_check_modules(EPOXY REQUIRED IMPORTED_TARGET epoxy)
+  # Dear ImGui for the HUD (Debian's libimgui-dev: a static library that
+  # includes the GLFW and OpenGL 3 backends, so nothing is vendored).
+  pkg_check_modules(IMGUI REQUIRED IMPORTED_TARGET imgui)
 endif()

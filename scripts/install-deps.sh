@@ -12,6 +12,9 @@ packages=(
   libboost-dev libprotobuf-dev protobuf-compiler libembree-dev libopenimageio-dev
   libglfw3-dev libglm-dev libspdlog-dev libassimp-dev libcli11-dev nlohmann-json3-dev
   libtbb-dev libepoxy-dev libegl-dev
+  # the client's HUD: Dear ImGui (with its GLFW and OpenGL 3 backends) and a
+  # readable font (DejaVu Sans; ImGui's built-in font is the fallback)
+  libimgui-dev fonts-dejavu-core
   # OpenImageIO's CMake package checks that its tools (iconvert, ...) exist
   openimageio-tools
   # tests and benchmarks

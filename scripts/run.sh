@@ -83,8 +83,9 @@ if [ -n "$check_png" ]; then
 fi
 if [ -n "${DISPLAY:-}" ]; then
   echo "run.sh: opening the client window (H or F1 in it lists the keys); closing it stops the stack"
+  echo "run.sh: screenshots (P) go to $build_dir/screenshots"
   # In the foreground, so that Ctrl-C reaches it; the EXIT trap then stops the rest.
-  "${client[@]}" 2>&1 | tee "$logs/client.log"
+  "${client[@]}" --screenshot-dir "$build_dir/screenshots" 2>&1 | tee "$logs/client.log"
   exit 0
 fi
 echo "run.sh: no display (DISPLAY is not set), so no client window. The stack keeps running;"

@@ -501,3 +501,36 @@ TEST_F(ClientTest, FailuresEndWithOneClearLineAndAnExitCode) {
 
 }  // namespace
 }  // namespace penumbra::testing
+
+namespace penumbra::testing {
+namespace {
+
+std::string LastLine(const std::string& text) {
+  std::string trimmed = text;
+  while (!trimmed.empty() && (trimmed.back() == '\n' || trimmed.back() == '\r')) trimmed.pop_back();
+  const auto newline = trimmed.rfind('\n');
+  return newline == std::string::npos ? trimmed : trimmed.substr(newline + 1);
+}
+
+// Issue 16: a client pointed at a renderer's port used to retry "peer role is
+// client, expected sma" without end and, headless, end after its timeout
+// with "did not converge", hiding the cause. A permanent refusal ends the run
+// at once, with the reason as the last line and a non-zero exit code.
+TEST_F(ClientTest, PointedAtARendererItStopsAtOnceAndSaysWhy) {
+  SetDisplay("");
+  const auto start = Clock::now();
+  ChildProcess client = StartClient({"--connect", renderer_->Address(), "--headless", "--gl", "egl", "--timeout", "60",
+                                     "--connect-timeout", "60"},
+                                    dir_ + "/wrong-port.log");
+  const auto exit = client.WaitExit(20s);
+  ASSERT_TRUE(exit.has_value()) << "still retrying after 20 s:\n" << client.LogTail();
+  EXPECT_EQ(*exit, 1);
+  EXPECT_LT(Clock::now() - start, 30s) << "should not wait for its 60 s timeouts";
+  const std::string last = LastLine(client.LogTail());
+  EXPECT_NE(last.find("peer role is client, expected sma"), std::string::npos) << client.LogTail();
+  EXPECT_NE(last.find("renderer"), std::string::npos) << "names the likely mistake: " << last;
+  EXPECT_EQ(client.LogTail().find("did not converge"), std::string::npos) << client.LogTail();
+}
+
+}  // namespace
+}  // namespace penumbra::testing

@@ -14,6 +14,7 @@
 #include <set>
 #include <thread>
 
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 
 #include "penumbra/common/framing.h"
@@ -806,6 +807,92 @@ TEST(SmaRefinementTest, ClientChoosesItsCriterionAndANewViewSupersedesRefinement
   ASSERT_TRUE(c->SendView(FrontView(*c, 160, 120), 2));
   ASSERT_TRUE(c->WaitConverged(2, 180s).ok()) << sma.process.LogTail();
   ExpectRefinedAndConforming(*c, scene->triangles.size());
+}
+
+}  // namespace
+}  // namespace penumbra::testing
+namespace penumbra::testing {
+namespace {
+
+// Receives deltas (applied to the client's mesh) until one satisfies `wanted`.
+Expected<wire::Delta> WaitForDelta(SmaTestClient& c, const std::function<bool(const wire::Delta&)>& wanted,
+                                   std::chrono::milliseconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (std::chrono::steady_clock::now() < deadline) {
+    auto envelope = c.Wire().Receive(500ms);
+    if (!envelope) continue;  // nothing yet
+    if (auto ok = c.Apply(*envelope); !ok) return ok.error();
+    if (envelope->has_delta() && wanted(envelope->delta())) return envelope->delta();
+  }
+  return Fail("no such delta in time");
+}
+
+// Issue 16: the client is told how many renderers the SMA has (a view with
+// none waits forever, and the HUD says so) and how far stage 1 has come.
+// Issue 16: an unresolvable --listen host is reported before the scene loads
+// (which takes minutes for a big scene), by the SMA and the renderer alike.
+TEST(ListenAddressTest, AnUnresolvableHostIsReportedBeforeTheSceneLoads) {
+  const std::string dir = MakeTempDir("penumbra-listen-test");
+  const std::vector<std::pair<std::string, std::vector<std::string>>> runs = {
+      {PENUMBRA_SMA_EXE, {"--scene", kScene, "--renderer", "127.0.0.1:1", "--listen", "nosuchhost.invalid:7200"}},
+      {PENUMBRA_RENDERER_EXE, {"--scene", kScene, "--listen", "nosuchhost.invalid:0"}}};
+  for (size_t i = 0; i < runs.size(); ++i) {
+    const auto& [exe, args] = runs[i];
+    auto process = ChildProcess::Spawn(exe, args, fmt::format("{}/run-{}.log", dir, i));
+    ASSERT_TRUE(process.ok()) << process.error().message;
+    const auto exit = process->WaitExit(30s);
+    ASSERT_TRUE(exit.has_value()) << exe;
+    EXPECT_EQ(*exit, 2) << process->LogTail();
+    const std::string log = process->LogTail();
+    EXPECT_NE(log.find("cannot resolve listen address nosuchhost.invalid"), std::string::npos) << log;
+    EXPECT_EQ(log.find("[scene]"), std::string::npos) << "the scene was loaded first:\n" << log;
+  }
+}
+
+TEST(SmaProgressTest, DeltasSayHowManyRenderersAreConnectedAndHowFarStage1Is) {
+  uint16_t port = 0;
+  {
+    auto probe = WireListener::Listen();
+    ASSERT_TRUE(probe.ok());
+    port = probe->Port();
+  }
+  const std::string rendererAddress = fmt::format("127.0.0.1:{}", port);
+  Service sma = StartSma({rendererAddress}, "progress-sma");
+  auto c = SmaTestClient::Connect(sma.port);
+  ASSERT_TRUE(c.ok()) << c.error().message;
+
+  // No renderer: the view's samples wait, and the delta says why.
+  ASSERT_TRUE(c->SendView(FrontView(*c, kWidth, kHeight), 1));
+  auto waiting = WaitForDelta(*c, [](const wire::Delta& d) { return d.view_id() == 1; }, 15s);
+  ASSERT_TRUE(waiting.ok()) << waiting.error().message << "\n" << sma.process.LogTail();
+  ASSERT_TRUE(waiting->has_renderers_connected());
+  EXPECT_EQ(waiting->renderers_connected(), 0u);
+  EXPECT_GT(waiting->pending_samples(), 0u);
+  EXPECT_EQ(waiting->stage1_samples_total(), waiting->pending_samples()) << "a fresh cache has nothing";
+  EXPECT_EQ(waiting->stage1_samples_done(), 0u);
+  EXPECT_FALSE(waiting->converged());
+
+  // A renderer appears where the SMA looks: it connects, and stage 1 completes.
+  const std::string dir = MakeTempDir("penumbra-progress-renderer");
+  auto renderer = ChildProcess::Spawn(PENUMBRA_RENDERER_EXE,
+                                      {"--scene", kScene, "--threads", "1", "--spp", "16", "--max-bounces", "2",
+                                       "--listen", rendererAddress},
+                                      dir + "/renderer.log");
+  ASSERT_TRUE(renderer.ok()) << renderer.error().message;
+  auto done = WaitForDelta(*c, [](const wire::Delta& d) { return d.view_id() == 1 && d.converged(); }, 60s);
+  ASSERT_TRUE(done.ok()) << done.error().message << "\n" << sma.process.LogTail() << "\n" << renderer->LogTail();
+  ASSERT_TRUE(done->has_renderers_connected());
+  EXPECT_EQ(done->renderers_connected(), 1u);
+  EXPECT_EQ(done->stage1_samples_total(), waiting->stage1_samples_total());
+  EXPECT_EQ(done->stage1_samples_done(), done->stage1_samples_total());
+  EXPECT_EQ(done->pending_samples(), 0u);
+
+  // The renderer goes away: the client hears of it without moving.
+  renderer->Signal(SIGKILL);
+  auto lost = WaitForDelta(
+      *c, [](const wire::Delta& d) { return d.has_renderers_connected() && d.renderers_connected() == 0; }, 15s);
+  ASSERT_TRUE(lost.ok()) << lost.error().message << "\n" << sma.process.LogTail();
+  EXPECT_EQ(lost->kind(), wire::DELTA_KIND_STATUS);
 }
 
 }  // namespace

@@ -18,6 +18,7 @@
 #include "penumbra/client/client_model.h"
 #include "penumbra/client/fly_camera.h"
 #include "penumbra/client/path_player.h"
+#include "penumbra/client/progress.h"
 #include "penumbra/client/projection.h"
 #include "penumbra/client/session.h"
 #include "penumbra/client/stats_line.h"
@@ -41,24 +42,15 @@ constexpr float kExposureStep = 1.0f / 3.0f;
 constexpr float kGammaStep = 0.1f;
 constexpr double kAdaptationSeconds = 0.5;  // window: time constant of the adaptation to a new view
 constexpr auto kRateWindow = std::chrono::milliseconds(500);
-constexpr auto kNoticeDuration = std::chrono::seconds(4);
+constexpr auto kNoticeDuration = std::chrono::seconds(6);
+// A first Esc with the mouse free only arms quitting: one stray key must not
+// close the window (and, under run.sh, the stack and its cache with it).
+constexpr auto kQuitConfirmWindow = std::chrono::seconds(2);
 // Headless: after convergence, how long to wait for the SMA's counters (which
 // confirm the client holds what the SMA sent) before finishing without them.
 constexpr auto kCountersGrace = std::chrono::seconds(2);
 const glm::vec4 kWireColour(1.0f, 0.75f, 0.2f, 0.55f);
 
-const char* const kHelp[] = {
-    "W A S D / arrows   move          E Q / PgUp PgDn   up / down",
-    "click or Tab       capture mouse to look; Esc releases (Esc again quits)",
-    "Shift              move 4x faster    [ ] or wheel   speed",
-    "1 .. 9             camera presets    R / Home       back to the first preset",
-    "F                  wireframe (the refinement mesh)",
-    "C                  refinement criterion: NLD_OS, NLD_IS, RND, NLD_OS+RND, none",
-    "T                  tone mapping: Drago 2003 / exposure + gamma",
-    "- =                exposure          G / Shift+G    gamma",
-    "P / F12            screenshot: tone-mapped PNG + linear EXR",
-    "H / F1             this help",
-};
 
 Vec3 FromWire(const wire::Vec3& v) { return Vec3(v.x(), v.y(), v.z()); }
 
@@ -81,12 +73,6 @@ std::string LocalTimestamp() {
   char text[32];
   std::strftime(text, sizeof text, "%Y%m%d-%H%M%S", &local);
   return text;
-}
-
-std::string FormatRate(double bytesPerSecond) {
-  if (bytesPerSecond >= 1e6) return fmt::format("{:.1f} MB/s", bytesPerSecond / 1e6);
-  if (bytesPerSecond >= 1e3) return fmt::format("{:.1f} kB/s", bytesPerSecond / 1e3);
-  return fmt::format("{:.0f} B/s", bytesPerSecond);
 }
 
 Bounds3 SceneBounds(const wire::SceneInfo& info) {
@@ -137,6 +123,7 @@ class ClientApp {
   void ApplyPreset(int index);
   Status WriteScreenshot(const std::filesystem::path& path);
   void CycleCriterion();
+  void SetCriterion(const std::string& criterion);
   void MaybeWriteSnapshot(Clock::time_point now);
   void SaveInteractiveScreenshot();
   int Failed(const std::string& message) const;
@@ -152,7 +139,8 @@ class ClientApp {
   std::optional<MeshRenderer> renderer_;
   std::optional<SkyRenderer> sky_;
   std::optional<ToneMapper> toneMapper_;
-  std::optional<Hud> hud_;
+  std::unique_ptr<Hud> hud_;
+  HudControls hudControls_;
   FrameTargets targets_;
   std::optional<StatsLineWriter> stats_;
 
@@ -178,6 +166,10 @@ class ClientApp {
   bool screenshotRequested_ = false;
   std::string notice_;
   Clock::time_point noticeUntil_;
+  std::optional<Clock::time_point> quitArmedAt_;
+  bool permanentFailureLogged_ = false;
+  ProgressRate stage1Rate_;
+  ProgressRate refinementRate_;
 
   // Counters.
   const Clock::time_point start_;
@@ -219,9 +211,9 @@ Status ClientApp::Init() {
   if (!toneMapper) return toneMapper.error();
   toneMapper_.emplace(std::move(*toneMapper));
   if (!options_.headless) {
-    auto hud = Hud::Create();
+    auto hud = Hud::Create(*window_);
     if (!hud) return hud.error();
-    hud_.emplace(std::move(*hud));
+    hud_ = std::move(*hud);
   }
   if (options_.headless && options_.cameraPath) {
     player_.emplace(*options_.cameraPath);
@@ -257,10 +249,16 @@ int ClientApp::Run() {
     }
     if (window_) {
       window_->PollEvents();
-      if (!options_.headless && window_->ShouldClose()) return 0;
+      if (!options_.headless && window_->ShouldClose()) return permanentFailureLogged_ ? 1 : 0;
     }
     model_.Apply(session_->TakeEvents(), *session_);
     if (auto ok = renderer_->Sync(model_); !ok) return Failed(ok.error().message);
+    if (const std::string failure = session_->Status().permanentError; !failure.empty()) {
+      // Retrying cannot fix it (another role, version or scene): headless
+      // ends with the reason as its last line; a window shows it until closed.
+      if (options_.headless) return Failed(failure);
+      permanentFailureLogged_ = true;
+    }
     if (!EnsureCamera()) return 1;
     if (!options_.headless) {
       HandleInput(seconds);
@@ -282,8 +280,8 @@ int ClientApp::Run() {
     Render();
     if (screenshotRequested_) SaveInteractiveScreenshot();
     if (window_ && !options_.headless) {
-      DrawHud();
       targets_.BlitToDefault(window_->FramebufferSize());
+      DrawHud();
       window_->SwapBuffers();
     }
     ++frames_;
@@ -357,9 +355,14 @@ void ClientApp::ApplyPreset(int index) {
 }
 
 void ClientApp::HandleInput(double seconds) {
-  for (const KeyPress& key : window_->TakeKeyPresses()) OnKey(key);
-  if (window_->TakeClick() && !window_->CursorCaptured()) window_->SetCursorCaptured(true);
-  speed_ *= std::pow(kSpeedStep, float(window_->TakeScroll()));
+  const bool hudHasKeyboard = hud_->WantsKeyboard();
+  for (const KeyPress& key : window_->TakeKeyPresses())
+    if (!hudHasKeyboard) OnKey(key);
+  // A click on the HUD is the HUD's; elsewhere it captures the mouse to look.
+  const bool hudHasMouse = hud_->WantsMouse() && !window_->CursorCaptured();
+  if (window_->TakeClick() && !window_->CursorCaptured() && !hudHasMouse) window_->SetCursorCaptured(true);
+  const double scroll = window_->TakeScroll();
+  if (!hudHasMouse) speed_ *= std::pow(kSpeedStep, float(scroll));
   const glm::vec2 motion = window_->TakeMouseMotion();
   if (!cameraReady_) return;
   camera_.Turn(motion.x, motion.y, kTurnRadiansPerPixel);
@@ -379,12 +382,22 @@ void ClientApp::HandleInput(double seconds) {
 
 void ClientApp::OnKey(const KeyPress& key) {
   switch (key.key) {
-    case GLFW_KEY_ESCAPE:
-      if (window_->CursorCaptured())
+    case GLFW_KEY_ESCAPE: {
+      if (key.repeat) return;  // holding Esc is one press
+      // Esc releases the mouse; with the mouse free, a second Esc within
+      // two seconds quits (closing the window quits at once).
+      const auto now = Clock::now();
+      if (window_->CursorCaptured()) {
         window_->SetCursorCaptured(false);
-      else
+        quitArmedAt_.reset();
+      } else if (quitArmedAt_ && now - *quitArmedAt_ < kQuitConfirmWindow) {
         window_->RequestClose();
+      } else {
+        quitArmedAt_ = now;
+        log_->info("Esc: press it again within {} s to quit", kQuitConfirmWindow.count());
+      }
       return;
+    }
     case GLFW_KEY_TAB: window_->SetCursorCaptured(!window_->CursorCaptured()); return;
     case GLFW_KEY_R:
     case GLFW_KEY_HOME: ApplyPreset(0); return;
@@ -483,32 +496,49 @@ void ClientApp::Render() {
 }
 
 void ClientApp::DrawHud() {
+  const auto now = Clock::now();
   const SessionStatus status = session_->Status();
   const wire::SceneInfo* info = model_.SceneInfo();
   const MeshStore& mesh = model_.Mesh();
-  std::vector<std::string> lines;
-  std::string state = ToString(status.state);
-  if (status.state == ConnectionState::kWaiting) state = "reconnecting (" + status.lastError + ")";
-  lines.push_back(fmt::format("Penumbra  {}  SMA {}  {}", info ? info->name() : "-", options_.sma.ToString(), state));
-  lines.push_back(fmt::format("{:.1f} fps   {} triangles   {} vertices", fps_, mesh.TriangleCount(), mesh.VertexCount()));
-  lines.push_back(fmt::format("samples pending {}   refinement {}: {}", mesh.PendingSamples(),
-                              criterion_.empty() ? "(SMA default)" : criterion_,
-                              model_.Converged(viewSerial_) ? "converged"
-                              : mesh.Refining()             ? "refining (stage 2)"
-                                                            : "shading the view (stage 1)"));
-  lines.push_back(fmt::format("received {}   view to first delta {}", FormatRate(bytesPerSecond_),
-                              status.viewToFirstDeltaMs ? fmt::format("{:.0f} ms", *status.viewToFirstDeltaMs) : "-"));
-  lines.push_back(fmt::format("tone {} {:+.2f} EV{}   speed {:.2f}/s{}",
-                              tone_.op == ToneOperator::kDrago ? "Drago" : "exposure+gamma", tone_.exposureStops,
-                              tone_.op == ToneOperator::kDrago ? "" : fmt::format(" gamma {:.1f}", tone_.gamma),
-                              speed_, wireframe_ ? "   wireframe" : ""));
-  if (!notice_.empty() && Clock::now() < noticeUntil_) lines.push_back(notice_);
-  if (showHelp_)
-    lines.insert(lines.end(), std::begin(kHelp), std::end(kHelp));
-  else
-    lines.push_back("H or F1: help");
-  const glm::ivec2 size = targets_.Size();
-  hud_->Draw(lines, size, size.y >= 700 ? 2 : 1);
+  HudState hud;
+  hud.scene = info ? info->name() : "";
+  hud.sma = options_.sma.ToString();
+  hud.connected = status.state == ConnectionState::kConnected;
+  hud.connection = status.state == ConnectionState::kWaiting ? "reconnecting (" + status.lastError + ")"
+                                                             : ToString(status.state);
+  hud.permanentError = status.permanentError;
+  hud.progress = mesh.Progress();
+  hud.pendingSamples = mesh.PendingSamples();
+  hud.converged = model_.Converged(viewSerial_);
+  hud.refining = mesh.Refining();
+  stage1Rate_.Update(hud.progress.stage1Done, hud.progress.stage1Total, now);
+  refinementRate_.Update(hud.progress.refinementDone, hud.progress.refinementTotal, now);
+  hud.stage1PerSecond = stage1Rate_.PerSecond();
+  hud.stage1Left = stage1Rate_.TimeLeft();
+  hud.refinementPerSecond = refinementRate_.PerSecond();
+  hud.triangles = mesh.TriangleCount();
+  hud.vertices = mesh.VertexCount();
+  hud.framesPerSecond = fps_;
+  hud.bytesPerSecond = bytesPerSecond_;
+  hud.moveToFirstUpdateMs = status.viewToFirstDeltaMs;
+  hud.walkSpeed = speed_;
+  if (quitArmedAt_ && now - *quitArmedAt_ < kQuitConfirmWindow)
+    hud.notice = "Press Esc again to quit (the mouse is free)";
+  else if (!notice_.empty() && now < noticeUntil_)
+    hud.notice = notice_;
+
+  hudControls_.criterion = criterion_;
+  hudControls_.exposureStops = tone_.exposureStops;
+  hudControls_.dragoToneMapping = tone_.op == ToneOperator::kDrago;
+  hudControls_.gamma = tone_.gamma;
+  hudControls_.wireframe = wireframe_;
+  hud_->SetMouseEnabled(!window_->CursorCaptured());
+  if (!hud_->Draw(hud, hudControls_, showHelp_)) return;
+  if (hudControls_.criterion != criterion_) SetCriterion(hudControls_.criterion);
+  tone_.exposureStops = hudControls_.exposureStops;
+  tone_.op = hudControls_.dragoToneMapping ? ToneOperator::kDrago : ToneOperator::kExposureGamma;
+  tone_.gamma = hudControls_.gamma;
+  wireframe_ = hudControls_.wireframe;
 }
 
 void ClientApp::UpdateRates(Clock::time_point now) {
@@ -552,11 +582,15 @@ void ClientApp::WriteStats(Clock::time_point now) {
 }
 
 void ClientApp::CycleCriterion() {
-  static constexpr const char* kCriteria[] = {"nld_os", "nld_is", "rnd", "nld_os_rnd", "none"};
+  const auto& criteria = Hud::Criteria();
   size_t next = 0;
-  for (size_t i = 0; i < std::size(kCriteria); ++i)
-    if (criterion_ == kCriteria[i]) next = (i + 1) % std::size(kCriteria);
-  criterion_ = kCriteria[next];
+  for (size_t i = 0; i < criteria.size(); ++i)
+    if (criterion_ == criteria[i]) next = (i + 1) % criteria.size();
+  SetCriterion(criteria[next]);
+}
+
+void ClientApp::SetCriterion(const std::string& criterion) {
+  criterion_ = criterion;
   if (!refinement_) refinement_.emplace();
   refinement_->set_criterion(criterion_);
   session_->SetSessionOptions(*refinement_);
@@ -613,12 +647,18 @@ void ClientApp::SaveInteractiveScreenshot() {
                                        LocalTimestamp());
   const auto png = options_.screenshotDir / (stem + ".png");
   const auto exr = options_.screenshotDir / (stem + ".exr");
-  Status ok = WriteScreenshot(png);
+  std::error_code ec;
+  std::filesystem::create_directories(options_.screenshotDir, ec);
+  Status ok = ec ? Fail(fmt::format("cannot create the screenshot folder {}: {} (see --screenshot-dir)",
+                                    options_.screenshotDir.string(), ec.message()))
+                 : Status::Ok();
+  if (ok) ok = WriteScreenshot(png);
   if (ok) ok = WriteScreenshot(exr);
-  notice_ = ok ? fmt::format("saved {} and {}", png.string(), exr.string()) : ok.error().message;
+  notice_ = ok ? fmt::format("Screenshot saved in {}: {}.png and .exr", options_.screenshotDir.string(), stem)
+               : ok.error().message;
   noticeUntil_ = Clock::now() + kNoticeDuration;
   if (ok)
-    log_->info("{}", notice_);
+    log_->info("screenshot saved: {} and {}", png.string(), exr.string());
   else
     log_->error("screenshot: {}", notice_);
 }

@@ -55,8 +55,8 @@ struct ClientOptions {
   /// headless client leaves the CPU to the renderers it shares a host with.
   double maxFps = 0.0;
   ToneSettings tone;
-  /// Where the screenshot key writes its PNG and EXR.
-  std::filesystem::path screenshotDir = ".";
+  /// Where the screenshot key writes its PNG and EXR (made when missing).
+  std::filesystem::path screenshotDir = "penumbra-screenshots";
   /// Headless: every this many seconds, when the image has changed, write
   /// the linear radiance to <snapshotPrefix>_<frame>.exr, the frame being the
   /// stats line's (experiments measure convergence from these). 0: none.

@@ -1,5 +1,6 @@
 #include "gl/context.h"
 
+#include <algorithm>
 #include <cstdlib>
 #include <cstring>
 
@@ -132,6 +133,12 @@ glm::ivec2 Window::FramebufferSize() const {
   return size;
 }
 
+float Window::ContentScale() const {
+  float x = 1.0f, y = 1.0f;
+  glfwGetWindowContentScale(window_, &x, &y);
+  return std::max(x, y);
+}
+
 bool Window::KeyHeld(int key) const { return glfwGetKey(window_, key) == GLFW_PRESS; }
 std::vector<KeyPress> Window::TakeKeyPresses() { return std::exchange(presses_, {}); }
 glm::vec2 Window::TakeMouseMotion() { return std::exchange(motion_, glm::vec2(0.0f)); }
@@ -146,7 +153,7 @@ void Window::SetCursorCaptured(bool captured) {
 
 void Window::OnKey(GLFWwindow* w, int key, int, int action, int mods) {
   auto* self = static_cast<Window*>(glfwGetWindowUserPointer(w));
-  if (action == GLFW_PRESS || action == GLFW_REPEAT) self->presses_.push_back(KeyPress{key, mods});
+  if (action == GLFW_PRESS || action == GLFW_REPEAT) self->presses_.push_back(KeyPress{key, mods, action == GLFW_REPEAT});
 }
 
 void Window::OnCursor(GLFWwindow* w, double x, double y) {

@@ -41,6 +41,7 @@ Expected<std::unique_ptr<Context>> CreateSurfacelessContext();
 struct KeyPress {
   int key = 0;   // GLFW_KEY_*
   int mods = 0;  // GLFW_MOD_*
+  bool repeat = false;  // the key is held: an auto-repeat, not a new press
 };
 
 /// A GLFW window and its context, with the input gathered by PollEvents().
@@ -59,6 +60,10 @@ class Window final : public Context {
   void SwapBuffers();
   glm::ivec2 FramebufferSize() const;
   void SetTitle(const std::string& title);
+  /// For libraries that take GLFW's window (the HUD's ImGui backend).
+  GLFWwindow* Handle() const { return window_; }
+  /// The monitor's content scale (1 on ordinary screens; 2 on HiDPI).
+  float ContentScale() const;
 
   bool KeyHeld(int key) const;
   /// Key presses (and repeats) since the last call, in order.

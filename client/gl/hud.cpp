@@ -1,118 +1,236 @@
 #include "gl/hud.h"
 
 #include <algorithm>
-#include <cstdint>
+#include <filesystem>
 
-#include "gl/bitmap_font.h"
+#include <epoxy/gl.h>
+#define GLFW_INCLUDE_NONE
+#include <GLFW/glfw3.h>
+#include <backends/imgui_impl_glfw.h>
+#include <backends/imgui_impl_opengl3.h>
+#include <fmt/format.h>
+#include <imgui.h>
+
+#include "penumbra/common/logging.h"
 
 namespace penumbra::client::gl {
 
 namespace {
 
-constexpr int kFirstGlyph = 32;
-constexpr int kGlyphCount = 95;
-constexpr int kAdvance = kGlyphWidth + 1;   // font pixels between letters
-constexpr int kLineHeight = kCellHeight + 1;
-constexpr int kMargin = 4;                  // font pixels around the text
+// A readable proportional font from fonts-dejavu-core; ImGui's built-in
+// bitmap font (13 px) scaled up is the fallback.
+constexpr const char* kFontPaths[] = {
+    "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
+};
+constexpr float kFontPixels = 15.0f;
+constexpr float kPanelWidth = 400.0f;  // of 1280: the top centre stays clear
+constexpr float kMargin = 8.0f;
 
-constexpr const char* kHudVertexShader = R"(#version 330 core
-layout(location = 0) in vec2 aPixel;   // from the viewport's top-left
-layout(location = 1) in vec2 aTexel;   // in the font texture; x < 0 marks the panel
-uniform vec2 uViewport;
-out vec2 vTexel;
-void main() {
-  vTexel = aTexel;
-  gl_Position = vec4(2.0 * aPixel.x / uViewport.x - 1.0, 1.0 - 2.0 * aPixel.y / uViewport.y, 0.0, 1.0);
+const ImVec4 kWarning(1.0f, 0.55f, 0.35f, 1.0f);
+const ImVec4 kGood(0.55f, 0.9f, 0.55f, 1.0f);
+const ImVec4 kDim(0.75f, 0.75f, 0.75f, 1.0f);
+
+const char* const kHelp[][2] = {
+    {"W A S D / arrows", "move"},
+    {"E Q / PgUp PgDn", "up / down"},
+    {"Shift (held)", "move 4x faster"},
+    {"[ ] or mouse wheel", "walking speed"},
+    {"click or Tab", "capture the mouse to look around"},
+    {"Esc", "release the mouse; with the mouse free, Esc twice quits"},
+    {"1 .. 9", "camera presets"},
+    {"R / Home", "back to the first preset"},
+    {"F", "wireframe (the refinement mesh)"},
+    {"C", "next refinement criterion"},
+    {"T", "tone mapping: Drago 2003 / exposure + gamma"},
+    {"- =", "exposure down / up (1/3 stop)"},
+    {"G / Shift+G", "gamma up / down"},
+    {"P / F12", "screenshot: tone-mapped PNG + linear EXR"},
+    {"H / F1", "this help"},
+};
+
+// What each criterion means, for the panel's tooltip.
+const char* CriterionMeaning(const std::string& criterion) {
+  if (criterion == "nld_os") return "split where neighbouring samples differ in brightness (object space)";
+  if (criterion == "nld_is") return "split where the image differs most (image space), within a pixel budget";
+  if (criterion == "rnd") return "split at random, within a pixel budget (a baseline)";
+  if (criterion == "nld_os_rnd") return "object-space differences, plus random splits";
+  if (criterion == "none") return "no refinement: the base mesh only";
+  return "whatever the SMA was started with";
 }
-)";
 
-constexpr const char* kHudFragmentShader = R"(#version 330 core
-in vec2 vTexel;
-uniform sampler2D uFont;
-layout(location = 0) out vec4 outColour;
-void main() {
-  if (vTexel.x < 0.0) {
-    outColour = vec4(0.0, 0.0, 0.0, 0.6);
-    return;
-  }
-  if (texelFetch(uFont, ivec2(vTexel), 0).r < 0.5) discard;
-  outColour = vec4(0.95, 0.95, 0.85, 1.0);
-}
-)";
-
-void AddQuad(std::vector<float>& v, float x0, float y0, float x1, float y1, float u0, float t0, float u1, float t1) {
-  const float quad[6][4] = {{x0, y0, u0, t0}, {x1, y0, u1, t0}, {x1, y1, u1, t1},
-                            {x0, y0, u0, t0}, {x1, y1, u1, t1}, {x0, y1, u0, t1}};
-  for (const auto& corner : quad) v.insert(v.end(), corner, corner + 4);
+void ProgressLine(float fraction, const std::string& overlay) {
+  ImGui::ProgressBar(std::clamp(fraction, 0.0f, 1.0f), ImVec2(-FLT_MIN, 0.0f), overlay.c_str());
 }
 
 }  // namespace
 
-Expected<Hud> Hud::Create() {
-  auto program = BuildProgram("hud", kHudVertexShader, kHudFragmentShader);
-  if (!program) return program.error();
-  std::vector<uint8_t> texels(size_t(kGlyphCount * kGlyphWidth * kCellHeight), 0);
-  for (int g = 0; g < kGlyphCount; ++g) {
-    const auto rows = GlyphRows(char(kFirstGlyph + g));
-    for (int y = 0; y < kCellHeight; ++y)
-      for (int x = 0; x < kGlyphWidth; ++x)
-        if (rows[size_t(y)] & (1u << (kGlyphWidth - 1 - x)))
-          texels[size_t(y * kGlyphCount * kGlyphWidth + g * kGlyphWidth + x)] = 255;
-  }
-  Texture font = MakeTexture();
-  glBindTexture(GL_TEXTURE_2D, font.id());
-  glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
-  // Row y of the texture is font row y (top first); the shader fetches by texel.
-  glTexImage2D(GL_TEXTURE_2D, 0, GL_R8, kGlyphCount * kGlyphWidth, kCellHeight, 0, GL_RED, GL_UNSIGNED_BYTE,
-               texels.data());
-  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
-  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
-  VertexArray vao = MakeVertexArray();
-  Buffer buffer = MakeBuffer();
-  glBindVertexArray(vao.id());
-  glBindBuffer(GL_ARRAY_BUFFER, buffer.id());
-  glEnableVertexAttribArray(0);
-  glVertexAttribPointer(0, 2, GL_FLOAT, GL_FALSE, 4 * sizeof(float), nullptr);
-  glEnableVertexAttribArray(1);
-  glVertexAttribPointer(1, 2, GL_FLOAT, GL_FALSE, 4 * sizeof(float), reinterpret_cast<void*>(2 * sizeof(float)));
-  glBindVertexArray(0);
-  if (auto error = TakeGlError("creating the HUD"); !error.empty()) return Fail(error);
-  return Hud(std::move(*program), std::move(font), std::move(vao), std::move(buffer));
+const std::vector<std::string>& Hud::Criteria() {
+  static const std::vector<std::string> criteria = {"nld_os", "nld_is", "rnd", "nld_os_rnd", "none"};
+  return criteria;
 }
 
-void Hud::Draw(const std::vector<std::string>& lines, glm::ivec2 viewport, int scale) {
-  if (lines.empty()) return;
-  const float s = float(std::max(scale, 1));
-  size_t longest = 0;
-  for (const auto& line : lines) longest = std::max(longest, line.size());
-  vertices_.clear();
-  AddQuad(vertices_, 0.0f, 0.0f, s * float(2 * kMargin + int(longest) * kAdvance),
-          s * float(2 * kMargin + int(lines.size()) * kLineHeight), -1.0f, -1.0f, -1.0f, -1.0f);
-  for (size_t row = 0; row < lines.size(); ++row) {
-    const float y = s * float(kMargin + int(row) * kLineHeight);
-    for (size_t col = 0; col < lines[row].size(); ++col) {
-      const char c = lines[row][col];
-      if (c == ' ') continue;
-      const int glyph = (c < kFirstGlyph || c >= kFirstGlyph + kGlyphCount) ? '?' - kFirstGlyph : c - kFirstGlyph;
-      const float x = s * float(kMargin + int(col) * kAdvance);
-      const float u = float(glyph * kGlyphWidth);
-      AddQuad(vertices_, x, y, x + s * kGlyphWidth, y + s * kCellHeight, u, 0.0f, u + kGlyphWidth, kCellHeight);
+Expected<std::unique_ptr<Hud>> Hud::Create(Window& window) {
+  std::unique_ptr<Hud> hud(new Hud());
+  IMGUI_CHECKVERSION();
+  ImGui::CreateContext();
+  ImGuiIO& io = ImGui::GetIO();
+  io.IniFilename = nullptr;  // nothing written into the current folder
+  io.LogFilename = nullptr;
+  ImGui::StyleColorsDark();
+  ImGuiStyle& style = ImGui::GetStyle();
+  style.WindowRounding = 4.0f;
+  style.FrameRounding = 3.0f;
+  style.Colors[ImGuiCol_WindowBg].w = 0.72f;
+  // A mid blue bar keeps its white overlay text readable over both parts.
+  style.Colors[ImGuiCol_PlotHistogram] = ImVec4(0.20f, 0.45f, 0.78f, 1.0f);
+
+  const float scale = std::max(1.0f, window.ContentScale());
+  bool fontLoaded = false;
+  for (const char* path : kFontPaths) {
+    std::error_code ec;
+    if (!std::filesystem::exists(path, ec)) continue;
+    // Latin-1 and general punctuation (the dashes the HUD's text uses).
+    static const ImWchar kRanges[] = {0x0020, 0x00FF, 0x2010, 0x2027, 0};
+    if (io.Fonts->AddFontFromFileTTF(path, kFontPixels * scale, nullptr, kRanges)) {
+      fontLoaded = true;
+      break;
     }
   }
-  glUseProgram(program_.id());
-  glUniform2f(glGetUniformLocation(program_.id(), "uViewport"), float(viewport.x), float(viewport.y));
-  glUniform1i(glGetUniformLocation(program_.id(), "uFont"), 0);
-  glActiveTexture(GL_TEXTURE0);
-  glBindTexture(GL_TEXTURE_2D, font_.id());
-  glBindVertexArray(vao_.id());
-  glBindBuffer(GL_ARRAY_BUFFER, buffer_.id());
-  glBufferData(GL_ARRAY_BUFFER, GLsizeiptr(vertices_.size() * sizeof(float)), vertices_.data(), GL_STREAM_DRAW);
-  glEnable(GL_BLEND);
-  glBlendFunc(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA);
-  glDisable(GL_DEPTH_TEST);
-  glDrawArrays(GL_TRIANGLES, 0, GLsizei(vertices_.size() / 4));
-  glDisable(GL_BLEND);
-  glBindVertexArray(0);
+  if (!fontLoaded) {
+    Logger("client.gl")->info("HUD: DejaVu Sans not found (package fonts-dejavu-core); using ImGui's built-in font");
+    ImFontConfig config;
+    config.SizePixels = 13.0f * scale;
+    io.Fonts->AddFontDefault(&config);
+  }
+  style.ScaleAllSizes(scale);
+
+  hud->initialisedGlfw_ = ImGui_ImplGlfw_InitForOpenGL(window.Handle(), /*install_callbacks=*/true);
+  if (!hud->initialisedGlfw_) return Fail("HUD: ImGui's GLFW backend did not start");
+  hud->initialisedGl_ = ImGui_ImplOpenGL3_Init("#version 330 core");
+  if (!hud->initialisedGl_) return Fail("HUD: ImGui's OpenGL 3 backend did not start");
+  return hud;
+}
+
+Hud::~Hud() {
+  if (initialisedGl_) ImGui_ImplOpenGL3_Shutdown();
+  if (initialisedGlfw_) ImGui_ImplGlfw_Shutdown();
+  ImGui::DestroyContext();
+}
+
+bool Hud::WantsMouse() const { return ImGui::GetIO().WantCaptureMouse; }
+bool Hud::WantsKeyboard() const { return ImGui::GetIO().WantCaptureKeyboard; }
+
+void Hud::SetMouseEnabled(bool enabled) {
+  ImGuiIO& io = ImGui::GetIO();
+  if (enabled)
+    io.ConfigFlags &= ~ImGuiConfigFlags_NoMouse;
+  else
+    io.ConfigFlags |= ImGuiConfigFlags_NoMouse;
+}
+
+bool Hud::Draw(const HudState& s, HudControls& controls, bool showHelp) {
+  ImGui_ImplOpenGL3_NewFrame();
+  ImGui_ImplGlfw_NewFrame();
+  ImGui::NewFrame();
+  bool changed = false;
+  const float scale = ImGui::GetFontSize() / kFontPixels;
+
+  ImGui::SetNextWindowPos(ImVec2(kMargin, kMargin), ImGuiCond_Always);
+  ImGui::SetNextWindowSize(ImVec2(kPanelWidth * scale, 0.0f), ImGuiCond_Always);
+  const std::string title = fmt::format("Penumbra  {}###hud", s.scene.empty() ? "(no scene yet)" : s.scene);
+  if (ImGui::Begin(title.c_str(), nullptr,
+                   ImGuiWindowFlags_NoMove | ImGuiWindowFlags_NoResize | ImGuiWindowFlags_NoSavedSettings |
+                       ImGuiWindowFlags_NoFocusOnAppearing)) {
+    // Connection.
+    if (!s.permanentError.empty()) {
+      ImGui::PushStyleColor(ImGuiCol_Text, kWarning);
+      ImGui::TextWrapped("Cannot continue: %s", s.permanentError.c_str());
+      ImGui::PopStyleColor();
+      ImGui::TextWrapped("Close the window to exit.");
+    } else {
+      ImGui::TextColored(kDim, "SMA %s: %s", s.sma.c_str(), s.connection.c_str());
+    }
+
+    // Renderers, and how far the view has come.
+    const HudProgressText progress = DescribeProgress(s);
+    if (!progress.warning.empty()) {
+      ImGui::PushStyleColor(ImGuiCol_Text, kWarning);
+      ImGui::TextWrapped("%s", progress.warning.c_str());
+      ImGui::PopStyleColor();
+      ImGui::TextColored(kDim, "(the SMA keeps trying to reach its renderers; see its log)");
+    }
+    if (!progress.renderers.empty()) ImGui::TextColored(kDim, "%s", progress.renderers.c_str());
+    if (!progress.stage.empty()) {
+      if (s.converged)
+        ImGui::TextColored(kGood, "%s", progress.stage.c_str());
+      else
+        ImGui::TextUnformatted(progress.stage.c_str());
+    }
+    if (progress.showBar) ProgressLine(progress.barFraction, progress.barText);
+    if (!progress.rate.empty()) ImGui::TextColored(kDim, "%s", progress.rate.c_str());
+
+    // Figures, each with its unit.
+    ImGui::Separator();
+    for (const std::string& line : DescribeFigures(s)) ImGui::TextUnformatted(line.c_str());
+
+    // Controls.
+    if (ImGui::CollapsingHeader("Controls")) {
+      const std::string preview = controls.criterion.empty() ? "SMA default" : controls.criterion;
+      if (ImGui::BeginCombo("Refinement", preview.c_str())) {
+        for (const std::string& c : Criteria()) {
+          if (ImGui::Selectable(c.c_str(), c == controls.criterion)) {
+            changed |= c != controls.criterion;
+            controls.criterion = c;
+          }
+          if (ImGui::IsItemHovered()) ImGui::SetTooltip("%s", CriterionMeaning(c));
+        }
+        ImGui::EndCombo();
+      }
+      changed |= ImGui::SliderFloat("Exposure (stops)", &controls.exposureStops, -8.0f, 8.0f, "%+.2f");
+      int op = controls.dragoToneMapping ? 0 : 1;
+      changed |= ImGui::RadioButton("Drago 2003", &op, 0);
+      ImGui::SameLine();
+      changed |= ImGui::RadioButton("exposure + gamma", &op, 1);
+      controls.dragoToneMapping = op == 0;
+      if (!controls.dragoToneMapping) changed |= ImGui::SliderFloat("Gamma", &controls.gamma, 1.0f, 3.0f, "%.1f");
+      changed |= ImGui::Checkbox("Wireframe", &controls.wireframe);
+      ImGui::TextColored(kDim, "Paths per sample are set on the SMA (--first-paths, --paths)");
+    }
+    if (!s.notice.empty()) ImGui::TextWrapped("%s", s.notice.c_str());
+    ImGui::TextColored(kDim, "H or F1: help");
+  }
+  ImGui::End();
+  if (showHelp) DrawHelp();
+
+  ImGui::Render();
+  glBindFramebuffer(GL_FRAMEBUFFER, 0);
+  ImGui_ImplOpenGL3_RenderDrawData(ImGui::GetDrawData());
+  return changed;
+}
+
+void Hud::DrawHelp() {
+  const ImGuiViewport* viewport = ImGui::GetMainViewport();
+  ImGui::SetNextWindowPos(ImVec2(viewport->WorkPos.x + viewport->WorkSize.x * 0.5f,
+                                 viewport->WorkPos.y + viewport->WorkSize.y * 0.5f),
+                          ImGuiCond_Always, ImVec2(0.5f, 0.5f));
+  ImGui::SetNextWindowBgAlpha(0.85f);
+  if (ImGui::Begin("Keys (H or F1 closes)###help", nullptr,
+                   ImGuiWindowFlags_AlwaysAutoResize | ImGuiWindowFlags_NoMove | ImGuiWindowFlags_NoCollapse |
+                       ImGuiWindowFlags_NoSavedSettings)) {
+    if (ImGui::BeginTable("keys", 2)) {
+      for (const auto& row : kHelp) {
+        ImGui::TableNextRow();
+        ImGui::TableSetColumnIndex(0);
+        ImGui::TextColored(kGood, "%s", row[0]);
+        ImGui::TableSetColumnIndex(1);
+        ImGui::TextUnformatted(row[1]);
+      }
+      ImGui::EndTable();
+    }
+    ImGui::Separator();
+    ImGui::TextWrapped("Quit: close the window, or press Esc twice (with the mouse released).");
+  }
+  ImGui::End();
 }
 
 }  // namespace penumbra::client::gl

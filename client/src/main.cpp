@@ -28,6 +28,16 @@ bool ParseSize(const std::string& text, glm::ivec2* size) {
   return true;
 }
 
+// Where the screenshot key writes: $XDG_PICTURES_DIR/penumbra, else
+// ~/Pictures/penumbra -- never the current folder (under run.sh, the
+// repository), unless there is no home either.
+std::string DefaultScreenshotDir() {
+  if (const char* pictures = std::getenv("XDG_PICTURES_DIR"); pictures && *pictures)
+    return std::string(pictures) + "/penumbra";
+  if (const char* home = std::getenv("HOME"); home && *home) return std::string(home) + "/Pictures/penumbra";
+  return "penumbra-screenshots";
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -47,7 +57,7 @@ int main(int argc, char** argv) {
   bool untilConverged = false;
   int connectTimeout = int(options.connectTimeout.count());
   int convergeTimeout = int(options.convergeTimeout.count());
-  std::string screenshot, stats, screenshotDir = options.screenshotDir.string();
+  std::string screenshot, stats, screenshotDir = DefaultScreenshotDir();
   std::string snapshotPrefix;
   // Refinement settings for this client's SMA session; unset: the SMA's.
   std::string criterion;
@@ -67,7 +77,7 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(1.0f, 3.0f))
       ->capture_default_str();
   app.add_option("--stats", stats, "Write one JSON line of statistics per frame to this file");
-  app.add_option("--screenshot-dir", screenshotDir, "Where the screenshot key writes its PNG and EXR")
+  app.add_option("--screenshot-dir", screenshotDir, "Where the screenshot key (P) writes its PNG and EXR; made if missing")
       ->capture_default_str();
   app.add_option("--max-fps", options.maxFps, "Frame-rate cap (0: 60 in a window, 30 headless)")
       ->check(CLI::NonNegativeNumber)

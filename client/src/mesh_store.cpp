@@ -40,6 +40,7 @@ void MeshStore::Reset(std::span<const int32_t> materialTextures, uint32_t textur
   pendingSamples_ = 0;
   converged_ = false;
   refining_ = false;
+  progress_ = ViewProgress{};
   trianglesAdded_ = 0;
   luminanceCount_ = 0;
   logLuminanceSum_ = 0.0;
@@ -121,6 +122,12 @@ Status MeshStore::Apply(const wire::Delta& d) {
   pendingSamples_ = d.pending_samples();
   converged_ = d.converged();
   refining_ = d.refining();
+  progress_.renderersConnected =
+      d.has_renderers_connected() ? std::optional<uint32_t>(d.renderers_connected()) : std::nullopt;
+  progress_.stage1Total = d.stage1_samples_total();
+  progress_.stage1Done = std::min(d.stage1_samples_done(), d.stage1_samples_total());
+  progress_.refinementTotal = d.refinement_samples_total();
+  progress_.refinementDone = std::min(d.refinement_samples_done(), d.refinement_samples_total());
   trianglesAdded_ += uint64_t(d.triangle_ids_size());
   return Status::Ok();
 }

@@ -283,6 +283,14 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
     const bool wasReady = std::exchange(ready_, false);
     if (wasReady) Push(Disconnected{connectionNumber_, reason});
     if (stopping_) return;
+    if (!permanentError_.empty()) {
+      // Retrying cannot help: stop, and let the application say why.
+      log_->error("giving up on SMA {}: {}", address_, permanentError_);
+      std::lock_guard lock(mutex_);
+      status_.state = ConnectionState::kStopped;
+      status_.permanentError = permanentError_;
+      return;
+    }
     const auto delay = ScheduleRetry();
     if (wasReady)
       log_->warn("lost connection {} to SMA {}: {}; reconnecting in {} ms", connectionNumber_, address_, reason,
@@ -301,8 +309,10 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
         return Refuse(wire::ERROR_CODE_HANDSHAKE_REQUIRED,
                       fmt::format("expected welcome, got {}", BodyName(envelope)));
       wire::ErrorCode code = wire::ERROR_CODE_UNSPECIFIED;
-      if (auto ok = ValidateWelcome(envelope.welcome(), wire::ROLE_SMA, 0, &code); !ok)
+      if (auto ok = ValidateWelcome(envelope.welcome(), wire::ROLE_SMA, 0, &code); !ok) {
+        if (IsPermanent(code)) permanentError_ = fmt::format("{} is not a usable SMA: {}", address_, ok.error().message);
         return Refuse(code, ok.error().message);
+      }
       welcome_ = envelope.welcome();
       welcomed_ = true;
       return;
@@ -337,9 +347,22 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
     if (error.fatal()) {
       log_->error("{} (it closes the connection)", text);
       RecordError(text);
+      // Refused during the handshake for what we are (role, protocol
+      // version, scene): the same answer would come on every attempt.
+      if (!ready_ && IsPermanent(error.code())) {
+        permanentError_ = fmt::format("{} refused this client: {}", address_, Printable(error.message()));
+        if (error.message().find("expected sma") != std::string::npos)
+          permanentError_ += " (that port belongs to a renderer: point --connect at the SMA's client port)";
+      }
     } else {
       log_->warn("{}", text);
     }
+  }
+
+  static bool IsPermanent(wire::ErrorCode code) {
+    // A role mismatch is reported as UNEXPECTED_MESSAGE (common/messages.cpp).
+    return code == wire::ERROR_CODE_VERSION_MISMATCH || code == wire::ERROR_CODE_SCENE_MISMATCH ||
+           code == wire::ERROR_CODE_UNEXPECTED_MESSAGE;
   }
 
   void Refuse(wire::ErrorCode code, const std::string& reason) {
@@ -465,6 +488,7 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
   std::shared_ptr<net::Connection> connection_;  // the current one, from connect to close
   bool welcomed_ = false;
   bool ready_ = false;  // SceneInfo received on connection_
+  std::string permanentError_;  // why retrying cannot help; set once, ends the session
   std::optional<wire::SessionOptions> sessionOptions_;  // sent on every connection
   wire::Welcome welcome_;
   uint64_t connectionNumber_ = 0;

@@ -1,14 +1,19 @@
 // The client's GL code on a real OpenGL implementation (Mesa, EGL
 // surfaceless: no X server needed): the tone-mapping shader against
 // common/tonemap.h, and the mesh renderer against what the store holds,
-// including removals, slot reuse, upload sizes and textures.
+// including removals, slot reuse, upload sizes and textures; and the HUD
+// (Dear ImGui) in a GLFW window under a private Xvfb.
 
+#include <chrono>
 #include <cmath>
+#include <cstdlib>
+#include <thread>
 
 #include <gtest/gtest.h>
 
 #include "gl/context.h"
 #include "gl/frame_targets.h"
+#include "gl/hud.h"
 #include "gl/mesh_renderer.h"
 #include "gl/sky_renderer.h"
 #include "gl/tone_mapper.h"
@@ -18,6 +23,8 @@
 #include "penumbra/common/scene.h"
 #include "support/delta_builder.h"
 #include "support/fake_sma.h"
+#include "support/process.h"
+#include "support/xvfb.h"
 
 namespace penumbra::client::gl {
 namespace {
@@ -259,6 +266,113 @@ TEST_F(MeshRendererTest, TexturedTrianglesShowTextureTimesIrradianceOnceItArrive
   Apply(std::move(texture));
   const Rgb expected(SrgbToLinear(128.0f / 255.0f), SrgbToLinear(64.0f / 255.0f), 1.0f);
   ExpectRgbNear(PixelAt(Draw(), kSize, kLowerRightX, kLowerRightY), expected, 2e-3f, "textured");
+}
+
+// --- The HUD (Dear ImGui), in a real GLFW window under a private Xvfb ---------
+
+class HudTest : public ::testing::Test {
+ protected:
+  static constexpr int kWidth = 1280, kHeight = 720;
+
+  void SetUp() override {
+    auto xvfb = testing::XvfbServer::Start(testing::MakeTempDir("penumbra-hud-test"), kWidth, kHeight);
+    if (!xvfb.ok()) GTEST_SKIP() << "no Xvfb: " << xvfb.error().message;
+    xvfb_.emplace(std::move(*xvfb));
+    const char* display = std::getenv("DISPLAY");
+    savedDisplay_ = display ? display : "";
+    ::setenv("DISPLAY", xvfb_->Display().c_str(), 1);
+    auto window = Window::Open(kWidth, kHeight, "hud test", /*visible=*/true);
+    ASSERT_TRUE(window.ok()) << window.error().message;
+    window_ = std::move(*window);
+    auto hud = Hud::Create(*window_);
+    ASSERT_TRUE(hud.ok()) << hud.error().message;
+    hud_ = std::move(*hud);
+  }
+  void TearDown() override {
+    hud_.reset();
+    window_.reset();
+    if (savedDisplay_.empty())
+      ::unsetenv("DISPLAY");
+    else
+      ::setenv("DISPLAY", savedDisplay_.c_str(), 1);
+  }
+
+  // Draws the HUD over black a few times (ImGui sizes a new window over its
+  // first frames) and reads the window back, top row first, RGB bytes.
+  std::vector<uint8_t> DrawOverBlack(const HudState& state, bool help) {
+    HudControls controls;
+    for (int frame = 0; frame < 4; ++frame) {
+      window_->PollEvents();
+      glBindFramebuffer(GL_FRAMEBUFFER, 0);
+      glViewport(0, 0, kWidth, kHeight);
+      glClearColor(0.0f, 0.0f, 0.0f, 1.0f);
+      glClear(GL_COLOR_BUFFER_BIT);
+      hud_->Draw(state, controls, help);
+      if (frame < 3) {
+        window_->SwapBuffers();
+        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+      }
+    }
+    std::vector<uint8_t> pixels(size_t(kWidth) * kHeight * 3);
+    glPixelStorei(GL_PACK_ALIGNMENT, 1);
+    glReadBuffer(GL_BACK);
+    glReadPixels(0, 0, kWidth, kHeight, GL_RGB, GL_UNSIGNED_BYTE, pixels.data());
+    std::vector<uint8_t> topFirst(pixels.size());
+    for (int y = 0; y < kHeight; ++y)
+      std::copy_n(pixels.begin() + ptrdiff_t(y) * kWidth * 3, kWidth * 3,
+                  topFirst.begin() + ptrdiff_t(kHeight - 1 - y) * kWidth * 3);
+    return topFirst;
+  }
+
+  // Fraction of non-black pixels in [x0, x1) x [y0, y1), y from the top.
+  static double Covered(const std::vector<uint8_t>& rgb, int x0, int y0, int x1, int y1) {
+    size_t lit = 0, all = 0;
+    for (int y = y0; y < y1; ++y)
+      for (int x = x0; x < x1; ++x, ++all) {
+        const size_t i = (size_t(y) * kWidth + size_t(x)) * 3;
+        lit += (rgb[i] | rgb[i + 1] | rgb[i + 2]) != 0;
+      }
+    return double(lit) / double(all);
+  }
+
+  std::optional<testing::XvfbServer> xvfb_;
+  std::string savedDisplay_;
+  std::unique_ptr<Window> window_;
+  std::unique_ptr<Hud> hud_;
+};
+
+HudState WaitingForARenderer() {
+  HudState s;
+  s.scene = "cornell-box";
+  s.sma = "127.0.0.1:7200";
+  s.connection = "connected";
+  s.connected = true;
+  s.progress.renderersConnected = 0;
+  s.progress.stage1Total = 5000;
+  s.pendingSamples = 5000;
+  s.triangles = 120;
+  s.vertices = 80;
+  s.walkSpeed = 0.5f;
+  return s;
+}
+
+// The panel sits in the top-left corner, compact; the top centre -- where a
+// ceiling light is in the default view of a room such as the Cornell box --
+// stays clear, and so does everything right of the panel.
+TEST_F(HudTest, ThePanelKeepsToTheTopLeftCornerAndOffTheTopCentre) {
+  const auto rgb = DrawOverBlack(WaitingForARenderer(), /*help=*/false);
+  EXPECT_GT(Covered(rgb, 12, 12, 300, 60), 0.5) << "the panel is in the top-left corner";
+  EXPECT_EQ(Covered(rgb, kWidth * 2 / 5, 0, kWidth * 3 / 5, kHeight * 2 / 5), 0.0) << "the top centre is clear";
+  EXPECT_EQ(Covered(rgb, 440, 0, kWidth, kHeight), 0.0) << "nothing right of the panel";
+  EXPECT_EQ(Covered(rgb, 0, kHeight / 2, kWidth, kHeight), 0.0) << "the panel is compact: the lower half is clear";
+}
+
+TEST_F(HudTest, TheHelpOverlayIsDrawnInTheMiddleOnlyWhenAskedFor) {
+  const HudState state = WaitingForARenderer();
+  const auto without = DrawOverBlack(state, /*help=*/false);
+  EXPECT_EQ(Covered(without, kWidth / 2 - 100, kHeight / 2 - 50, kWidth / 2 + 100, kHeight / 2 + 50), 0.0);
+  const auto with = DrawOverBlack(state, /*help=*/true);
+  EXPECT_GT(Covered(with, kWidth / 2 - 100, kHeight / 2 - 50, kWidth / 2 + 100, kHeight / 2 + 50), 0.5);
 }
 
 }  // namespace

@@ -269,6 +269,17 @@ std::shared_ptr<Listener> Listener::Create(asio::io_context& io, AcceptHandler o
   return std::shared_ptr<Listener>(new Listener(io, std::move(onAccept)));
 }
 
+Status CheckListenAddress(const HostPort& where) {
+  asio::io_context io;
+  error_code ec;
+  tcp::resolver resolver(io);
+  auto results = resolver.resolve(where.host, std::to_string(where.port), tcp::resolver::passive, ec);
+  if (ec || results.empty())
+    return Fail(fmt::format("cannot resolve listen address {}: {}", where.ToString(),
+                            ec ? ec.message() : "no addresses"));
+  return Status::Ok();
+}
+
 Listener::Listener(asio::io_context& io, AcceptHandler onAccept)
     : io_(io), acceptor_(io), onAccept_(std::move(onAccept)) {}
 

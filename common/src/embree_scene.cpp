@@ -3,6 +3,7 @@
 #include <embree3/rtcore.h>
 #include <fmt/format.h>
 
+#include <chrono>
 #include <cstring>
 
 #include "penumbra/common/logging.h"
@@ -78,10 +79,13 @@ Expected<std::unique_ptr<EmbreeScene>> EmbreeScene::Build(const Scene& scene, co
   rtcReleaseGeometry(geometry);  // the scene holds it now
   if (auto ok = check("attaching the triangles"); !ok) return ok.error();
 
+  Logger(options.logger)->info("building the ray-tracing BVH over {} triangles", scene.triangles.size());
+  const auto buildStart = std::chrono::steady_clock::now();
   rtcCommitScene(out->scene_);
   if (auto ok = check("building the BVH"); !ok) return ok.error();
   Logger(options.logger)
-      ->debug("BVH over {} triangles ({} vertices) built", scene.triangles.size(), scene.vertices.size());
+      ->info("BVH over {} triangles ({} vertices) built in {:.2f} s", scene.triangles.size(), scene.vertices.size(),
+             std::chrono::duration<double>(std::chrono::steady_clock::now() - buildStart).count());
   return out;
 }
 

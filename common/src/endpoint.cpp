@@ -34,7 +34,8 @@ Expected<HostPort> ParseHostPort(std::string_view text, bool allowPortZero) {
   unsigned value = 0;
   const auto [ptr, ec] = std::from_chars(portText.data(), portText.data() + portText.size(), value);
   if (portText.empty() || ec != std::errc() || ptr != portText.data() + portText.size() || value > 65535)
-    return Fail(fmt::format("'{}': port '{}' is not a number from 1 to 65535", text, portText));
+    return Fail(fmt::format("'{}': port '{}' is not a number from {} to 65535", text, portText,
+                            allowPortZero ? 0 : 1));
   if (value == 0 && !allowPortZero)
     return Fail(fmt::format("'{}': port 0 is not allowed here", text));
   out.port = uint16_t(value);

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cstring>
+#include <chrono>
 #include <fstream>
 #include <iterator>
 #include <optional>
@@ -20,6 +21,7 @@
 
 #include "io_util.h"
 #include "penumbra/common/image_io.h"
+#include "penumbra/common/logging.h"
 
 namespace penumbra {
 namespace {
@@ -65,6 +67,9 @@ class TextureCache {
 
   /// `reference` is a material's texture string: a file path relative to the
   /// mesh file, or "*N" / a name for an image embedded in the mesh file.
+  /// Distinct textures loaded so far.
+  size_t Count() const { return indexOf_.size(); }
+
   Expected<int32_t> IndexOf(const std::string& reference) {
     if (const aiTexture* embedded = scene_.GetEmbeddedTexture(reference.c_str()))
       return Cached("embedded:" + reference, [&] { return DecodeEmbedded(*embedded, reference); });
@@ -236,6 +241,15 @@ Status ImportMesh(const fs::path& meshPath, SceneBuilder& builder) {
   const std::string where = meshPath.string();
   if (auto ok = io::CheckRegularFile(meshPath); !ok) return ok;
   if (auto ok = CheckGlbSizes(meshPath); !ok) return ok;
+  // Phases with counts and times: a big scene takes a while, and the log is
+  // all there is to watch meanwhile.
+  auto log = Logger("scene");
+  using Clock = std::chrono::steady_clock;
+  auto since = [](Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); };
+  std::error_code sizeError;
+  const auto fileBytes = fs::file_size(meshPath, sizeError);
+  log->info("reading {} ({:.1f} MB)", where, sizeError ? 0.0 : double(fileBytes) / 1e6);
+  const auto readStart = Clock::now();
 
   Assimp::Importer importer;
   auto* io = new RecordingIOSystem;  // the importer owns it
@@ -249,6 +263,11 @@ Status ImportMesh(const fs::path& meshPath, SceneBuilder& builder) {
     return Fail(fmt::format("{}: cannot open '{}', which it refers to", where, io->FirstFailedOpen()));
   if (scene->mFlags & AI_SCENE_FLAGS_INCOMPLETE)
     return Fail(fmt::format("{}: the file is incomplete (assimp could not read all of it)", where));
+  size_t faces = 0;
+  for (unsigned m = 0; m < scene->mNumMeshes; ++m) faces += scene->mMeshes[m]->mNumFaces;
+  log->info("read {} meshes, {} faces, {} materials in {:.2f} s; converting materials and loading textures",
+            scene->mNumMeshes, faces, scene->mNumMaterials, since(readStart));
+  const auto convertStart = Clock::now();
 
   struct UsedMaterial {
     uint32_t builderIndex;
@@ -292,6 +311,8 @@ Status ImportMesh(const fs::path& meshPath, SceneBuilder& builder) {
       builder.AddTriangle(positions, material->builderIndex, uv);
     }
   }
+  log->info("converted {} meshes: {} textures loaded in {:.2f} s", scene->mNumMeshes, textures.Count(),
+            since(convertStart));
   return Status::Ok();
 }
 

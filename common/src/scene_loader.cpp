@@ -39,6 +39,61 @@ CameraPreset FramingCamera(const Bounds3& bounds) {
   return camera;
 }
 
+// The nearest hit of the ray origin + t * direction (t > 0) on any triangle,
+// brute force: a handful of rays per load, so no acceleration structure.
+std::optional<float> NearestHit(const Scene& scene, const Vec3& origin, const Vec3& direction) {
+  std::optional<float> nearest;
+  for (uint32_t t = 0; t < scene.triangles.size(); ++t) {
+    const Vec3 p0 = scene.Position(t, 0);
+    const Vec3 e1 = scene.Position(t, 1) - p0, e2 = scene.Position(t, 2) - p0;
+    const Vec3 p = glm::cross(direction, e2);
+    const float det = glm::dot(e1, p);
+    if (std::abs(det) < 1e-12f) continue;
+    const Vec3 s = origin - p0;
+    const float u = glm::dot(s, p) / det;
+    if (u < 0.0f || u > 1.0f) continue;
+    const Vec3 q = glm::cross(s, e1);
+    const float v = glm::dot(direction, q) / det;
+    if (v < 0.0f || u + v > 1.0f) continue;
+    const float distance = glm::dot(e2, q) / det;
+    if (distance > 0.0f && (!nearest || distance < *nearest)) nearest = distance;
+  }
+  return nearest;
+}
+
+// For a scene that names no camera: when the model encloses its middle (a
+// building: walls in all four horizontal directions and a floor below, seen
+// from the middle at eye height), a view from inside at eye height, backed
+// up towards one end and looking along the longer horizontal extent; none
+// for an object seen from outside (the framing view is then the right one).
+std::optional<CameraPreset> InsideCamera(const Scene& scene) {
+  const Bounds3& b = scene.bounds;
+  const Vec3 size = b.Diagonal();
+  if (scene.triangles.empty() || size.x <= 0.0f || size.y <= 0.0f || size.z <= 0.0f) return std::nullopt;
+  // Eye height: a quarter of the way up (Y is up, as in FramingCamera).
+  const Vec3 middle(b.Center().x, b.min.y + 0.25f * size.y, b.Center().z);
+  if (!NearestHit(scene, middle, Vec3(0, -1, 0))) return std::nullopt;  // no floor
+  // Three rays each way, spread across the model, so that a block in the
+  // middle of an open-fronted box does not pass for a wall.
+  const Vec3 horizontal[] = {{1, 0, 0}, {-1, 0, 0}, {0, 0, 1}, {0, 0, -1}};
+  for (const Vec3& d : horizontal) {
+    const Vec3 across = d.x != 0.0f ? Vec3(0, 0, 0.3f * size.z) : Vec3(0.3f * size.x, 0, 0);
+    for (float side : {-1.0f, 0.0f, 1.0f})
+      if (!NearestHit(scene, middle + side * across, d)) return std::nullopt;  // open that way: not a building
+  }
+  const Vec3 forward = size.x >= size.z ? Vec3(1, 0, 0) : Vec3(0, 0, 1);
+  const float halfLength = 0.5f * (size.x >= size.z ? size.x : size.z);
+  // Back up towards the near end, but stay well clear of whatever is behind.
+  const float behind = NearestHit(scene, middle, -forward).value_or(halfLength);
+  CameraPreset camera;
+  camera.name = "inside";
+  camera.fovYDeg = 60.0f;
+  camera.pose.eye = middle - forward * std::min(0.6f * halfLength, 0.8f * behind);
+  camera.pose.target = middle + forward * (0.5f * halfLength);
+  camera.pose.up = Vec3(0.0f, 1.0f, 0.0f);
+  return camera;
+}
+
 Expected<Scene> Load(const fs::path& path, const SceneLoadOptions& options, size_t& degenerateTriangles,
                      size_t& duplicateTriangles) {
   std::optional<SceneDescription> description;
@@ -69,8 +124,16 @@ Expected<Scene> Load(const fs::path& path, const SceneLoadOptions& options, size
     scene.cameras = std::move(description->cameras);
     scene.paths = std::move(description->paths);
   }
+  const auto buildStart = std::chrono::steady_clock::now();
   if (auto ok = builder.BuildInto(scene); !ok) return ok.error();
-  if (scene.cameras.empty()) scene.cameras.push_back(FramingCamera(scene.bounds));
+  Logger("scene")->info("built {} triangles and {} vertices (welded, split at creases) in {:.2f} s",
+                        scene.triangles.size(), scene.vertices.size(),
+                        std::chrono::duration<double>(std::chrono::steady_clock::now() - buildStart).count());
+  if (scene.cameras.empty()) {
+    // The first preset is where a client starts.
+    if (auto inside = InsideCamera(scene)) scene.cameras.push_back(*inside);
+    scene.cameras.push_back(FramingCamera(scene.bounds));
+  }
   degenerateTriangles = builder.DegenerateTriangles();
   duplicateTriangles = builder.DuplicateTriangles();
   return scene;
@@ -93,6 +156,10 @@ Expected<Scene> LoadScene(const fs::path& path, const SceneLoadOptions& options)
     }
   }();
   if (!scene) return scene;
+  if (!scene->HasLight())
+    Logger("scene")->warn("'{}' has no light (no emissive material, sun or sky): it will render black; give it one "
+                          "in a scene file (.json: \"sun\", \"sky\", \"quad_lights\" or a material with \"emission\")",
+                          scene->name);
 
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   Logger("scene")->info(

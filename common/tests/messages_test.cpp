@@ -77,6 +77,10 @@ TEST(EndpointTest, RejectsMalformed) {
   EXPECT_FALSE(ParseHostPort("localhost:70000").ok());
   EXPECT_FALSE(ParseHostPort("localhost:12ab").ok());
   EXPECT_FALSE(ParseHostPort("localhost:0").ok());
+  // The message names the range the flag allows (a --listen port may be 0).
+  EXPECT_NE(ParseHostPort("localhost:70000").error().message.find("from 1 to 65535"), std::string::npos);
+  EXPECT_NE(ParseHostPort("localhost:70000", /*allowPortZero=*/true).error().message.find("from 0 to 65535"),
+            std::string::npos);
   EXPECT_FALSE(ParseHostPort("::1:80").ok());
 }
 

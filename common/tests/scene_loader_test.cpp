@@ -674,6 +674,67 @@ TEST(RepositoryScenesTest, CornellBoxSceneHasItsLightCamerasAndPaths) {
   for (const CameraPath& path : scene->paths) ExpectPathIsClear(*scene, caster, path);
 }
 
+// A closed room (all six faces of a box, 8 x 3 x 4, facing in), as OBJ.
+std::string RoomObj() {
+  return "v 0 0 0\nv 8 0 0\nv 8 0 4\nv 0 0 4\nv 0 3 0\nv 8 3 0\nv 8 3 4\nv 0 3 4\n"
+         "f 1 2 3 4\nf 5 8 7 6\nf 1 5 6 2\nf 3 7 8 4\nf 1 4 8 5\nf 2 6 7 3\n";
+}
+
+// Issue 16: the made-up camera of a mesh-only building stands inside it, at
+// eye height, looking along its length at a wall -- not outside the walls.
+TEST(SceneLoaderTest, AMeshOnlyBuildingGetsACameraInsideLookingAlongIt) {
+  ScratchDir dir;
+  auto scene = LoadScene(dir.Write("room.obj", RoomObj()));
+  ASSERT_TRUE(scene.ok()) << scene.error().message;
+  ASSERT_EQ(scene->cameras.size(), 2u);
+  const CameraPreset& inside = scene->cameras[0];
+  EXPECT_EQ(inside.name, "inside");
+  EXPECT_EQ(scene->cameras[1].name, "default") << "the overview stays, as preset 2";
+  const Vec3& eye = inside.pose.eye;
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_GT(eye[i], scene->bounds.min[i]) << "axis " << i;
+    EXPECT_LT(eye[i], scene->bounds.max[i]) << "axis " << i;
+  }
+  EXPECT_NEAR(eye.y, 0.75f, 1e-4f) << "a quarter of the way up";
+  const Vec3 forward = glm::normalize(inside.pose.target - inside.pose.eye);
+  EXPECT_NEAR(forward.x, 1.0f, 1e-4f) << "along the longer horizontal extent";
+  // It looks at something: the far wall, most of the room's length away.
+  const RayCaster caster(*scene);
+  const auto hit = caster.Intersect(eye, forward);
+  ASSERT_TRUE(hit.has_value());
+  EXPECT_GT(hit->distance, 4.0f);
+  CameraView view;
+  view.pose = inside.pose;
+  view.fovYDeg = inside.fovYDeg;
+  EXPECT_TRUE(ValidateCameraView(view).ok());
+}
+
+TEST(SceneLoaderTest, AnObjectSeenFromOutsideKeepsTheFramingView) {
+  // The Cornell box is open at the front: not a building to stand in.
+  auto scene = LoadScene(CornellBoxObj());
+  ASSERT_TRUE(scene.ok()) << scene.error().message;
+  ASSERT_EQ(scene->cameras.size(), 1u);
+  EXPECT_EQ(scene->cameras[0].name, "default");
+}
+
+// Issue 16: a mesh without emitters, sun or sky renders black; LoadScene
+// loads it (and warns) -- HasLight is what the warning tests.
+TEST(SceneLoaderTest, AMeshWithoutAnyLightLoadsAndSaysItHasNone) {
+  ScratchDir dir;
+  const auto stl = dir.Write("triangle.stl",
+                             "solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 1 0\n"
+                             "endloop\nendfacet\nendsolid t\n");
+  auto scene = LoadScene(stl);
+  ASSERT_TRUE(scene.ok()) << scene.error().message;
+  EXPECT_FALSE(scene->HasLight());
+  auto room = LoadScene(dir.Write("room.obj", RoomObj()));
+  ASSERT_TRUE(room.ok());
+  EXPECT_FALSE(room->HasLight());
+  auto cornell = LoadScene(CornellBoxObj());
+  ASSERT_TRUE(cornell.ok());
+  EXPECT_TRUE(cornell->HasLight());
+}
+
 // --- The shared real-world scenes (../shared/scenes beside the source tree) ---
 
 fs::path SharedScene(std::string_view relative) { return SourceDir() / "../shared/scenes" / relative; }
@@ -724,6 +785,28 @@ TEST(SharedScenesTest, SponzaLoadsAndTheSunCastsThePiersShadowsOnTheAtriumFloor)
   // The atrium camera sees sunlit floor.
   EXPECT_GT(SunlitFraction(*scene, caster, scene->cameras[0], "sp_00_pod", 32, 24), 0.05);
   for (const CameraPath& path : scene->paths) ExpectPathIsClear(*scene, caster, path);
+}
+
+// The mesh alone (no scene file, so no presets): the made-up camera stands in
+// the atrium and sees the building.
+TEST(SharedScenesTest, SponzaAsAMeshAloneGetsACameraInsideTheAtrium) {
+  SKIP_WITHOUT_SHARED_SCENE("sponza-dabrovic/sponza.obj");
+  auto scene = LoadScene(SharedScene("sponza-dabrovic/sponza.obj"));
+  ASSERT_TRUE(scene.ok()) << scene.error().message;
+  ASSERT_GE(scene->cameras.size(), 2u);
+  const CameraPreset& inside = scene->cameras[0];
+  ASSERT_EQ(inside.name, "inside");
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_GT(inside.pose.eye[i], scene->bounds.min[i]);
+    EXPECT_LT(inside.pose.eye[i], scene->bounds.max[i]);
+  }
+  const RayCaster caster(*scene);
+  const Vec3 forward = glm::normalize(inside.pose.target - inside.pose.eye);
+  const auto hit = caster.Intersect(inside.pose.eye, forward);
+  ASSERT_TRUE(hit.has_value()) << "looks at something";
+  EXPECT_GT(hit->distance, 0.25f * glm::length(scene->bounds.Diagonal())) << "down the atrium, not at a pillar";
+  // Not inside a wall: the floor is below and something is above or beside.
+  EXPECT_TRUE(caster.Intersect(inside.pose.eye, Vec3(0, -1, 0)).has_value());
 }
 
 TEST(SharedScenesTest, BreakfastRoomLoadsAndTheSunComesInThroughTheWindow) {

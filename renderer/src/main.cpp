@@ -7,6 +7,7 @@
 #include <CLI/CLI.hpp>
 
 #include "penumbra/common/version.h"
+#include "penumbra/common/connection.h"
 #include "penumbra/common/endpoint.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/operator_http.h"
@@ -96,6 +97,11 @@ int main(int argc, char** argv) {
   auto where = ParseHostPort(listen, /*allowPortZero=*/true);
   if (!where) {
     std::fprintf(stderr, "penumbra-renderer: --listen: %s\n", where.error().message.c_str());
+    return 2;
+  }
+  // Before the scene loads (minutes for a big one): a bad host is reported now.
+  if (auto ok = net::CheckListenAddress(*where); !ok) {
+    std::fprintf(stderr, "penumbra-renderer: --listen: %s\n", ok.error().message.c_str());
     return 2;
   }
 

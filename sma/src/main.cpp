@@ -2,10 +2,12 @@
 // the renderers, and serves walkthrough clients until SIGTERM. See
 // sma/README.md.
 
+#include <chrono>
 #include <cstdio>
 
 #include <CLI/CLI.hpp>
 
+#include "penumbra/common/connection.h"
 #include "penumbra/common/version.h"
 #include "penumbra/common/endpoint.h"
 #include "penumbra/common/logging.h"
@@ -80,7 +82,9 @@ int main(int argc, char** argv) {
   app.add_option("--aspect-threshold", refine.aspectThreshold,
                  "Propagation: neighbours lower than this times the shared edge split 1->2")
       ->capture_default_str();
-  app.add_option("--max-depth", maxDepth, "Deepest level a leaf is split from")->capture_default_str();
+  auto* maxDepthAlias =
+      app.add_option("--max-depth", maxDepth, "Deprecated alias of --max-refine-depth (the renderer's path length is "
+                                              "its --max-bounces)");
   app.add_option("--pixel-fraction", refine.pixelFraction, "NLD_IS / RND budget as a fraction of the image's pixels")
       ->capture_default_str();
   app.add_option("--noise-z", refine.noiseZ,
@@ -156,6 +160,12 @@ int main(int argc, char** argv) {
   app.add_option("--max-texture-requests", options.maxTextureRequests,
                  "TextureRequests a client may have unanswered; more are refused with LIMIT_EXCEEDED")
       ->check(CLI::Range(1u, 1u << 20))->capture_default_str();
+  // Operability (issue 16)
+  auto* maxRefineDepth =
+      app.add_option("--max-refine-depth", maxDepth, "Refinement: deepest level of the triangle hierarchy a leaf is "
+                                                     "split from, [1, 20]")
+          ->capture_default_str();
+  maxRefineDepth->excludes(maxDepthAlias);
   CLI11_PARSE(app, argc, argv);
 
   if (!SetupLogging(logLevel)) {
@@ -172,6 +182,14 @@ int main(int argc, char** argv) {
     return 2;
   }
   options.listen = *where;
+  // Before the scene loads (minutes for a big one): a bad host is reported now.
+  if (auto ok = net::CheckListenAddress(options.listen); !ok) {
+    std::fprintf(stderr, "penumbra-sma: --listen: %s\n", ok.error().message.c_str());
+    return 2;
+  }
+  if (maxDepthAlias->count() > 0)
+    Logger("sma")->warn("--max-depth is deprecated: it is the refinement depth, now --max-refine-depth (the "
+                        "renderer's path length is --max-bounces)");
   auto parsedCriterion = ParseCriterion(criterion);
   if (!parsedCriterion) {
     std::fprintf(stderr, "penumbra-sma: --criterion: %s\n", parsedCriterion.error().message.c_str());
@@ -179,7 +197,7 @@ int main(int argc, char** argv) {
   }
   refine.criterion = *parsedCriterion;
   if (maxDepth < 1 || maxDepth > 20) {
-    std::fprintf(stderr, "penumbra-sma: --max-depth must be in [1, 20]\n");
+    std::fprintf(stderr, "penumbra-sma: --max-refine-depth must be in [1, 20]\n");
     return 2;
   }
   refine.maxDepth = uint8_t(maxDepth);
@@ -217,6 +235,8 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "penumbra-sma: %s\n", scene.error().message.c_str());
     return 1;
   }
+  Logger("sma")->info("building the visibility BVH and the triangle hierarchy");
+  const auto buildStart = std::chrono::steady_clock::now();
   auto server = SmaServer::Create(*scene, options);
   if (!server) {
     std::fprintf(stderr, "penumbra-sma: %s\n", server.error().message.c_str());
@@ -227,8 +247,10 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "penumbra-sma: %s\n", bound.error().message.c_str());
     return 1;
   }
-  Logger("sma")->info("scene '{}' (identity {:016x}): {} triangles, {} vertices; {} renderer address(es)",
+  Logger("sma")->info("scene '{}' (identity {:016x}): {} triangles, {} vertices, ready for clients after {:.2f} s "
+                      "of building; {} renderer address(es)",
                       scene->name, scene->identity, scene->triangles.size(), scene->vertices.size(),
+                      std::chrono::duration<double>(std::chrono::steady_clock::now() - buildStart).count(),
                       options.pool.renderers.size());
   if (!portFile.empty()) {
     if (auto written = WritePortFile(portFile, bound->port()); !written) {

@@ -646,6 +646,11 @@ bool RendererPool::AnyRendererReady() const {
   return std::any_of(links_.begin(), links_.end(), [](const auto& l) { return l->state == Link::State::kReady; });
 }
 
+size_t RendererPool::ReadyRenderers() const {
+  std::lock_guard lock(mutex_);
+  return size_t(std::count_if(links_.begin(), links_.end(), [](const auto& l) { return l->state == Link::State::kReady; }));
+}
+
 RendererPoolStats RendererPool::Stats() const {
   std::lock_guard lock(mutex_);
   RendererPoolStats s;

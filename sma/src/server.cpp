@@ -107,6 +107,7 @@ class SmaServer::Impl {
     if (listener_) listener_->Start();
     ArmStats();
     if (snapshots_) snapshots_->Start(stateMutex_, hierarchy_, cache_);
+    ArmRendererWatch();
     std::vector<std::thread> extra;
     for (int i = 1; i < options_.ioThreads; ++i) extra.emplace_back([this] { io_.run(); });
     io_.run();
@@ -215,6 +216,12 @@ class SmaServer::Impl {
   asio::signal_set signals_;
   asio::steady_timer statsTimer_;
   asio::steady_timer shutdownTimer_;
+  // Clients are told when the number of connected renderers differs from
+  // what their last delta said (a view waiting on no renderer says so):
+  // polled, as the pool has no callback, and compared per session, as a
+  // renderer may come and go between two polls.
+  void ArmRendererWatch();
+  asio::steady_timer rendererWatchTimer_{io_};
   std::atomic<bool> shuttingDown_{false};
   Clock::time_point shutdownDeadline_;
   RendererPoolStats lastStats_;
@@ -308,6 +315,13 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
     const bool converged = last && Converged();
     delta.set_converged(converged);
     delta.set_refining(!converged && RefiningNow());
+    // Progress for the people waiting (issue 16).
+    sentRenderers_ = server_.pool_->ReadyRenderers();
+    delta.set_renderers_connected(uint32_t(sentRenderers_));
+    delta.set_stage1_samples_total(uint32_t(stage1Total_));
+    delta.set_stage1_samples_done(uint32_t(std::min(stage1Done_, stage1Total_)));
+    delta.set_refinement_samples_total(uint32_t(refineTotal_));
+    delta.set_refinement_samples_done(uint32_t(std::min(refineDone_, refineTotal_)));
     sentConverged_ = converged;
     sentRefining_ = delta.refining();
     if (converged && stage2Ms_ < 0.0) {
@@ -340,6 +354,14 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   void SyncStatus() {
     if (hasVisible_ && (Converged() != sentConverged_ || RefiningNow() != sentRefining_)) SendStatus();
   }
+
+ public:
+  /// Strand: `renderers` are connected now; tell the client if it was told otherwise.
+  void OnRendererCount(size_t renderers) {
+    if (hasVisible_ && renderers != sentRenderers_) SendStatus();
+  }
+
+ private:
   void RestartRefinement();
 
   Impl& server_;
@@ -407,6 +429,12 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   // Textures asked for and not yet queued: null while being encoded.
   std::map<uint32_t, TextureFrames::Frame> texturesOutstanding_;
   uint64_t textureRequestsRefused_ = 0;
+  size_t sentRenderers_ = 0;
+  // Progress of the applied view (Delta fields 20-23).
+  size_t stage1Total_ = 0;
+  size_t stage1Done_ = 0;
+  size_t refineTotal_ = 0;
+  size_t refineDone_ = 0;
 };
 
 void SmaServer::Impl::NotifyArrived(const std::shared_ptr<Session>& session,
@@ -664,6 +692,8 @@ void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
     for (VertexId v : server.hierarchy_.GetNode(id).v)
       if (!server.cache_.IsShaded(v)) waiting_[v].push_back(id);
   }
+  if (newView) stage1Done_ = 0;
+  stage1Total_ = stage1Done_ + waiting_.size();
 
   if (Blocked()) {
     // The client is behind: send nothing now; once its queue drains, one
@@ -720,7 +750,7 @@ void SmaServer::Impl::Session::OnSamplesArrived(const std::vector<VertexId>& ver
   bool refinement = false;
   const size_t baseVertices = server_.hierarchy_.BaseVertexCount();
   for (VertexId v : vertices) {
-    refinementPending_.erase(v);
+    refineDone_ += refinementPending_.erase(v);
     auto it = waiting_.find(v);
     if (it == waiting_.end()) {
       // A midpoint this client was not waiting for may complete the children
@@ -730,6 +760,7 @@ void SmaServer::Impl::Session::OnSamplesArrived(const std::vector<VertexId>& ver
     }
     candidates.insert(it->second.begin(), it->second.end());
     waiting_.erase(it);
+    ++stage1Done_;
   }
   if (refinement) {
     refreshWanted_ = true;
@@ -846,6 +877,7 @@ void SmaServer::Impl::Session::RestartRefinement() {
   refiner_ = std::make_shared<Refiner>(params_);
   refinementDone_ = false;
   refinementPending_.clear();
+  refineTotal_ = refineDone_ = 0;
   improvementDone_ = false;
   improvePending_.clear();
 }
@@ -914,6 +946,7 @@ void SmaServer::Impl::Session::OnRefineStepDone(const std::shared_ptr<Refiner>& 
   }
   refinementSplits_ += chosen;
   refinementSamples_ += newVertices.size();
+  const size_t pendingBefore = refinementPending_.size();
   log_->trace("{}: refinement step: {} split, {} new vertices, exhausted {}; pending {}, refresh wanted {} armed {}, "
               "job running {}",
               connection_->Id(), chosen, newVertices.size(), exhausted, refinementPending_.size(), refreshWanted_,
@@ -925,6 +958,8 @@ void SmaServer::Impl::Session::OnRefineStepDone(const std::shared_ptr<Refiner>& 
     for (VertexId v : newVertices)
       if (!server_.cache_.IsShaded(v)) refinementPending_.insert(v);
   }
+  refineTotal_ += newVertices.size();
+  refineDone_ += newVertices.size() - std::min(newVertices.size(), refinementPending_.size() - pendingBefore);
   if (chosen > 0) {
     // Bounded batches (the paper's R): give the strand's queue -- a new view
     // above all -- a turn before the next step.
@@ -1259,12 +1294,24 @@ void SmaServer::Impl::ArmStats() {
   });
 }
 
+void SmaServer::Impl::ArmRendererWatch() {
+  rendererWatchTimer_.expires_after(std::chrono::milliseconds(500));
+  rendererWatchTimer_.async_wait([this](const error_code& ec) {
+    if (ec || shuttingDown_) return;
+    const size_t renderers = pool_->ReadyRenderers();
+    for (auto& session : Sessions())
+      asio::post(session->Connection().Strand(), [session, renderers] { session->OnRendererCount(renderers); });
+    ArmRendererWatch();
+  });
+}
+
 void SmaServer::Impl::Shutdown() {
   asio::post(io_, [this] {
     if (shuttingDown_.exchange(true)) return;
     if (listener_) listener_->Stop();
     signals_.cancel();
     statsTimer_.cancel();
+    rendererWatchTimer_.cancel();
     pool_->Stop();
     for (auto& s : Sessions()) s->Connection().CloseAfterFlush("SMA shutting down");
     // Sessions flush and close within the connection's drain grace; stop

@@ -59,6 +59,16 @@ struct TriangleGroup {
   DirtyRanges dirty;
 };
 
+/// What the SMA said of a view's progress in its last delta.
+struct ViewProgress {
+  /// Renderers the SMA can send work to; nullopt from an SMA that does not say.
+  std::optional<uint32_t> renderersConnected;
+  uint32_t stage1Total = 0;  // samples stage 1 needed that the cache lacked
+  uint32_t stage1Done = 0;
+  uint32_t refinementTotal = 0;  // samples refinement's splits asked for so far
+  uint32_t refinementDone = 0;
+};
+
 class MeshStore {
  public:
   /// Empties the store and sets the scene's materials: the texture index of
@@ -90,6 +100,8 @@ class MeshStore {
   bool Converged() const { return converged_; }
   /// The SMA is refining the view: stage 1 is done, stage 2 runs.
   bool Refining() const { return refining_; }
+  /// The SMA's progress report for the view (Delta fields 19-23).
+  const ViewProgress& Progress() const { return progress_; }
   /// Triangles added over every delta applied since the last reset (the
   /// paper's Delta_total: what had to be sent, refined-away ones included).
   uint64_t TrianglesAdded() const { return trianglesAdded_; }
@@ -142,6 +154,7 @@ class MeshStore {
   uint32_t pendingSamples_ = 0;
   bool converged_ = false;
   bool refining_ = false;
+  ViewProgress progress_;
   uint64_t trianglesAdded_ = 0;
 
   size_t luminanceCount_ = 0;

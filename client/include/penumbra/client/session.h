@@ -99,6 +99,11 @@ struct SessionStatus {
   uint64_t bytesReceived = 0;     // over every connection
   std::optional<double> viewToFirstDeltaMs;  // the latest view's, once its first delta arrived
   std::string lastError;          // why the last connection or attempt failed; empty if none
+  /// Set when the SMA's address answered with something retrying cannot fix
+  /// (another role -- e.g. a renderer's port --, another protocol version, a
+  /// scene mismatch): the session has stopped (state kStopped) and this says
+  /// why. Empty otherwise.
+  std::string permanentError;
   /// When the state is kConnecting or kWaiting: since when the client has
   /// been without a connection (or since Start()).
   std::chrono::steady_clock::time_point disconnectedSince;

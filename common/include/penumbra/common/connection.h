@@ -165,6 +165,10 @@ void RefuseConnection(tcp::socket socket, const wire::Envelope& error);
 /// the hard limit when it is lower. Returns how many connections fit, which
 /// is `connections` unless even the hard limit is too low.
 size_t FitConnectionsToDescriptorLimit(size_t connections, size_t headroom);
+/// Resolves a listen address the way Listener::Listen does, without binding,
+/// so that a main can report an unresolvable --listen host before spending
+/// seconds (or minutes) loading a scene. Blocks for the resolver.
+Status CheckListenAddress(const HostPort& where);
 
 /// Accepts TCP connections; each accepted socket gets its own strand.
 /// When accepting fails (out of descriptors: EMFILE, ENFILE) it pauses, from

@@ -120,6 +120,9 @@ struct Scene {
   /// emits: emissive materials, the sun's disc, the sky. No surface of albedo
   /// <= 1 can reflect more than this.
   float MaxEmittedRadiance() const;
+  /// Whether anything lights the scene: an emissive triangle, a sun or a
+  /// sky. Without any, every sample is black (the loader warns).
+  bool HasLight() const { return !emissiveTriangles.empty() || sun.has_value() || sky.has_value(); }
   const CameraPreset* FindCamera(std::string_view name) const;
   const CameraPath* FindPath(std::string_view name) const;
 

@@ -152,6 +152,8 @@ class RendererPool : public std::enable_shared_from_this<RendererPool> {
   /// Samples queued or in flight.
   size_t Outstanding() const;
   bool AnyRendererReady() const;
+  /// Renderers connected and past their handshake (ready for work).
+  size_t ReadyRenderers() const;
   RendererPoolStats Stats() const;
 
   struct Link;
