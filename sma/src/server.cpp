@@ -420,8 +420,10 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   bool sentRefining_ = false;
 
   // Resource limits (issue 12). Visibility: this client's reservation in
-  // the server's budget -- the larger of its latest view and the trace
-  // running for it (one buffer at a time: a new view drops the old one's).
+  // the server's budget -- the largest of its latest view, the trace running
+  // for it and the buffers it holds (one view's buffers at a time: a new
+  // view drops the old one's). Views traced in a row whose results were
+  // dropped as superseded (see OnJobDone).
   uint64_t reservedPixels_ = 0;
   uint64_t runningJobPixels_ = 0;
   static constexpr int kMaxNewViewsDroppedInARow = 3;

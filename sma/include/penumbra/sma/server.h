@@ -77,7 +77,7 @@ struct SmaOptions {
   uint64_t visibilityBudgetPixels = uint64_t(64) << 20;
   uint64_t largeViewPixels = uint64_t(4) << 20;
   ClientRefinementLimits clientRefinement;  // what SessionOptions may ask
-  uint32_t maxTextureRequests = 64;         // unanswered TextureRequests per client
+  uint32_t maxTextureRequests = 1024;       // unanswered TextureRequests per client
 };
 
 class SmaServer {
