@@ -146,7 +146,7 @@ bool Hud::Draw(const HudState& s, HudControls& controls, bool showHelp) {
       ImGui::PushStyleColor(ImGuiCol_Text, kWarning);
       ImGui::TextWrapped("Cannot continue: %s", s.permanentError.c_str());
       ImGui::PopStyleColor();
-      ImGui::TextWrapped("Close the window to exit.");
+      ImGui::TextWrapped("Close the window (or press Esc twice) to exit; the exit code is 1.");
     } else {
       ImGui::TextColored(kDim, "SMA %s: %s", s.sma.c_str(), s.connection.c_str());
     }

@@ -51,7 +51,8 @@ std::vector<std::string> DescribeFigures(const HudState& s) {
   lines.push_back(fmt::format("{} frames/s, receiving {}", fps, FormatBytesPerSecond(s.bytesPerSecond)));
   if (s.moveToFirstUpdateMs)
     lines.push_back(fmt::format("Response to the last camera move: {:.0f} ms", *s.moveToFirstUpdateMs));
-  lines.push_back(fmt::format("Walking speed: {:.2f} scene units/s", s.walkSpeed));
+  if (!s.scene.empty())  // the speed follows the scene's size: none before it is known
+    lines.push_back(fmt::format("Walking speed: {:.2f} scene units/s", s.walkSpeed));
   return lines;
 }
 

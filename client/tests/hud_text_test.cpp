@@ -12,6 +12,7 @@ using namespace std::chrono_literals;
 
 HudState Connected() {
   HudState s;
+  s.scene = "cornell-box";
   s.connected = true;
   s.connection = "connected";
   return s;
@@ -88,6 +89,8 @@ TEST(HudTextTest, EveryFigureCarriesItsUnit) {
   EXPECT_EQ(lines[3], "Walking speed: 0.52 scene units/s");
   s.framesPerSecond = 0.4;  // software GL on a loaded machine
   EXPECT_EQ(DescribeFigures(s)[1], "0.4 frames/s, receiving 1.5 MB/s");
+  s.scene.clear();  // before the SMA's SceneInfo: no walking speed yet
+  EXPECT_EQ(DescribeFigures(s).size(), 3u);
 }
 
 }  // namespace

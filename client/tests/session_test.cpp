@@ -10,6 +10,7 @@
 #include <gtest/gtest.h>
 
 #include "support/delta_builder.h"
+#include "penumbra/common/messages.h"
 #include "support/fake_sma.h"
 
 namespace penumbra::client {
@@ -238,6 +239,59 @@ TEST(SessionRetryTest, KeepsTryingUntilAnSmaListens) {
   EXPECT_TRUE(session.Status().lastError.empty());
   session.Stop();
   EXPECT_EQ(session.Status().state, ConnectionState::kStopped);
+}
+
+// Issue 16: what retrying cannot fix stops the session with the reason;
+// what it can fix (the SMA shutting down) is retried as before.
+TEST_F(SessionTest, PermanentRefusalsStopTheSessionAndTransientOnesAreRetried) {
+  auto refuse = [&](wire::ErrorCode code, const std::string& message) {
+    auto client = listener_->Accept(5s);
+    ASSERT_TRUE(client.ok()) << client.error().message;
+    auto hello = client->Receive(5s);
+    ASSERT_TRUE(hello.ok() && hello->has_hello());
+    ASSERT_TRUE(client->Send(MakeError(0, code, message, /*fatal=*/true)));
+  };
+  // Transient: the session comes back.
+  refuse(wire::ERROR_CODE_SHUTTING_DOWN, "draining");
+  {
+    auto again = listener_->Accept(5s);
+    ASSERT_TRUE(again.ok()) << "a transient refusal is retried: " << again.error().message;
+    auto hello = again->Receive(5s);
+    ASSERT_TRUE(hello.ok() && hello->has_hello());
+    ASSERT_TRUE(again->Send(MakeError(0, wire::ERROR_CODE_VERSION_MISMATCH,
+                                      "protocol version 1 is not supported (this peer speaks 2)", true)));
+  }
+  const auto deadline = Clock::now() + 5s;
+  while (session_->Status().permanentError.empty() && Clock::now() < deadline) std::this_thread::sleep_for(10ms);
+  const SessionStatus status = session_->Status();
+  EXPECT_EQ(status.state, ConnectionState::kStopped);
+  EXPECT_NE(status.permanentError.find("protocol version 1 is not supported"), std::string::npos)
+      << status.permanentError;
+  EXPECT_FALSE(listener_->Accept(1s).ok()) << "no retry after a permanent refusal";
+}
+
+TEST(SessionPermanentTest, AWelcomeFromAnotherRoleStopsTheSession) {
+  for (const wire::Role role : {wire::ROLE_RENDERER, wire::ROLE_CLIENT}) {
+    auto listener = WireListener::Listen();
+    ASSERT_TRUE(listener.ok());
+    SmaSessionOptions options;
+    options.sma = HostPort{"127.0.0.1", listener->Port()};
+    options.reconnectMin = 50ms;
+    SmaSession session(options);
+    session.Start();
+    auto peer = listener->Accept(5s);
+    ASSERT_TRUE(peer.ok());
+    ASSERT_TRUE(peer->Receive(5s).ok());
+    wire::Envelope welcome;
+    welcome.mutable_welcome()->set_protocol_version(kProtocolVersion);
+    welcome.mutable_welcome()->set_role(role);
+    ASSERT_TRUE(peer->Send(welcome));
+    const auto deadline = Clock::now() + 5s;
+    while (session.Status().permanentError.empty() && Clock::now() < deadline) std::this_thread::sleep_for(10ms);
+    EXPECT_NE(session.Status().permanentError.find("expected sma"), std::string::npos)
+        << session.Status().permanentError;
+    EXPECT_FALSE(listener->Accept(500ms).ok()) << "no retry";
+  }
 }
 
 }  // namespace

@@ -169,7 +169,7 @@ Expected<std::unique_ptr<VisibilityTracer>> VisibilityTracer::Build(const Scene&
   impl->embree = std::move(*embree);
   impl->faceNormals.resize(scene.triangles.size());
   for (uint32_t t = 0; t < scene.triangles.size(); ++t) impl->faceNormals[t] = scene.GeometricNormal(t);
-  VisibilityLog()->info("BVH over {} base triangles built", scene.triangles.size());
+  VisibilityLog()->debug("BVH over {} base triangles built", scene.triangles.size());
   return std::unique_ptr<VisibilityTracer>(new VisibilityTracer(std::move(impl)));
 }
 
