@@ -113,6 +113,11 @@ int main(int argc, char** argv) {
   app.add_option("--name", options.name, "Name reported in handshakes and logs")->capture_default_str();
   app.add_option("--port-file", portFile, "Write the bound client port to this file once listening");
   app.add_option("--log-level", logLevel, "trace, debug, info, warn, error, critical or off")->capture_default_str();
+  // Connection limits and shutdown (issue 12)
+  app.add_option("--max-connections", options.maxConnections,
+                 "Client connections (counting those yet to say Hello) served at once; more are refused with "
+                 "TOO_MANY_CONNECTIONS and closed at once")
+      ->check(CLI::Range(size_t(1), size_t(1) << 20))->capture_default_str();
   CLI11_PARSE(app, argc, argv);
 
   if (!SetupLogging(logLevel)) {
