@@ -189,8 +189,11 @@ TEST_F(MultiHostTest, RendererHostKilledMidWalkthroughAndRestartedLosesNoSample)
                                "300", "--stats", stats});
   ASSERT_FALSE(HasFailure());
 
-  // render2's host loses its renderer mid-walkthrough...
-  const std::string r2 = "renderer." + Endpoint("render2");
+  // render2's host loses its renderer mid-walkthrough... (Clients see
+  // renderers by index; the SMA's log says which address each index is.)
+  auto r2Prefix = RendererCounterPrefix(sma, Endpoint("render2"));
+  ASSERT_TRUE(r2Prefix.ok()) << r2Prefix.error().message;
+  const std::string r2 = *r2Prefix;
   ASSERT_TRUE(WaitUntil([&] { return Must(observer, r2 + ".samples_in_flight") > 0.0; }, 60s))
       << "render2 never got work\n" << sma.LogTail() << walker.LogTail();
   render2.Signal(SIGKILL);
@@ -226,11 +229,13 @@ TEST_F(MultiHostTest, RenderersJoinAndLeaveThroughDnsWithoutRestartingTheSma) {
   ASSERT_FALSE(HasFailure());
   SmaTestClient client = ConnectClient();
   ASSERT_FALSE(HasFailure());
-  const std::string r1 = "renderer." + Endpoint("render1");
-  const std::string r2 = "renderer." + Endpoint("render2");
   ASSERT_TRUE(WaitUntil([&] { return Must(client, "renderers_connected") == 1.0; }, 30s)) << sma.LogTail();
   EXPECT_EQ(Must(client, "renderers"), 1.0);
-  EXPECT_FALSE(Counter(client, r2 + ".connected").has_value()) << "render2 is not in DNS yet";
+  // Clients see renderers by index; the SMA's log says which address each is.
+  auto r1Prefix = RendererCounterPrefix(sma, Endpoint("render1"));
+  ASSERT_TRUE(r1Prefix.ok()) << r1Prefix.error().message;
+  const std::string r1 = *r1Prefix;
+  EXPECT_FALSE(RendererCounterPrefix(sma, Endpoint("render2"), 0s).ok()) << "render2 is not in DNS yet";
 
   auto scene = LoadScene(kScene);
   ASSERT_TRUE(scene.ok()) << scene.error().message;
@@ -240,6 +245,9 @@ TEST_F(MultiHostTest, RenderersJoinAndLeaveThroughDnsWithoutRestartingTheSma) {
 
   // Scale up: the name now resolves to both hosts.
   ResolveRenderersTo({"render1", "render2"});
+  auto r2Prefix = RendererCounterPrefix(sma, Endpoint("render2"));
+  ASSERT_TRUE(r2Prefix.ok()) << r2Prefix.error().message << "\n" << sma.LogTail();
+  const std::string r2 = *r2Prefix;
   ASSERT_TRUE(WaitUntil([&] { return Counter(client, r2 + ".connected") == 1.0; }, 30s))
       << "the SMA did not pick up render2 from DNS\n" << sma.LogTail();
   ASSERT_TRUE(WaitUntil([&] { return Must(client, r2 + ".samples_shaded") > 0.0; }, 30s))

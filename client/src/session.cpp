@@ -4,6 +4,7 @@
 #include <cmath>
 #include <mutex>
 #include <thread>
+#include <utility>
 
 #include <fmt/format.h>
 
@@ -222,6 +223,7 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
     connection_ = connection;
     welcomed_ = false;
     ready_ = false;
+    closeReason_.clear();
     {
       std::lock_guard lock(mutex_);
       statusConnection_ = connection;
@@ -279,9 +281,12 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
     }
     connection_.reset();
     countersTimer_.cancel();
-    RecordError(reason);
+    // The server's own word (a fatal error it sent, as "SMA ... is shutting
+    // down") says more than the socket's ("peer closed the connection").
+    const std::string why = closeReason_.empty() ? reason : std::exchange(closeReason_, std::string());
+    RecordError(why);
     const bool wasReady = std::exchange(ready_, false);
-    if (wasReady) Push(Disconnected{connectionNumber_, reason});
+    if (wasReady) Push(Disconnected{connectionNumber_, why});
     if (stopping_) return;
     if (!permanentError_.empty()) {
       // Retrying cannot help: stop, and let the application say why.
@@ -293,10 +298,10 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
     }
     const auto delay = ScheduleRetry();
     if (wasReady)
-      log_->warn("lost connection {} to SMA {}: {}; reconnecting in {} ms", connectionNumber_, address_, reason,
+      log_->warn("lost connection {} to SMA {}: {}; reconnecting in {} ms", connectionNumber_, address_, why,
                  delay.count());
     else
-      log_->info("SMA {} closed the connection during the handshake: {}; retrying in {} ms", address_, reason,
+      log_->info("SMA {} closed the connection during the handshake: {}; retrying in {} ms", address_, why,
                  delay.count());
   }
 
@@ -342,10 +347,19 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
   }
 
   void OnErrorReply(const wire::ErrorReply& error) {
+    if (error.fatal() && error.code() == wire::ERROR_CODE_SHUTTING_DOWN) {
+      // Not a fault: the server is going away (a restart, say); reconnecting
+      // takes it from here.
+      closeReason_ = fmt::format("SMA {} is shutting down", address_);
+      log_->warn("{}", closeReason_);
+      RecordError(closeReason_);
+      return;
+    }
     const std::string text = fmt::format("SMA {} reports {}: {}", address_, wire::ErrorCode_Name(error.code()),
                                          error.message());
     if (error.fatal()) {
       log_->error("{} (it closes the connection)", text);
+      closeReason_ = text;
       RecordError(text);
       // Refused during the handshake for what we are (role, protocol
       // version, scene): the same answer would come on every attempt.
@@ -489,6 +503,7 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
   bool welcomed_ = false;
   bool ready_ = false;  // SceneInfo received on connection_
   std::string permanentError_;  // why retrying cannot help; set once, ends the session
+  std::string closeReason_;  // from a fatal ErrorReply on connection_: why it is about to close
   std::optional<wire::SessionOptions> sessionOptions_;  // sent on every connection
   wire::Welcome welcome_;
   uint64_t connectionNumber_ = 0;

@@ -9,6 +9,7 @@
 
 #include <gtest/gtest.h>
 
+#include "penumbra/common/messages.h"
 #include "support/delta_builder.h"
 #include "penumbra/common/messages.h"
 #include "support/fake_sma.h"
@@ -163,6 +164,24 @@ TEST_F(SessionTest, ReconnectsWhenTheSmaGoesAwayAndSendsTheViewAgain) {
   auto view = testing::ReceiveView(sma);
   ASSERT_TRUE(view.ok());
   EXPECT_EQ(view->view_id(), 1u) << "view ids count per connection";
+  EXPECT_EQ(session_->Status().connections, 2u);
+}
+
+// An SMA stopping says SHUTTING_DOWN before it closes: the client reports
+// that, not a bare "peer closed the connection", and reconnects.
+TEST_F(SessionTest, AnSmaShuttingDownIsReportedAsSuchAndReconnectedTo) {
+  session_->SetView(FrontView());
+  {
+    WireClient sma = AcceptClient();
+    ASSERT_TRUE(WaitForEvent<Connected>().has_value());
+    ASSERT_TRUE(sma.Send(MakeError(0, wire::ERROR_CODE_SHUTTING_DOWN, "SMA is shutting down", true)));
+  }  // and closes
+  auto lost = WaitForEvent<Disconnected>();
+  ASSERT_TRUE(lost.has_value());
+  EXPECT_NE(lost->reason.find("is shutting down"), std::string::npos) << lost->reason;
+  EXPECT_NE(session_->Status().lastError.find("is shutting down"), std::string::npos) << session_->Status().lastError;
+  WireClient sma = AcceptClient();
+  ASSERT_TRUE(WaitForEvent<Connected>().has_value());
   EXPECT_EQ(session_->Status().connections, 2u);
 }
 

@@ -16,15 +16,20 @@ class JobQueue {
   explicit JobQueue(int threads) {
     for (int i = 0; i < std::max(1, threads); ++i) threads_.emplace_back([this] { Loop(); });
   }
-  /// Finishes the running jobs, drops the queued ones, joins.
+  /// Stop(), then waits for the running jobs to finish.
   ~JobQueue() {
+    Stop();
+    for (auto& t : threads_) t.join();
+  }
+  /// Drops the queued jobs; jobs posted from now on are dropped too, and the
+  /// threads end once their running job returns. Thread-safe.
+  void Stop() {
     {
       std::lock_guard lock(mutex_);
       stopping_ = true;
       jobs_.clear();
     }
     wake_.notify_all();
-    for (auto& t : threads_) t.join();
   }
   JobQueue(const JobQueue&) = delete;
   JobQueue& operator=(const JobQueue&) = delete;

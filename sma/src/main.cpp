@@ -166,6 +166,11 @@ int main(int argc, char** argv) {
                                                      "split from, [1, 20]")
           ->capture_default_str();
   maxRefineDepth->excludes(maxDepthAlias);
+  // Connection limits and shutdown (issue 12)
+  app.add_option("--max-connections", options.maxConnections,
+                 "Client connections (counting those yet to say Hello) served at once; more are refused with "
+                 "TOO_MANY_CONNECTIONS and closed at once")
+      ->check(CLI::Range(size_t(1), size_t(1) << 20))->capture_default_str();
   CLI11_PARSE(app, argc, argv);
 
   if (!SetupLogging(logLevel)) {

@@ -47,6 +47,7 @@ struct RendererPool::Link {
 
   tcp::endpoint endpoint;
   std::string label;
+  uint32_t index = 0;  // RendererStatus::index
   std::shared_ptr<net::Connection> connection;
   State state = State::kWaiting;
   std::chrono::milliseconds backoff{0};
@@ -159,9 +160,10 @@ void RendererPool::OnResolved(size_t configured, const error_code& ec, const std
     const bool known = std::any_of(links_.begin(), links_.end(), [&](const auto& l) { return l->endpoint == endpoint; });
     if (known) continue;
     auto link = std::make_shared<Link>(io_, endpoint);
+    link->index = nextLinkIndex_++;
     link->backoff = options_.reconnectMin;
     links_.push_back(link);
-    log->info("renderer endpoint {} added", link->label);
+    log->info("renderer endpoint {} added as renderer.{}", link->label, link->index);
     asio::post(io_, [self = shared_from_this(), link] { self->Connect(link); });
   }
   DispatchLocked();
@@ -665,6 +667,7 @@ RendererPoolStats RendererPool::Stats() const {
   s.rejected = rejectedSamples_;
   for (const auto& link : links_) {
     RendererStatus r;
+    r.index = link->index;
     r.endpoint = link->label;
     r.name = link->peerName;
     r.connected = link->state == Link::State::kReady;

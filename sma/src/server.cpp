@@ -91,6 +91,13 @@ class SmaServer::Impl {
   }
 
   Expected<tcp::endpoint> Listen() {
+    // Descriptors for every client allowed, and room for renderer links and files.
+    const size_t fit = net::FitConnectionsToDescriptorLimit(options_.maxConnections, 256);
+    if (fit < options_.maxConnections) {
+      log_->warn("the descriptor limit (ulimit -n) allows only {} client connections; --max-connections {} lowered "
+                 "to that", fit, options_.maxConnections);
+      options_.maxConnections = fit;
+    }
     listener_ = net::Listener::Create(io_, [this](tcp::socket socket) { Accept(std::move(socket)); });
     auto bound = listener_->Listen(options_.listen);
     if (bound) log_->info("{}: listening for clients on {}:{}", options_.name, bound->address().to_string(), bound->port());
@@ -222,8 +229,10 @@ class SmaServer::Impl {
   // renderer may come and go between two polls.
   void ArmRendererWatch();
   asio::steady_timer rendererWatchTimer_{io_};
-  std::atomic<bool> shuttingDown_{false};
+  std::atomic<bool> shuttingDown_{false};  // also tells running jobs to give up
+>>>>>>> h/limitsb
   Clock::time_point shutdownDeadline_;
+  net::LogThrottle refusals_{std::chrono::seconds(10)};
   RendererPoolStats lastStats_;
   std::mutex viewTimesMutex_;
   std::vector<std::array<double, 3>> viewTimes_;  // trace, map, view -> first delta (ms)
@@ -603,15 +612,18 @@ void SmaServer::Impl::Session::StartJob() {
     auto t0 = Clock::now();
     if (!hits) {
       hits = std::make_shared<HitBuffer>();
-      server.tracer_->Trace(view, *hits);
+      server.tracer_->Trace(view, *hits, &server.shuttingDown_);
       ++server.viewTraces_;
+>>>>>>> h/limitsb
     }
     auto t1 = Clock::now();
     auto visible = std::make_shared<VisibleSet>();
+    if (server.shuttingDown_) return;  // the result would be dropped anyway
     {
       std::shared_lock lock(server.stateMutex_);
-      MapHitsToNodes(server.hierarchy_, *hits, &ChildrenShaded, &server.cache_, *visible);
+      MapHitsToNodes(server.hierarchy_, *hits, &ChildrenShaded, &server.cache_, *visible, &server.shuttingDown_);
     }
+    if (server.shuttingDown_) return;
     auto t2 = Clock::now();
     t.traceMs = newView ? Ms(t1 - t0) : 0.0;
     t.mapMs = Ms(t2 - t1);
@@ -921,6 +933,7 @@ void SmaServer::Impl::Session::MaybeRefine() {
       std::unique_lock lock(server.stateMutex_);
       const RefineOptions options = refiner->Params().ToRefineOptions();
       for (NodeId id : chosen) {
+        if (server.shuttingDown_.load(std::memory_order_relaxed)) break;  // a step of 10^5 splits takes long
         if (!server.hierarchy_.GetNode(id).IsLeaf()) continue;  // split meanwhile, by another client
         RefineResult r = server.hierarchy_.Refine(id, options);
         created.insert(created.end(), r.newVertices.begin(), r.newVertices.end());
@@ -1167,11 +1180,27 @@ void SmaServer::Impl::Session::OnClosed(const std::string& reason) {
 // --- Server -----------------------------------------------------------------
 
 void SmaServer::Impl::Accept(tcp::socket socket) {
-  if (shuttingDown_) return;
+  if (shuttingDown_) {
+    net::RefuseConnection(std::move(socket), MakeError(0, wire::ERROR_CODE_SHUTTING_DOWN, "SMA is shutting down", true));
+    return;
+  }
   const std::string peer = net::PeerAddress(socket);
   std::shared_ptr<Session> session;
   {
     std::lock_guard lock(sessionsMutex_);
+    if (sessions_.size() >= options_.maxConnections) {
+      // Refused at once: idle or anonymous peers cannot exhaust descriptors,
+      // and the clients already connected are served as before.
+      if (const uint64_t n = refusals_.Note())
+        log_->warn("{} client connection(s) refused, latest from {}: at the cap of {} connections (--max-connections)",
+                   n, peer, options_.maxConnections);
+      net::RefuseConnection(std::move(socket),
+                            MakeError(0, wire::ERROR_CODE_TOO_MANY_CONNECTIONS,
+                                      fmt::format("this SMA serves at most {} connections at once; try again later",
+                                                  options_.maxConnections),
+                                      true));
+      return;
+    }
     const uint64_t id = nextSessionId_++;
     auto connection =
         net::Connection::Create(std::move(socket), options_.clientConnection, fmt::format("client#{} {}", id, peer));
@@ -1214,12 +1243,15 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
   size_t connected = 0;
   for (const RendererStatus& r : pool.renderers) {
     connected += r.connected;
-    AddCounter(reply, "renderer." + r.endpoint + ".connected", r.connected ? 1.0 : 0.0);
-    AddCounter(reply, "renderer." + r.endpoint + ".samples_in_flight", double(r.samplesInFlight));
-    AddCounter(reply, "renderer." + r.endpoint + ".samples_shaded", double(r.samplesShaded));
-    AddCounter(reply, "renderer." + r.endpoint + ".samples_per_second", r.samplesPerSecond);
-    AddCounter(reply, "renderer." + r.endpoint + ".failures", double(r.failures));
-    AddCounter(reply, "renderer." + r.endpoint + ".bad_replies", double(r.badReplies));
+    // By index, never by address: clients must not learn where the renderers
+    // are (operators find the pairing in the log).
+    const std::string prefix = fmt::format("renderer.{}.", r.index);
+    AddCounter(reply, prefix + "connected", r.connected ? 1.0 : 0.0);
+    AddCounter(reply, prefix + "samples_in_flight", double(r.samplesInFlight));
+    AddCounter(reply, prefix + "samples_shaded", double(r.samplesShaded));
+    AddCounter(reply, prefix + "samples_per_second", r.samplesPerSecond);
+    AddCounter(reply, prefix + "failures", double(r.failures));
+    AddCounter(reply, prefix + "bad_replies", double(r.badReplies));
   }
   AddCounter(reply, "renderers", double(pool.renderers.size()));
   AddCounter(reply, "renderers_connected", double(connected));
@@ -1314,11 +1346,19 @@ void SmaServer::Impl::Shutdown() {
     signals_.cancel();
     statsTimer_.cancel();
     rendererWatchTimer_.cancel();
+    // Abandon the work (a running trace or refinement step stops at its next
+    // tile or split; it took 7 s to finish them): nobody will see it.
+    jobs_.Stop();
+    backgroundJobs_.Stop();
     pool_->Stop();
-    for (auto& s : Sessions()) s->Connection().CloseAfterFlush("SMA shutting down");
-    // Sessions flush and close within the connection's drain grace; stop
-    // when they are all gone, or after a few seconds whatever happens.
-    shutdownDeadline_ = Clock::now() + std::chrono::seconds(3);
+    const auto sessions = Sessions();
+    log_->info("shutting down: telling {} client(s)", sessions.size());
+    for (auto& s : sessions)
+      s->Connection().FailAndClose(MakeError(0, wire::ERROR_CODE_SHUTTING_DOWN, "SMA is shutting down", true),
+                                   "SMA shutting down");
+    // Stop when every client has been told and closed, or after a second
+    // whatever a client that does not read does.
+    shutdownDeadline_ = Clock::now() + std::chrono::seconds(1);
     PollShutdown();
   });
 }

@@ -176,7 +176,7 @@ Expected<std::unique_ptr<VisibilityTracer>> VisibilityTracer::Build(const Scene&
 VisibilityTracer::VisibilityTracer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 VisibilityTracer::~VisibilityTracer() = default;
 
-void VisibilityTracer::Trace(const CameraView& view, HitBuffer& out) const {
+void VisibilityTracer::Trace(const CameraView& view, HitBuffer& out, const std::atomic<bool>* cancel) const {
   const int width = view.width, height = view.height;
   out.view = view;
   out.hits.resize(size_t(width) * size_t(height));
@@ -190,6 +190,8 @@ void VisibilityTracer::Trace(const CameraView& view, HitBuffer& out) const {
     RTCIntersectContext context = CoherentContext();
     Packet packet;
     for (int tile = tiles.begin(); tile != tiles.end(); ++tile) {
+      // A big view takes seconds; a shutdown should not wait for it.
+      if (cancel && cancel->load(std::memory_order_relaxed)) break;
       tiling.ForEachPacket(tile, [&](int x0, int y0) {
         packet.Trace(impl_->scene, context, rays, width, height, x0, y0);
         for (int lane = 0; lane < kPacketSize; ++lane) {
@@ -369,7 +371,7 @@ void SortByNode(std::vector<Run>& runs, std::vector<Run>& scratch, size_t nodeCo
 }  // namespace
 
 void MapHitsToNodes(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFunction descend, const void* context,
-                    VisibleSet& out) {
+                    VisibleSet& out, const std::atomic<bool>* cancel) {
   const size_t width = size_t(hits.view.width);
   const int height = hits.view.height;
   PENUMBRA_CHECK(hits.hits.size() == width * size_t(height),
@@ -387,6 +389,7 @@ void MapHitsToNodes(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFu
     NodeFinder finder(hierarchy, descend, context);
     RunFolder folder;
     for (int chunk = chunks.begin(); chunk != chunks.end(); ++chunk) {
+      if (cancel && cancel->load(std::memory_order_relaxed)) break;
       std::vector<Run>& runs = runsOfChunk[size_t(chunk)];
       const int endY = std::min(height, (chunk + 1) * kRowsPerChunk);
       for (int y = chunk * kRowsPerChunk; y < endY; ++y) {
@@ -409,6 +412,11 @@ void MapHitsToNodes(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFu
     order.Leave();
   });
   order.Join();
+  if (cancel && cancel->load()) {
+    out.nodes.clear();
+    out.coverage.clear();
+    return;
+  }
 
   std::vector<Run> runs, scratch;
   size_t runCount = 0;

@@ -1,6 +1,9 @@
 #include "support/sma_client.h"
 
 #include <algorithm>
+#include <cctype>
+#include <fstream>
+#include <thread>
 
 #include <fmt/format.h>
 
@@ -99,6 +102,24 @@ Expected<double> SmaTestClient::Counter(const std::string& name) {
     if (auto ok = Apply(*e); !ok) return ok.error();
   }
   return Fail("timeout waiting for stats");
+}
+
+Expected<std::string> RendererCounterPrefix(const ChildProcess& sma, const std::string& address,
+                                            std::chrono::milliseconds timeout) {
+  const std::string marker = "renderer endpoint " + address + " added as ";
+  const auto deadline = Clock::now() + timeout;
+  while (true) {
+    std::ifstream log(sma.LogPath());
+    for (std::string line; std::getline(log, line);) {
+      const size_t at = line.find(marker);
+      if (at == std::string::npos) continue;
+      std::string prefix = line.substr(at + marker.size());
+      while (!prefix.empty() && std::isspace(static_cast<unsigned char>(prefix.back()))) prefix.pop_back();
+      return prefix;
+    }
+    if (Clock::now() >= deadline) return Fail(fmt::format("the SMA's log never added renderer {}", address));
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
 }
 
 CameraView ViewFromPreset(const wire::CameraPreset& preset, int width, int height) {

@@ -11,6 +11,7 @@
 #include "penumbra/common/camera.h"
 #include "penumbra/common/expected.h"
 #include "support/held_mesh.h"
+#include "support/process.h"
 #include "support/wire_client.h"
 
 namespace penumbra::testing {
@@ -63,6 +64,13 @@ class SmaTestClient {
   uint64_t nextStatsId_ = 1;
   std::chrono::steady_clock::time_point lastSent_ = std::chrono::steady_clock::now();
 };
+
+/// The prefix ("renderer.N") of the SMA counters of the renderer endpoint at
+/// `address` ("127.0.0.1:7100"): clients see renderers by index only, and
+/// the SMA's log pairs each index with its address (an operator's view).
+/// Waits up to `timeout` for that log line.
+Expected<std::string> RendererCounterPrefix(const ChildProcess& sma, const std::string& address,
+                                            std::chrono::milliseconds timeout = std::chrono::seconds(30));
 
 /// A CameraView from a SceneInfo preset, at the given resolution.
 CameraView ViewFromPreset(const wire::CameraPreset& preset, int width, int height);

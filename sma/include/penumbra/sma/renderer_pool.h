@@ -103,7 +103,11 @@ struct RendererPoolOptions {
 };
 
 struct RendererStatus {
-  std::string endpoint;
+  /// Names the endpoint where clients may look (their counters): 1, 2, ...
+  /// in the order endpoints were added, never reused. The log line
+  /// "renderer endpoint ADDRESS added as renderer.N" pairs it with its address.
+  uint32_t index = 0;
+  std::string endpoint;  // its address: for operators (logs), never for clients
   std::string name;  // from its Welcome
   bool connected = false;
   uint32_t batchesInFlight = 0;
@@ -204,6 +208,7 @@ class RendererPool : public std::enable_shared_from_this<RendererPool> {
   std::deque<VertexId> backgroundQueue_;
   std::deque<VertexId> improveQueue_;
   std::vector<std::shared_ptr<Link>> links_;
+  uint32_t nextLinkIndex_ = 1;  // RendererStatus::index
   std::vector<std::vector<tcp::endpoint>> resolved_;  // per configured renderer
   uint64_t nextBatchId_ = 1;
   uint64_t queuedVisible_ = 0;  // entries queued and in the visible deque

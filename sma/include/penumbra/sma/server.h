@@ -52,6 +52,9 @@ struct SmaOptions {
   size_t clientSoftQueueBytes = size_t(4) << 20;  // beyond this, a client's deltas are coalesced
   uint32_t maxTrianglesPerDelta = 16384;          // larger changes go in several deltas
   uint64_t maxViewPixels = uint64_t(8192) * 4608;  // larger views are refused (visibility's time and memory)
+  /// Client connections (counting those yet to say Hello) served at once;
+  /// more are refused with TOO_MANY_CONNECTIONS and closed at once.
+  size_t maxConnections = 256;
   std::chrono::milliseconds refreshInterval{100}; // min time between re-mapping a view after new samples
   std::chrono::milliseconds statsInterval{10000};
   ToneMappingDefaults toneMapping;
@@ -93,7 +96,9 @@ class SmaServer {
   Expected<tcp::endpoint> Listen();
   /// Serves until SIGINT/SIGTERM or Shutdown(); returns after closing.
   void Run();
-  /// Thread-safe.
+  /// Stops within about a second: queued visibility and refinement jobs are
+  /// dropped and running ones stop early, every client is sent a fatal
+  /// SHUTTING_DOWN and closed. Thread-safe.
   void Shutdown();
 
   /// Writes the SMA's metric families (docs/metrics.md): StatsReply's server

@@ -14,6 +14,7 @@
 //
 // visibility.cpp is the only SMA file that includes Embree.
 
+#include <atomic>
 #include <cstddef>
 #include <cstdint>
 #include <memory>
@@ -67,8 +68,9 @@ class VisibilityTracer {
   /// reused from call to call). Rays start at the eye, with no near plane,
   /// and hit both faces of every triangle. The view must have passed
   /// ValidateCameraView. Thread-safe; runs on the TBB threads of the calling
-  /// thread's arena.
-  void Trace(const CameraView& view, HitBuffer& out) const;
+  /// thread's arena. When `cancel` becomes true (looked at per tile) it
+  /// returns early, `out` half-filled: the caller drops it.
+  void Trace(const CameraView& view, HitBuffer& out, const std::atomic<bool>* cancel = nullptr) const;
 
   /// For benchmarks only: Trace's rays for `view`, traced on the calling
   /// thread by plain Embree calls that record nothing but whether they hit.
@@ -99,9 +101,10 @@ struct VisibleSet {
 /// thread-safe (read-only). The caller keeps the hierarchy unchanged
 /// meanwhile (the SMA holds its state lock shared). `hierarchy` must be built
 /// on the scene `hits` was traced in. `out`'s storage is reused from call to
-/// call.
+/// call. When `cancel` becomes true (looked at per band of rows) it returns
+/// early with `out` incomplete: the caller drops it.
 using DescendFunction = bool (*)(const Node& node, const void* context);
 void MapHitsToNodes(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFunction descend,
-                    const void* context, VisibleSet& out);
+                    const void* context, VisibleSet& out, const std::atomic<bool>* cancel = nullptr);
 
 }  // namespace penumbra::sma
