@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include <csignal>
+#include <atomic>
 #include <cmath>
 #include <fstream>
 #include <memory>
@@ -19,6 +20,7 @@
 #include <nlohmann/json.hpp>
 
 #include "penumbra/common/metrics.h"
+#include "penumbra/common/operator_http.h"
 #include "support/http_client.h"
 #include "support/process.h"
 #include "support/sma_client.h"
@@ -331,6 +333,44 @@ TEST_F(OperatorHttpTest, HostileRequestsGet4xxAndDoNotDisturbTheService) {
     EXPECT_TRUE(json.contains("level") && json.contains("logger") && json.contains("message")) << line;
   }
   EXPECT_GT(lines, 3);
+}
+
+// In-process: the endpoint as a tier's main uses it, before and after the
+// tier attaches (a scene loading takes that long; here it is immediate).
+TEST(OperatorEndpointTest, NotReadyWhileTheTierLoadsReadyOnceAttachedAndNotAfterDetach) {
+  auto endpoint = OperatorEndpoint::Start(HostPort{"127.0.0.1", 0}, "penumbra_test");
+  ASSERT_TRUE(endpoint) << endpoint.error().message;
+  const uint16_t port = (*endpoint)->Endpoint().port();
+  EXPECT_EQ(Status(port, "/healthz"), 200);
+  auto loading = HttpGet(port, "/readyz");
+  ASSERT_TRUE(loading);
+  EXPECT_EQ(loading->status, 503);
+  EXPECT_EQ(loading->body, "not ready: loading the scene\n");
+  Exposition before = Scrape(port);
+  EXPECT_EQ(Value(before, "penumbra_test_ready"), 0.0);
+  EXPECT_EQ(before.FindFamily("penumbra_test_widgets"), nullptr);
+
+  std::atomic<bool> ready{false};
+  (*endpoint)->Attach({[](metrics::ExpositionWriter& out) {
+                         out.Family("penumbra_test_widgets", "gauge", "Widgets");
+                         out.Sample("penumbra_test_widgets", 7);
+                       },
+                       [&ready] { return ready ? std::string() : std::string("warming up"); }});
+  auto warming = HttpGet(port, "/readyz");
+  ASSERT_TRUE(warming);
+  EXPECT_EQ(warming->status, 503);
+  EXPECT_EQ(warming->body, "not ready: warming up\n");
+  ready = true;
+  EXPECT_EQ(Status(port, "/readyz"), 200);
+  Exposition attached = Scrape(port);
+  EXPECT_EQ(Value(attached, "penumbra_test_ready"), 1.0);
+  EXPECT_EQ(Value(attached, "penumbra_test_widgets"), 7.0);
+
+  (*endpoint)->Detach();
+  EXPECT_EQ(Status(port, "/readyz"), 503);
+  EXPECT_EQ(Scrape(port).FindFamily("penumbra_test_widgets"), nullptr);
+  (*endpoint)->Stop();
+  EXPECT_FALSE(HttpGet(port, "/healthz", 2s)) << "still serving after Stop()";
 }
 
 }  // namespace
