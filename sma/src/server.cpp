@@ -230,7 +230,6 @@ class SmaServer::Impl {
   void ArmRendererWatch();
   asio::steady_timer rendererWatchTimer_{io_};
   std::atomic<bool> shuttingDown_{false};  // also tells running jobs to give up
->>>>>>> h/limitsb
   Clock::time_point shutdownDeadline_;
   net::LogThrottle refusals_{std::chrono::seconds(10)};
   RendererPoolStats lastStats_;
@@ -614,7 +613,6 @@ void SmaServer::Impl::Session::StartJob() {
       hits = std::make_shared<HitBuffer>();
       server.tracer_->Trace(view, *hits, &server.shuttingDown_);
       ++server.viewTraces_;
->>>>>>> h/limitsb
     }
     auto t1 = Clock::now();
     auto visible = std::make_shared<VisibleSet>();
