@@ -10,6 +10,8 @@ packages=(
   libboost-dev libprotobuf-dev protobuf-compiler libembree-dev libopenimageio-dev
   libglfw3-dev libglm-dev libspdlog-dev libassimp-dev libcli11-dev nlohmann-json3-dev
   libtbb-dev libepoxy-dev libegl-dev
+  # TLS on every hop (Boost.Asio's ssl::stream); the openssl CLI makes test certificates
+  libssl-dev openssl
   # OpenImageIO's CMake package checks that its tools (iconvert, ...) exist
   openimageio-tools
   # tests and benchmarks

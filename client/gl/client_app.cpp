@@ -113,6 +113,8 @@ class ClientApp {
       : options_(options), log_(Logger("client")), tone_(options.tone), start_(Clock::now()) {
     SmaSessionOptions session;
     session.sma = options.sma;
+    session.authToken = options.authToken;
+    session.tls = options.tls;
     session_ = std::make_unique<SmaSession>(session);
   }
 
@@ -260,6 +262,8 @@ int ClientApp::Run() {
       if (!options_.headless && window_->ShouldClose()) return 0;
     }
     model_.Apply(session_->TakeEvents(), *session_);
+    // A refusal (wrong or missing token, TLS required) is permanent: waiting cannot help.
+    if (const std::string refusal = session_->Status().refusal; !refusal.empty()) return Failed(refusal);
     if (auto ok = renderer_->Sync(model_); !ok) return Failed(ok.error().message);
     if (!EnsureCamera()) return 1;
     if (!options_.headless) {

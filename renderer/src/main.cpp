@@ -7,6 +7,7 @@
 #include <CLI/CLI.hpp>
 
 #include "penumbra/common/version.h"
+#include "penumbra/common/auth.h"
 #include "penumbra/common/endpoint.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/scene.h"
@@ -68,6 +69,13 @@ int main(int argc, char** argv) {
   app.add_option("--name", name, "Name reported in the handshake and logs")->capture_default_str();
   app.add_option("--port-file", portFile, "Write the bound port to this file once listening (for scripts/tests)");
   app.add_option("--log-level", logLevel, "trace, debug, info, warn, error, critical or off")->capture_default_str();
+  std::string authTokenFile, tlsCert, tlsKey;
+  app.add_option("--auth-token-file", authTokenFile,
+                 "Require SMAs to present the token in this file (their --renderer-auth-token-file); keep it mode 600");
+  auto* certOption = app.add_option("--tls-cert", tlsCert, "Serve TLS with this PEM certificate chain (leaf first)");
+  auto* keyOption = app.add_option("--tls-key", tlsKey, "... and this unencrypted PEM private key");
+  certOption->needs(keyOption);
+  keyOption->needs(certOption);
   CLI11_PARSE(app, argc, argv);
 
   if (!SetupLogging(logLevel)) {
@@ -79,6 +87,23 @@ int main(int argc, char** argv) {
   if (!where) {
     std::fprintf(stderr, "penumbra-renderer: --listen: %s\n", where.error().message.c_str());
     return 2;
+  }
+  if (!authTokenFile.empty()) {
+    auto token = ReadAuthTokenFile(authTokenFile);
+    if (!token) {
+      std::fprintf(stderr, "penumbra-renderer: --auth-token-file: %s\n", token.error().message.c_str());
+      return 2;
+    }
+    if (!token->warning.empty()) log->warn("{}", token->warning);
+    options.authToken = std::move(token->token);
+  }
+  if (!tlsCert.empty()) {
+    auto context = net::MakeTlsServerContext(tlsCert, tlsKey);
+    if (!context) {
+      std::fprintf(stderr, "penumbra-renderer: %s\n", context.error().message.c_str());
+      return 2;
+    }
+    options.tls = std::move(*context);
   }
 
   auto scene = LoadScene(scenePath);

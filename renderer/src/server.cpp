@@ -8,6 +8,7 @@
 
 #include <fmt/format.h>
 
+#include "penumbra/common/auth.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
 #include "penumbra/renderer/shading_pool.h"
@@ -39,9 +40,12 @@ class RendererServer::Impl {
   class Session;
 
   Expected<tcp::endpoint> Listen() {
-    listener_ = net::Listener::Create(io_, [this](tcp::socket socket) { Accept(std::move(socket)); });
+    listener_ = net::Listener::Create(io_, [this](net::Stream stream) { Accept(std::move(stream)); });
+    if (options_.tls) listener_->SetTls(options_.tls, options_.connection.handshakeTimeout);
     auto bound = listener_->Listen(options_.listen);
-    if (bound) log_->info("{}: listening on {}:{}", options_.name, bound->address().to_string(), bound->port());
+    if (bound)
+      log_->info("{}: listening on {}:{} ({}{})", options_.name, bound->address().to_string(), bound->port(),
+                 options_.tls ? "TLS" : "plain TCP", options_.authToken.empty() ? "" : ", token required");
     return bound;
   }
 
@@ -84,7 +88,7 @@ class RendererServer::Impl {
   }
 
  private:
-  void Accept(tcp::socket socket);
+  void Accept(net::Stream stream);
   void PollDrain();
 
   void ArmStats() {
@@ -169,6 +173,10 @@ class RendererServer::Impl::Session : public std::enable_shared_from_this<Sessio
     }
     const Scene& scene = server_.GetShader().GetScene();
     wire::ErrorCode code = wire::ERROR_CODE_UNSPECIFIED;
+    // The token first: a peer without it learns nothing else.
+    if (auto ok = CheckHelloToken(hello, server_.Options().authToken, &code); !ok) {
+      return Fatal(code, ok.error().message);
+    }
     if (auto ok = ValidateHello(hello, wire::ROLE_SMA, scene.identity, &code); !ok) {
       return Fatal(code, ok.error().message);
     }
@@ -290,15 +298,15 @@ class RendererServer::Impl::Session : public std::enable_shared_from_this<Sessio
   uint64_t samplesReceived_ = 0;
 };
 
-void RendererServer::Impl::Accept(tcp::socket socket) {
+void RendererServer::Impl::Accept(net::Stream stream) {
   if (draining_) return;  // the socket closes as it goes out of scope
-  const std::string peer = net::PeerAddress(socket);
+  const std::string peer = net::PeerAddress(stream);
   std::shared_ptr<Session> session;
   {
     std::lock_guard lock(sessionsMutex_);
     const uint64_t id = nextSessionId_++;
     auto connection =
-        net::Connection::Create(std::move(socket), options_.connection, fmt::format("sma#{} {}", id, peer));
+        net::Connection::Create(std::move(stream), options_.connection, fmt::format("sma#{} {}", id, peer));
     log_->info("{}: connected", connection->Id());
     session = std::make_shared<Session>(*this, std::move(connection), id);
     sessions_.emplace(id, session);

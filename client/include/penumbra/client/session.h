@@ -99,6 +99,10 @@ struct SessionStatus {
   uint64_t bytesReceived = 0;     // over every connection
   std::optional<double> viewToFirstDeltaMs;  // the latest view's, once its first delta arrived
   std::string lastError;          // why the last connection or attempt failed; empty if none
+  /// Non-empty once the SMA refused this client for good (AUTH_FAILED: a
+  /// missing or wrong token, or TLS required): the state is then kStopped
+  /// and no further attempt is made.
+  std::string refusal;
   /// When the state is kConnecting or kWaiting: since when the client has
   /// been without a connection (or since Start()).
   std::chrono::steady_clock::time_point disconnectedSince;
@@ -118,6 +122,11 @@ struct SmaSessionOptions {
   /// this many bytes of events, so a slow renderer backs the SMA up (which
   /// then coalesces its deltas) instead of growing memory.
   size_t maxPendingEventBytes = size_t(64) << 20;
+  /// Sent in the Hello (the SMA's --auth-token-file); empty: none.
+  std::string authToken;
+  /// TLS to the SMA, verified against this context's CA and the host name
+  /// in `sma`; null: plain TCP.
+  std::shared_ptr<net::ssl::context> tls;
 };
 
 class SmaSession final : public SessionRequests {

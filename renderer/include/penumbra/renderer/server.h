@@ -37,6 +37,12 @@ struct RendererServerOptions {
                                     .maxFrameBytesBeforeHandshake = 64 * 1024};
   std::chrono::milliseconds statsInterval{10000};  // periodic counters in the log
   std::chrono::milliseconds drainTimeout{30000};   // longest graceful shutdown
+  /// Required of every SMA's Hello (constant-time comparison, never
+  /// logged); empty: none required.
+  std::string authToken;
+  /// TLS for every connection (net::MakeTlsServerContext); null: plain TCP.
+  /// The TLS handshake must complete within connection.handshakeTimeout.
+  std::shared_ptr<net::ssl::context> tls;
 };
 
 class RendererServer {
