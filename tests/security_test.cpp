@@ -384,5 +384,54 @@ TEST_F(SecurityTest, PlainAndTlsPeersThatMeetGetAClearError) {
   EXPECT_TRUE(renderer.process.Running());
 }
 
+// Wrong security files stop a process at start-up with one clear line (exit
+// 2) before it loads the scene; a token file others may read draws a warning.
+TEST_F(SecurityTest, BadTokenAndCertificateFilesStopTheProcessAtStartUp) {
+  const std::string empty = WriteToken(*dir_, "empty.token", "");
+  const std::string missing = *dir_ + "/missing.token";
+  struct Case {
+    std::string exe;
+    std::vector<std::string> args;
+    std::string expected;
+  };
+  const std::string renderer = PENUMBRA_RENDERER_EXE, sma = PENUMBRA_SMA_EXE, client = PENUMBRA_CLIENT_EXE;
+  const std::vector<std::string> rendererBase = {"--scene", kScene, "--listen", "127.0.0.1:0"};
+  const std::vector<std::string> smaBase = {"--scene", kScene, "--listen", "127.0.0.1:0", "--renderer", "127.0.0.1:9"};
+  const std::vector<std::string> clientBase = {"--connect", "127.0.0.1:9", "--headless", "--gl", "egl"};
+  const auto with = [](std::vector<std::string> base, const std::vector<std::string>& more) {
+    base.insert(base.end(), more.begin(), more.end());
+    return base;
+  };
+  const std::vector<Case> cases = {
+      {renderer, with(rendererBase, {"--auth-token-file", empty}), "holds no token"},
+      {renderer, with(rendererBase, {"--auth-token-file", missing}), "missing.token"},
+      {renderer, with(rendererBase, {"--tls-cert", pki_->cert, "--tls-key", pki_->wrongNameKey}),
+       "is not the key of the certificate"},
+      {renderer, with(rendererBase, {"--tls-cert", pki_->key, "--tls-key", pki_->key}), "not a PEM certificate chain"},
+      {sma, with(smaBase, {"--renderer-auth-token-file", empty}), "--renderer-auth-token-file"},
+      {sma, with(smaBase, {"--renderer-tls-ca", missing}), "missing.token"},
+      {client, with(clientBase, {"--auth-token-file", missing}), "--auth-token-file"},
+      {client, with(clientBase, {"--tls-ca", pki_->key}), "no PEM CA certificate"},
+  };
+  for (size_t i = 0; i < cases.size(); ++i) {
+    const Case& c = cases[i];
+    SCOPED_TRACE(c.expected);
+    auto process = ChildProcess::Spawn(c.exe, c.args, fmt::format("{}/startup-{}.log", *dir_, i));
+    ASSERT_TRUE(process.ok()) << process.error().message;
+    const auto code = process->WaitExit(30s);
+    const std::string log = ReadWhole(process->LogPath());
+    EXPECT_EQ(code, std::optional<int>(2)) << log;
+    EXPECT_TRUE(Contains(log, c.expected)) << log;
+  }
+
+  const std::string shared = *dir_ + "/shared.token";
+  std::ofstream(shared) << kRendererToken << "\n";
+  ::chmod(shared.c_str(), 0644);
+  Service open = StartRenderer({"--auth-token-file", shared}, "shared-token");
+  const std::string log = ReadWhole(open.process.LogPath());
+  EXPECT_TRUE(Contains(log, "chmod 600")) << log;
+  EXPECT_FALSE(Contains(log, kRendererToken)) << log;
+}
+
 }  // namespace
 }  // namespace penumbra::testing

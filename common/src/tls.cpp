@@ -6,6 +6,7 @@
 #include <openssl/err.h>
 #include <openssl/ssl.h>
 #include <openssl/x509.h>
+#include <openssl/x509err.h>
 
 namespace penumbra::net {
 
@@ -42,6 +43,10 @@ Expected<std::shared_ptr<ssl::context>> MakeTlsServerContext(const std::filesyst
   context->use_certificate_chain_file(certChainFile.string(), ec);
   if (ec) return Fail(fmt::format("--tls-cert {}: not a PEM certificate chain: {}", certChainFile.string(), SslMessage(ec)));
   context->use_private_key_file(keyFile.string(), ssl::context::pem, ec);
+  if (ec && ec.category() == asio::error::get_ssl_category() &&
+      ERR_GET_REASON(static_cast<unsigned long>(ec.value())) == X509_R_KEY_VALUES_MISMATCH)
+    return Fail(fmt::format("--tls-key {} is not the key of the certificate in --tls-cert {}", keyFile.string(),
+                            certChainFile.string()));
   if (ec) return Fail(fmt::format("--tls-key {}: not an unencrypted PEM private key: {}", keyFile.string(), SslMessage(ec)));
   if (SSL_CTX_check_private_key(context->native_handle()) != 1) {
     ERR_clear_error();
