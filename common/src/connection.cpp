@@ -200,23 +200,23 @@ void Connection::DoWrite() {
   for (size_t i = 0; i < count; ++i) buffers.emplace_back(asio::buffer(*writeQueue_[i]));
   stream_.AsyncWrite(buffers,
                      asio::bind_executor(strand_, [self = shared_from_this(), count](const error_code& ec, size_t n) {
-                      self->writing_ = false;
-                      if (self->closed_) return;
-                      if (ec) {
-                        self->DoClose(fmt::format("write failed: {}", ec.message()));
-                        return;
-                      }
-                      self->bytesSent_ += n;
-                      self->lastSend_ = Clock::now();
-                      for (size_t i = 0; i < count; ++i) {
-                        self->queuedBytes_.fetch_sub(self->writeQueue_.front()->size());
-                        self->writeQueue_.pop_front();
-                      }
-                      if (!self->writeQueue_.empty())
-                        self->DoWrite();
-                      else if (self->draining_)
-                        self->DoClose(self->drainReason_);
-                    }));
+                       self->writing_ = false;
+                       if (self->closed_) return;
+                       if (ec) {
+                         self->DoClose(fmt::format("write failed: {}", ec.message()));
+                         return;
+                       }
+                       self->bytesSent_ += n;
+                       self->lastSend_ = Clock::now();
+                       for (size_t i = 0; i < count; ++i) {
+                         self->queuedBytes_.fetch_sub(self->writeQueue_.front()->size());
+                         self->writeQueue_.pop_front();
+                       }
+                       if (!self->writeQueue_.empty())
+                         self->DoWrite();
+                       else if (self->draining_)
+                         self->DoClose(self->drainReason_);
+                     }));
 }
 
 void Connection::ArmTick() {
