@@ -1,6 +1,7 @@
 # Every dependency comes from a Debian 12 package (scripts/install-deps.sh).
 find_package(Threads REQUIRED)
 find_package(Boost 1.74 REQUIRED)
+find_package(OpenSSL 3 REQUIRED)  # TLS (Boost.Asio ssl::stream), token comparison
 find_package(Protobuf 3.21 REQUIRED)
 find_package(embree 3 REQUIRED)
 find_package(spdlog REQUIRED)

@@ -16,7 +16,7 @@ FROM debian:12 AS build
 RUN apt-get update \
  && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
       cmake g++ make pkg-config ca-certificates \
-      libboost-dev libprotobuf-dev protobuf-compiler libembree-dev libopenimageio-dev \
+      libboost-dev libssl-dev libprotobuf-dev protobuf-compiler libembree-dev libopenimageio-dev \
       libglm-dev libspdlog-dev libassimp-dev libcli11-dev nlohmann-json3-dev libtbb-dev \
       libglfw3-dev libepoxy-dev libegl-dev libimgui-dev \
  && rm -rf /var/lib/apt/lists/*
@@ -29,7 +29,7 @@ RUN cmake --build build -j"$(nproc)" --target penumbra-client
 FROM debian:12-slim
 RUN apt-get update \
  && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
-      libprotobuf32 libspdlog1.10 libfmt9 libassimp5 libopenimageio2.4 \
+      libprotobuf32 libspdlog1.10 libfmt9 libssl3 libassimp5 libopenimageio2.4 \
       libglfw3 libepoxy0 libegl1 libegl-mesa0 libgl1 libglx-mesa0 libgl1-mesa-dri libstb0 \
  && rm -rf /var/lib/apt/lists/* \
  && useradd --system --uid 10001 --create-home --shell /usr/sbin/nologin penumbra

@@ -17,7 +17,7 @@ FROM debian:12 AS build
 RUN apt-get update \
  && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
       cmake g++ make pkg-config ca-certificates \
-      libboost-dev libprotobuf-dev protobuf-compiler libembree-dev libopenimageio-dev \
+      libboost-dev libssl-dev libprotobuf-dev protobuf-compiler libembree-dev libopenimageio-dev \
       libglm-dev libspdlog-dev libassimp-dev libcli11-dev nlohmann-json3-dev libtbb-dev \
  && rm -rf /var/lib/apt/lists/*
 WORKDIR /src
@@ -29,7 +29,7 @@ RUN cmake --build build -j"$(nproc)" --target penumbra-renderer penumbra-stats
 FROM debian:12-slim
 RUN apt-get update \
  && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
-      libembree3-3 libtbb12 libprotobuf32 libspdlog1.10 libfmt9 libassimp5 libopenimageio2.4 \
+      libembree3-3 libtbb12 libprotobuf32 libspdlog1.10 libfmt9 libssl3 libassimp5 libopenimageio2.4 \
  && rm -rf /var/lib/apt/lists/* \
  && useradd --system --uid 10001 --no-create-home --shell /usr/sbin/nologin penumbra
 COPY --from=build /src/build/renderer/penumbra-renderer /usr/local/bin/penumbra-renderer

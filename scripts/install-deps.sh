@@ -15,6 +15,8 @@ packages=(
   # the client's HUD: Dear ImGui (with its GLFW and OpenGL 3 backends) and a
   # readable font (DejaVu Sans; ImGui's built-in font is the fallback)
   libimgui-dev fonts-dejavu-core
+  # TLS on every hop (Boost.Asio's ssl::stream); the openssl CLI makes test certificates
+  libssl-dev openssl
   # OpenImageIO's CMake package checks that its tools (iconvert, ...) exist
   openimageio-tools
   # tests and benchmarks

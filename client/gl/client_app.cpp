@@ -99,6 +99,8 @@ class ClientApp {
       : options_(options), log_(Logger("client")), tone_(options.tone), start_(Clock::now()) {
     SmaSessionOptions session;
     session.sma = options.sma;
+    session.authToken = options.authToken;
+    session.tls = options.tls;
     session_ = std::make_unique<SmaSession>(session);
   }
 
@@ -254,7 +256,8 @@ int ClientApp::Run() {
     model_.Apply(session_->TakeEvents(), *session_);
     if (auto ok = renderer_->Sync(model_); !ok) return Failed(ok.error().message);
     if (const std::string failure = session_->Status().permanentError; !failure.empty()) {
-      // Retrying cannot fix it (another role, version or scene): headless
+      // Retrying cannot fix it (another role, version or scene; a missing or
+      // wrong token, TLS required): headless
       // ends with the reason as its last line; a window shows it until closed.
       if (options_.headless) return Failed(failure);
       permanentFailureLogged_ = true;

@@ -20,6 +20,7 @@
 #include "gl/tone_mapper.h"
 #include "penumbra/common/camera.h"
 #include "penumbra/common/endpoint.h"
+#include "penumbra/common/tls.h"
 #include "penumbra/wire.pb.h"
 
 namespace penumbra::client::gl {
@@ -65,6 +66,10 @@ struct ClientOptions {
   /// Refinement settings for the SMA session (criterion, S_req, ...); none:
   /// the SMA's defaults. In a window, R cycles the criterion.
   std::optional<wire::SessionOptions> refinement;
+  /// Sent to the SMA in the Hello (--auth-token-file); empty: none.
+  std::string authToken;
+  /// TLS to the SMA (--tls-ca); null: plain TCP.
+  std::shared_ptr<net::ssl::context> tls;
 };
 
 /// Runs the client; returns the process exit code: 0 done (window closed,

@@ -10,7 +10,9 @@
 #include "gl/client_app.h"
 #include "penumbra/common/version.h"
 #include "penumbra/client/path_player.h"
+#include "penumbra/common/auth.h"
 #include "penumbra/common/logging.h"
+#include "penumbra/common/tls.h"
 
 namespace {
 
@@ -59,6 +61,7 @@ int main(int argc, char** argv) {
   int convergeTimeout = int(options.convergeTimeout.count());
   std::string screenshot, stats, screenshotDir = DefaultScreenshotDir();
   std::string snapshotPrefix;
+  std::string authTokenFile, tlsCa;
   // Refinement settings for this client's SMA session; unset: the SMA's.
   std::string criterion;
   std::optional<float> sReq, noiseZ, minPixels, pixelFraction;
@@ -83,6 +86,11 @@ int main(int argc, char** argv) {
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
   app.add_option("--log-level", logLevel, "trace, debug, info, warn, error, critical or off")->capture_default_str();
+  app.add_option("--auth-token-file", authTokenFile,
+                 "Present the token in this file to the SMA (its --auth-token-file); keep it mode 600");
+  app.add_option("--tls-ca", tlsCa,
+                 "Connect with TLS, trusting the CA certificate(s) in this PEM file; the SMA's certificate must name "
+                 "the --connect host");
 
   app.add_option("--criterion", criterion, "Refinement criterion for this client: nld_os, nld_is, rnd, nld_os_rnd or none (default: the SMA's)")
       ->check(CLI::IsMember({"nld_os", "nld_is", "rnd", "nld_os_rnd", "none"}));
@@ -166,6 +174,17 @@ int main(int argc, char** argv) {
     if (pixelFraction) refinement.set_pixel_fraction(*pixelFraction);
     if (refineBatch) refinement.set_batch(*refineBatch);
     options.refinement = refinement;
+  }
+  if (!authTokenFile.empty()) {
+    auto token = ReadAuthTokenFile(authTokenFile);
+    if (!token) return Usage("--auth-token-file: " + token.error().message);
+    if (!token->warning.empty()) Logger("client")->warn("{}", token->warning);
+    options.authToken = std::move(token->token);
+  }
+  if (!tlsCa.empty()) {
+    auto context = net::MakeTlsClientContext(tlsCa);
+    if (!context) return Usage("--tls-ca: " + context.error().message);
+    options.tls = std::move(*context);
   }
   options.connectTimeout = std::chrono::seconds(connectTimeout);
   options.convergeTimeout = std::chrono::seconds(convergeTimeout);

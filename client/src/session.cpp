@@ -205,21 +205,20 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
     if (stopping_) return;
     if (index >= endpoints.size()) return AttemptFailed(lastError);
     const tcp::endpoint endpoint = endpoints[index];
-    net::AsyncConnect(io_, endpoint, options_.connectTimeout,
-                      [self = shared_from_this(), endpoints = std::move(endpoints), index](const error_code& ec,
-                                                                                           tcp::socket socket) mutable {
-                        // AsyncConnect's handler may run on the socket's strand; hop to the session.
-                        asio::post(self->io_, [self, ec, socket = std::move(socket), endpoints = std::move(endpoints),
-                                               index]() mutable {
-                          if (self->stopping_) return;
-                          if (ec) return self->TryEndpoint(std::move(endpoints), index + 1, ec.message());
-                          self->OnSocket(std::move(socket));
-                        });
-                      });
+    net::AsyncConnectStream(
+        io_, endpoint, net::TlsClientTarget{options_.tls, options_.sma.host}, options_.connectTimeout,
+        [self = shared_from_this(), endpoints = std::move(endpoints), index](Expected<net::Stream> stream) mutable {
+          // AsyncConnectStream's handler runs on the socket's strand; hop to the session.
+          asio::post(self->io_, [self, stream = std::move(stream), endpoints = std::move(endpoints), index]() mutable {
+            if (self->stopping_) return;
+            if (!stream) return self->TryEndpoint(std::move(endpoints), index + 1, stream.error().message);
+            self->OnSocket(std::move(*stream));
+          });
+        });
   }
 
-  void OnSocket(tcp::socket socket) {
-    auto connection = net::Connection::Create(std::move(socket), options_.connection, "sma " + address_);
+  void OnSocket(net::Stream stream) {
+    auto connection = net::Connection::Create(std::move(stream), options_.connection, "sma " + address_);
     connection_ = connection;
     welcomed_ = false;
     ready_ = false;
@@ -250,6 +249,7 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
     h->set_role(wire::ROLE_CLIENT);
     h->set_peer_name(options_.clientName);
     h->set_scene_hash(0);  // a client takes whatever scene the SMA serves
+    h->set_auth_token(options_.authToken);
     connection->Send(hello);
   }
 
@@ -356,8 +356,14 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
       return;
     }
     const std::string text = fmt::format("SMA {} reports {}: {}", address_, wire::ErrorCode_Name(error.code()),
-                                         error.message());
-    if (error.fatal()) {
+                                         Printable(error.message(), 512));
+    if (error.code() == wire::ERROR_CODE_AUTH_FAILED) {
+      // Retrying cannot help until an operator changes a token or a TLS flag.
+      permanentError_ = text + " (check --auth-token-file and --tls-ca against the SMA's flags)";
+      log_->error("{}; not retrying", permanentError_);
+      closeReason_ = text;
+      RecordError(text);
+    } else if (error.fatal()) {
       log_->error("{} (it closes the connection)", text);
       closeReason_ = text;
       RecordError(text);

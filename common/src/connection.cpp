@@ -6,6 +6,7 @@
 #include <array>
 
 #include <fmt/format.h>
+#include <openssl/x509.h>
 
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
@@ -26,13 +27,13 @@ std::chrono::milliseconds TickInterval(const ConnectionOptions& o) {
 }
 }  // namespace
 
-std::shared_ptr<Connection> Connection::Create(tcp::socket socket, ConnectionOptions options, std::string id) {
-  return std::shared_ptr<Connection>(new Connection(std::move(socket), options, std::move(id)));
+std::shared_ptr<Connection> Connection::Create(Stream stream, ConnectionOptions options, std::string id) {
+  return std::shared_ptr<Connection>(new Connection(std::move(stream), options, std::move(id)));
 }
 
-Connection::Connection(tcp::socket socket, ConnectionOptions options, std::string id)
-    : strand_(asio::make_strand(socket.get_executor())),
-      socket_(std::move(socket)),
+Connection::Connection(Stream stream, ConnectionOptions options, std::string id)
+    : strand_(asio::make_strand(stream.Socket().get_executor())),
+      stream_(std::move(stream)),
       tick_(strand_),
       options_(options),
       id_(std::move(id)),
@@ -43,7 +44,7 @@ Connection::Connection(tcp::socket socket, ConnectionOptions options, std::strin
   handshakeDone_ = options.handshakeTimeout.count() <= 0 && options.maxFrameBytesBeforeHandshake == 0;
   handshakeDeadline_ = std::chrono::steady_clock::now() + options.handshakeTimeout;
   error_code ec;
-  socket_.set_option(tcp::no_delay(true), ec);  // small deltas and replies must not wait for Nagle
+  stream_.Socket().set_option(tcp::no_delay(true), ec);  // small deltas and replies must not wait for Nagle
 }
 
 Connection::~Connection() = default;
@@ -127,7 +128,7 @@ void Connection::BeginDrain(std::string reason) {
   drainDeadline_ = Clock::now() + kDrainGrace;
   error_code ec;
   // Stop taking input; the peer still gets what we have queued.
-  socket_.shutdown(tcp::socket::shutdown_receive, ec);
+  stream_.Socket().shutdown(tcp::socket::shutdown_receive, ec);
   if (!writing_) {
     if (writeQueue_.empty())
       DoClose(drainReason_);
@@ -139,18 +140,30 @@ void Connection::BeginDrain(std::string reason) {
 void Connection::DoRead() {
   if (closed_ || reading_ || readPaused_ || draining_) return;
   reading_ = true;
-  socket_.async_read_some(asio::buffer(readBuffer_),
-                          asio::bind_executor(strand_, [self = shared_from_this()](const error_code& ec, size_t n) {
-                            self->reading_ = false;
-                            self->OnRead(ec, n);
-                          }));
+  stream_.AsyncReadSome(asio::buffer(readBuffer_),
+                        asio::bind_executor(strand_, [self = shared_from_this()](const error_code& ec, size_t n) {
+                          self->reading_ = false;
+                          self->OnRead(ec, n);
+                        }));
 }
 
 void Connection::OnRead(const error_code& ec, size_t n) {
   if (closed_) return;
   if (ec) {
     if (draining_) return;  // we shut the receive side down ourselves
-    DoClose(ec == asio::error::eof ? std::string("peer closed the connection") : ec.message());
+    // A TLS peer that closes without close_notify reads as stream_truncated.
+    const bool closedByPeer = ec == asio::error::eof || ec == asio::ssl::error::stream_truncated;
+    DoClose(closedByPeer ? std::string("peer closed the connection") : ec.message());
+    return;
+  }
+  if (n > 0 && bytesReceived_ == 0 && !handshakeDone_ && !stream_.IsTls() &&
+      LooksLikeTlsClientHello(reinterpret_cast<const unsigned char*>(readBuffer_.data()), n)) {
+    // A TLS client at a plain server: say so here (the peer, waiting for a
+    // TLS answer, cannot read a frame).
+    const std::string why = "the peer opened a TLS handshake, but this server listens in plain TCP "
+                            "(give it --tls-cert and --tls-key, or connect without TLS)";
+    log_->warn("{}: {}", id_, why);
+    FailAndClose(MakeError(0, wire::ERROR_CODE_AUTH_FAILED, why, true), why);
     return;
   }
   if (n > 0) {
@@ -187,25 +200,25 @@ void Connection::DoWrite() {
   const size_t count = std::min(writeQueue_.size(), kMaxGatherFrames);
   buffers.reserve(count);
   for (size_t i = 0; i < count; ++i) buffers.emplace_back(asio::buffer(*writeQueue_[i]));
-  asio::async_write(socket_, buffers,
-                    asio::bind_executor(strand_, [self = shared_from_this(), count](const error_code& ec, size_t n) {
-                      self->writing_ = false;
-                      if (self->closed_) return;
-                      if (ec) {
-                        self->DoClose(fmt::format("write failed: {}", ec.message()));
-                        return;
-                      }
-                      self->bytesSent_ += n;
-                      self->lastSend_ = Clock::now();
-                      for (size_t i = 0; i < count; ++i) {
-                        self->queuedBytes_.fetch_sub(self->writeQueue_.front()->size());
-                        self->writeQueue_.pop_front();
-                      }
-                      if (!self->writeQueue_.empty())
-                        self->DoWrite();
-                      else if (self->draining_)
-                        self->DoClose(self->drainReason_);
-                    }));
+  stream_.AsyncWrite(buffers,
+                     asio::bind_executor(strand_, [self = shared_from_this(), count](const error_code& ec, size_t n) {
+                       self->writing_ = false;
+                       if (self->closed_) return;
+                       if (ec) {
+                         self->DoClose(fmt::format("write failed: {}", ec.message()));
+                         return;
+                       }
+                       self->bytesSent_ += n;
+                       self->lastSend_ = Clock::now();
+                       for (size_t i = 0; i < count; ++i) {
+                         self->queuedBytes_.fetch_sub(self->writeQueue_.front()->size());
+                         self->writeQueue_.pop_front();
+                       }
+                       if (!self->writeQueue_.empty())
+                         self->DoWrite();
+                       else if (self->draining_)
+                         self->DoClose(self->drainReason_);
+                     }));
 }
 
 void Connection::ArmTick() {
@@ -252,8 +265,9 @@ void Connection::DoClose(const std::string& reason) {
   if (closed_.exchange(true)) return;
   error_code ec;
   tick_.cancel();
-  socket_.shutdown(tcp::socket::shutdown_both, ec);
-  socket_.close(ec);
+  // No TLS close_notify: the peer reads the closed socket as its end either way.
+  stream_.Socket().shutdown(tcp::socket::shutdown_both, ec);
+  stream_.Socket().close(ec);
   for (const auto& frame : writeQueue_) queuedBytes_.fetch_sub(frame->size());
   writeQueue_.clear();
   log_->debug("{}: closed: {}", id_, reason);
@@ -329,7 +343,10 @@ void Listener::DoAccept() {
       return;
     }
     self->acceptPause_ = std::chrono::milliseconds(0);
-    self->onAccept_(std::move(socket));
+    if (self->tls_)
+      self->StartTls(std::move(socket));
+    else
+      self->onAccept_(Stream(std::move(socket)));
     self->DoAccept();
   });
 }
@@ -346,18 +363,18 @@ uint64_t LogThrottle::Note() {
   return std::exchange(held_, 0);
 }
 
-void RefuseConnection(tcp::socket socket, const wire::Envelope& error) {
+void RefuseConnection(Stream stream, const wire::Envelope& error) {
   error_code ec;
-  socket.non_blocking(true, ec);
+  stream.Socket().non_blocking(true, ec);
   const std::string frame = EncodeEnvelopeFrame(error);
-  asio::write(socket, asio::buffer(frame), ec);  // non-blocking: what does not fit now is dropped
+  stream.WriteNow(asio::buffer(frame), ec);  // non-blocking: what does not fit now is dropped
   // Closing a socket with unread input sends a reset, which may destroy the
   // error at the peer before it is read: take in what has arrived (a Hello,
   // usually) first. Bounded: a peer cannot keep us here.
   std::array<char, 4096> sink;
-  for (int i = 0; i < 16 && !ec; ++i) socket.read_some(asio::buffer(sink), ec);
-  socket.shutdown(tcp::socket::shutdown_both, ec);
-  socket.close(ec);
+  for (int i = 0; i < 16 && !ec; ++i) stream.ReadSomeNow(asio::buffer(sink), ec);
+  stream.Socket().shutdown(tcp::socket::shutdown_both, ec);
+  stream.Socket().close(ec);
 }
 
 size_t FitConnectionsToDescriptorLimit(size_t connections, size_t headroom) {
@@ -371,6 +388,88 @@ size_t FitConnectionsToDescriptorLimit(size_t connections, size_t headroom) {
   }
   if (limit.rlim_cur == RLIM_INFINITY || limit.rlim_cur >= wanted) return connections;
   return limit.rlim_cur > headroom ? size_t(limit.rlim_cur - headroom) : 1;
+void Listener::SetTls(std::shared_ptr<ssl::context> context, std::chrono::milliseconds handshakeTimeout) {
+  tls_ = std::move(context);
+  tlsHandshakeTimeout_ = handshakeTimeout;
+}
+
+namespace {
+// One accepted socket on its way to a TLS stream. Everything runs on the
+// socket's strand (the timer and the stream share its executor).
+struct PendingTlsAccept {
+  PendingTlsAccept(tcp::socket s, ssl::context& context)
+      : peer(PeerAddress(s)), timer(s.get_executor()), stream(std::make_unique<TlsStream>(std::move(s), context)) {}
+  std::string peer;
+  asio::steady_timer timer;
+  std::unique_ptr<TlsStream> stream;
+  std::array<unsigned char, 3> first{};
+  bool timedOut = false;
+};
+
+// Reads and drops what a refused plain peer still sends until it closes (or
+// the handshake deadline closes the socket): closing with unread bytes would
+// reset the connection and could destroy the error reply before the peer
+// reads it.
+void DiscardUntilClosed(const std::shared_ptr<PendingTlsAccept>& pending) {
+  auto scratch = std::make_shared<std::array<char, 4096>>();
+  pending->stream->next_layer().async_read_some(asio::buffer(*scratch), [pending, scratch](const error_code& ec, size_t) {
+    if (!ec) return DiscardUntilClosed(pending);
+    pending->timer.cancel();
+    error_code ignored;
+    pending->stream->next_layer().close(ignored);
+  });
+}
+}  // namespace
+
+void Listener::StartTls(tcp::socket socket) {
+  auto pending = std::make_shared<PendingTlsAccept>(std::move(socket), *tls_);
+  const auto timeout = tlsHandshakeTimeout_;
+  pending->timer.expires_after(timeout);
+  pending->timer.async_wait([pending](const error_code& ec) {
+    if (ec) return;
+    // Closing the socket aborts whichever step is pending.
+    pending->timedOut = true;
+    error_code ignored;
+    pending->stream->next_layer().close(ignored);
+  });
+  auto failed = [pending, timeout](const std::string& what) {
+    pending->timer.cancel();
+    if (pending->timedOut)
+      Logger("net")->warn("{}: TLS handshake not completed within {} ms; dropped", pending->peer, timeout.count());
+    else
+      Logger("net")->warn("{}: TLS handshake failed: {}", pending->peer, what);
+  };
+  // The first bytes tell a TLS ClientHello from a plain Penumbra frame; a
+  // plain peer is told, in plain, that TLS is required.
+  asio::async_read(
+      pending->stream->next_layer(), asio::buffer(pending->first),
+      [self = shared_from_this(), pending, failed](const error_code& ec, size_t) {
+        if (ec) return failed(ec == asio::error::eof ? std::string("peer closed the connection") : ec.message());
+        if (!LooksLikeTlsClientHello(pending->first.data(), pending->first.size())) {
+          // Not `failed`: the deadline keeps bounding the goodbye below.
+          Logger("net")->warn("{}: TLS handshake failed: the peer speaks plain TCP; this server requires TLS",
+                              pending->peer);
+          auto frame = std::make_shared<const std::string>(EncodeEnvelopeFrame(
+              MakeError(0, wire::ERROR_CODE_AUTH_FAILED,
+                        "this server accepts TLS connections only: connect with TLS (--tls-ca on the connecting side)",
+                        true)));
+          asio::async_write(pending->stream->next_layer(), asio::buffer(*frame),
+                            [pending, frame](const error_code& writeEc, size_t) {
+                              error_code ignored;
+                              pending->stream->next_layer().shutdown(tcp::socket::shutdown_send, ignored);
+                              if (!writeEc) return DiscardUntilClosed(pending);
+                              pending->stream->next_layer().close(ignored);
+                            });
+          return;
+        }
+        pending->stream->async_handshake(ssl::stream_base::server, asio::buffer(pending->first),
+                                         [self, pending, failed](const error_code& handshakeEc, size_t) {
+                                           if (handshakeEc) return failed(DescribeTlsFailure(handshakeEc, *pending->stream));
+                                           pending->timer.cancel();
+                                           if (self->stopped_) return;
+                                           self->onAccept_(Stream(std::move(pending->stream)));
+                                         });
+      });
 }
 
 // --- Client-side helpers ----------------------------------------------------
@@ -413,6 +512,67 @@ void AsyncConnect(asio::io_context& io, const tcp::endpoint& endpoint, std::chro
       state->handler(asio::error::timed_out, std::move(state->socket));
     else
       state->handler(ec, std::move(state->socket));
+  });
+}
+
+void AsyncConnectStream(asio::io_context& io, const tcp::endpoint& endpoint, const TlsClientTarget& tls,
+                        std::chrono::milliseconds timeout, std::function<void(Expected<Stream>)> handler) {
+  // One deadline for the connection and the handshake; everything runs on
+  // the socket's strand.
+  struct State {
+    explicit State(asio::io_context& ctx) : socket(asio::make_strand(ctx)), timer(socket.get_executor()) {}
+    tcp::socket socket;
+    std::unique_ptr<TlsStream> stream;  // once connected, with TLS
+    asio::steady_timer timer;
+    bool timedOut = false;
+    std::function<void(Expected<Stream>)> handler;
+    tcp::socket& Socket() { return stream ? stream->next_layer() : socket; }
+  };
+  auto state = std::make_shared<State>(io);
+  state->handler = std::move(handler);
+  state->timer.expires_after(timeout);
+  state->timer.async_wait([state](const error_code& ec) {
+    if (ec) return;
+    state->timedOut = true;
+    error_code ignored;
+    state->Socket().close(ignored);
+  });
+  state->socket.async_connect(endpoint, [state, tls, timeout](const error_code& ec) {
+    if (ec) {
+      state->timer.cancel();
+      return state->handler(Fail(state->timedOut ? fmt::format("no connection within {} ms", timeout.count())
+                                                 : ec.message()));
+    }
+    if (!tls.context) {
+      state->timer.cancel();
+      return state->handler(Stream(std::move(state->socket)));
+    }
+    state->stream = std::make_unique<TlsStream>(std::move(state->socket), *tls.context);
+    // The certificate must name the host connected to; SNI lets a server
+    // behind one address pick the matching certificate.
+    state->stream->set_verify_callback(
+        [check = ssl::host_name_verification(tls.hostName)](bool preverified, ssl::verify_context& context) mutable {
+          if (!preverified) return false;  // the chain failed: OpenSSL's error says why
+          if (check(preverified, context)) return true;
+          // Recorded so that the failure reads "hostname mismatch", not a bare "verify failed".
+          X509_STORE_CTX_set_error(context.native_handle(), X509_V_ERR_HOSTNAME_MISMATCH);
+          return false;
+        });
+    error_code addressEc;
+    asio::ip::make_address(tls.hostName, addressEc);
+    if (addressEc) SSL_set_tlsext_host_name(state->stream->native_handle(), tls.hostName.c_str());
+    state->stream->async_handshake(ssl::stream_base::client, [state, timeout](const error_code& handshakeEc) {
+      state->timer.cancel();
+      if (state->timedOut)
+        return state->handler(Fail(fmt::format("TLS handshake not completed within {} ms", timeout.count())));
+      if (handshakeEc) {
+        // A refused certificate explains itself; anything else is most often a server without TLS.
+        const bool certificateRefused = SSL_get_verify_result(state->stream->native_handle()) != X509_V_OK;
+        return state->handler(Fail(fmt::format("TLS handshake failed: {}{}", DescribeTlsFailure(handshakeEc, *state->stream),
+                                               certificateRefused ? "" : " (does the server listen with TLS, --tls-cert?)")));
+      }
+      state->handler(Stream(std::move(state->stream)));
+    });
   });
 }
 

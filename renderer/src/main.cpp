@@ -8,6 +8,7 @@
 
 #include "penumbra/common/version.h"
 #include "penumbra/common/connection.h"
+#include "penumbra/common/auth.h"
 #include "penumbra/common/endpoint.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/operator_http.h"
@@ -83,6 +84,13 @@ int main(int argc, char** argv) {
   app.add_option("--http-port-file", httpPortFile, "Write the bound --http port to this file once listening");
   std::string logFormat = "text";
   app.add_option("--log-format", logFormat, "text, or json: one JSON object per log line")->capture_default_str();
+  std::string authTokenFile, tlsCert, tlsKey;
+  app.add_option("--auth-token-file", authTokenFile,
+                 "Require SMAs to present the token in this file (their --renderer-auth-token-file); keep it mode 600");
+  auto* certOption = app.add_option("--tls-cert", tlsCert, "Serve TLS with this PEM certificate chain (leaf first)");
+  auto* keyOption = app.add_option("--tls-key", tlsKey, "... and this unencrypted PEM private key");
+  certOption->needs(keyOption);
+  keyOption->needs(certOption);
   CLI11_PARSE(app, argc, argv);
 
   if (!SetupLogging(logLevel)) {
@@ -103,6 +111,23 @@ int main(int argc, char** argv) {
   if (auto ok = net::CheckListenAddress(*where); !ok) {
     std::fprintf(stderr, "penumbra-renderer: --listen: %s\n", ok.error().message.c_str());
     return 2;
+  }
+  if (!authTokenFile.empty()) {
+    auto token = ReadAuthTokenFile(authTokenFile);
+    if (!token) {
+      std::fprintf(stderr, "penumbra-renderer: --auth-token-file: %s\n", token.error().message.c_str());
+      return 2;
+    }
+    if (!token->warning.empty()) log->warn("{}", token->warning);
+    options.authToken = std::move(token->token);
+  }
+  if (!tlsCert.empty()) {
+    auto context = net::MakeTlsServerContext(tlsCert, tlsKey);
+    if (!context) {
+      std::fprintf(stderr, "penumbra-renderer: %s\n", context.error().message.c_str());
+      return 2;
+    }
+    options.tls = std::move(*context);
   }
 
   // Before the scene loads: liveness holds while it loads, readiness not.

@@ -8,6 +8,7 @@
 
 #include <fmt/format.h>
 
+#include "penumbra/common/auth.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
 #include "penumbra/renderer/shading_pool.h"
@@ -47,9 +48,12 @@ class RendererServer::Impl {
                  fit, options_.maxConnections);
       options_.maxConnections = fit;
     }
-    listener_ = net::Listener::Create(io_, [this](tcp::socket socket) { Accept(std::move(socket)); });
+    listener_ = net::Listener::Create(io_, [this](net::Stream stream) { Accept(std::move(stream)); });
+    if (options_.tls) listener_->SetTls(options_.tls, options_.connection.handshakeTimeout);
     auto bound = listener_->Listen(options_.listen);
-    if (bound) log_->info("{}: listening on {}:{}", options_.name, bound->address().to_string(), bound->port());
+    if (bound)
+      log_->info("{}: listening on {}:{} ({}{})", options_.name, bound->address().to_string(), bound->port(),
+                 options_.tls ? "TLS" : "plain TCP", options_.authToken.empty() ? "" : ", token required");
     return bound;
   }
 
@@ -99,7 +103,7 @@ class RendererServer::Impl {
   }
 
  private:
-  void Accept(tcp::socket socket);
+  void Accept(net::Stream stream);
   void BeginShutdown();
   void PollDrain();
 
@@ -189,6 +193,10 @@ class RendererServer::Impl::Session : public std::enable_shared_from_this<Sessio
     }
     const Scene& scene = server_.GetShader().GetScene();
     wire::ErrorCode code = wire::ERROR_CODE_UNSPECIFIED;
+    // The token first: a peer without it learns nothing else.
+    if (auto ok = CheckHelloToken(hello, server_.Options().authToken, &code); !ok) {
+      return Fatal(code, ok.error().message);
+    }
     if (auto ok = ValidateHello(hello, wire::ROLE_SMA, scene.identity, &code); !ok) {
       return Fatal(code, ok.error().message);
     }
@@ -301,13 +309,13 @@ class RendererServer::Impl::Session : public std::enable_shared_from_this<Sessio
   uint64_t samplesReceived_ = 0;
 };
 
-void RendererServer::Impl::Accept(tcp::socket socket) {
+void RendererServer::Impl::Accept(net::Stream stream) {
   if (draining_) {
-    net::RefuseConnection(std::move(socket),
+    net::RefuseConnection(std::move(stream),
                           MakeError(0, wire::ERROR_CODE_SHUTTING_DOWN, "renderer is shutting down", true));
     return;
   }
-  const std::string peer = net::PeerAddress(socket);
+  const std::string peer = net::PeerAddress(stream);
   std::shared_ptr<Session> session;
   {
     std::lock_guard lock(sessionsMutex_);
@@ -318,7 +326,7 @@ void RendererServer::Impl::Accept(tcp::socket socket) {
         log_->warn("{} connection(s) refused, latest from {}: at the cap of {} connections (--max-connections)", n,
                    peer, options_.maxConnections);
       net::RefuseConnection(
-          std::move(socket),
+          std::move(stream),
           MakeError(0, wire::ERROR_CODE_TOO_MANY_CONNECTIONS,
                     fmt::format("this renderer serves at most {} connections at once; try again later",
                                 options_.maxConnections),
@@ -327,7 +335,7 @@ void RendererServer::Impl::Accept(tcp::socket socket) {
     }
     const uint64_t id = nextSessionId_++;
     auto connection =
-        net::Connection::Create(std::move(socket), options_.connection, fmt::format("sma#{} {}", id, peer));
+        net::Connection::Create(std::move(stream), options_.connection, fmt::format("sma#{} {}", id, peer));
     log_->info("{}: connected", connection->Id());
     session = std::make_shared<Session>(*this, std::move(connection), id);
     sessions_.emplace(id, session);

@@ -9,6 +9,7 @@
 
 #include "penumbra/common/connection.h"
 #include "penumbra/common/version.h"
+#include "penumbra/common/auth.h"
 #include "penumbra/common/endpoint.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/operator_http.h"
@@ -171,6 +172,19 @@ int main(int argc, char** argv) {
                  "Client connections (counting those yet to say Hello) served at once; more are refused with "
                  "TOO_MANY_CONNECTIONS and closed at once")
       ->check(CLI::Range(size_t(1), size_t(1) << 20))->capture_default_str();
+  std::string authTokenFile, rendererAuthTokenFile, tlsCert, tlsKey, rendererTlsCa;
+  app.add_option("--auth-token-file", authTokenFile,
+                 "Require clients to present the token in this file (their --auth-token-file); keep it mode 600");
+  app.add_option("--renderer-auth-token-file", rendererAuthTokenFile,
+                 "Present the token in this file to renderers (their --auth-token-file): a second secret, so that "
+                 "a client's token does not open the renderers");
+  auto* certOption = app.add_option("--tls-cert", tlsCert, "Serve clients TLS with this PEM certificate chain");
+  auto* keyOption = app.add_option("--tls-key", tlsKey, "... and this unencrypted PEM private key");
+  certOption->needs(keyOption);
+  keyOption->needs(certOption);
+  app.add_option("--renderer-tls-ca", rendererTlsCa,
+                 "Connect to renderers with TLS, trusting the CA certificate(s) in this PEM file; each renderer's "
+                 "certificate must name its --renderer host");
   CLI11_PARSE(app, argc, argv);
 
   if (!SetupLogging(logLevel)) {
@@ -217,6 +231,37 @@ int main(int argc, char** argv) {
       return 2;
     }
     options.pool.renderers.push_back(*hp);
+  }
+  // Secrets and certificates before the scene: a wrong file fails in a moment.
+  const auto readToken = [](const std::string& flag, const std::string& path, std::string* out) {
+    auto token = ReadAuthTokenFile(path);
+    if (!token) {
+      std::fprintf(stderr, "penumbra-sma: %s: %s\n", flag.c_str(), token.error().message.c_str());
+      return false;
+    }
+    if (!token->warning.empty()) Logger("sma")->warn("{}", token->warning);
+    *out = std::move(token->token);
+    return true;
+  };
+  if (!authTokenFile.empty() && !readToken("--auth-token-file", authTokenFile, &options.authToken)) return 2;
+  if (!rendererAuthTokenFile.empty() &&
+      !readToken("--renderer-auth-token-file", rendererAuthTokenFile, &options.pool.authToken))
+    return 2;
+  if (!tlsCert.empty()) {
+    auto context = net::MakeTlsServerContext(tlsCert, tlsKey);
+    if (!context) {
+      std::fprintf(stderr, "penumbra-sma: %s\n", context.error().message.c_str());
+      return 2;
+    }
+    options.tls = std::move(*context);
+  }
+  if (!rendererTlsCa.empty()) {
+    auto context = net::MakeTlsClientContext(rendererTlsCa);
+    if (!context) {
+      std::fprintf(stderr, "penumbra-sma: --renderer-tls-ca: %s\n", context.error().message.c_str());
+      return 2;
+    }
+    options.pool.tls = std::move(*context);
   }
   options.clientConnection.maxFrameBytes = maxFrameBytes;
   options.clientConnection.heartbeatInterval = std::chrono::milliseconds(heartbeatMs);

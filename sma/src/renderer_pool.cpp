@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <map>
 #include <set>
 
 #include <fmt/format.h>
@@ -41,11 +42,13 @@ uint64_t WireSampleId(VertexId v, uint16_t round) { return uint64_t(v) | (uint64
 }  // namespace
 
 struct RendererPool::Link {
-  Link(asio::io_context& io, tcp::endpoint e) : endpoint(std::move(e)), label(EndpointLabel(endpoint)), timer(io) {}
+  Link(asio::io_context& io, tcp::endpoint e, std::string host)
+      : endpoint(std::move(e)), host(std::move(host)), label(EndpointLabel(endpoint)), timer(io) {}
 
   enum class State { kWaiting, kConnecting, kHandshaking, kReady, kRemoved };
 
   tcp::endpoint endpoint;
+  std::string host;  // the configured name it came from: TLS checks the certificate against it
   std::string label;
   uint32_t index = 0;  // RendererStatus::index
   std::shared_ptr<net::Connection> connection;
@@ -143,8 +146,9 @@ void RendererPool::OnResolved(size_t configured, const error_code& ec, const std
     return;
   }
   resolved_[configured] = endpoints;
-  std::set<tcp::endpoint> wanted;
-  for (const auto& list : resolved_) wanted.insert(list.begin(), list.end());
+  std::map<tcp::endpoint, std::string> wanted;  // address -> the configured name it came from
+  for (size_t i = 0; i < resolved_.size(); ++i)
+    for (const auto& endpoint : resolved_[i]) wanted.emplace(endpoint, options_.renderers[i].host);
 
   // Renderers that left the name are closed; their work goes to the others.
   for (auto& link : links_) {
@@ -156,10 +160,10 @@ void RendererPool::OnResolved(size_t configured, const error_code& ec, const std
     if (link->connection) link->connection->Close("renderer removed from DNS");
   }
   std::erase_if(links_, [](const auto& l) { return l->state == Link::State::kRemoved; });
-  for (const auto& endpoint : wanted) {
+  for (const auto& [endpoint, host] : wanted) {
     const bool known = std::any_of(links_.begin(), links_.end(), [&](const auto& l) { return l->endpoint == endpoint; });
     if (known) continue;
-    auto link = std::make_shared<Link>(io_, endpoint);
+    auto link = std::make_shared<Link>(io_, endpoint, host);
     link->index = nextLinkIndex_++;
     link->backoff = options_.reconnectMin;
     links_.push_back(link);
@@ -175,26 +179,26 @@ void RendererPool::Connect(const std::shared_ptr<Link>& link) {
     if (stopped_ || link->state == Link::State::kRemoved) return;
     link->state = Link::State::kConnecting;
   }
-  net::AsyncConnect(io_, link->endpoint, options_.connectTimeout,
-                    [self = shared_from_this(), link](const error_code& ec, tcp::socket socket) {
-                      if (ec) {
+  net::AsyncConnectStream(io_, link->endpoint, net::TlsClientTarget{options_.tls, link->host}, options_.connectTimeout,
+                    [self = shared_from_this(), link](Expected<net::Stream> stream) {
+                      if (!stream) {
                         std::lock_guard lock(self->mutex_);
                         // Said at warning level the first time and then about every reconnectMax, so that an
                         // operator (and the log) hears of a renderer that cannot be reached without a flood.
                         const bool say = link->connectFailures++ == 0 || link->backoff >= self->options_.reconnectMax;
                         Logger("sma.renderers")
                             ->log(say ? spdlog::level::warn : spdlog::level::debug,
-                                  "renderer {}: cannot connect ({}); {} sample(s) waiting", link->label, ec.message(),
+                                  "renderer {}: cannot connect ({}); {} sample(s) waiting", link->label, stream.error().message,
                                   self->queuedTotal_);
                         self->ScheduleReconnect(link);
                         return;
                       }
-                      self->OnConnected(link, std::move(socket));
+                      self->OnConnected(link, std::move(*stream));
                     });
 }
 
-void RendererPool::OnConnected(const std::shared_ptr<Link>& link, tcp::socket socket) {
-  auto connection = net::Connection::Create(std::move(socket), options_.connection, "renderer " + link->label);
+void RendererPool::OnConnected(const std::shared_ptr<Link>& link, net::Stream stream) {
+  auto connection = net::Connection::Create(std::move(stream), options_.connection, "renderer " + link->label);
   {
     std::lock_guard lock(mutex_);
     if (stopped_ || link->state == Link::State::kRemoved) {
@@ -214,6 +218,7 @@ void RendererPool::OnConnected(const std::shared_ptr<Link>& link, tcp::socket so
   h->set_role(wire::ROLE_SMA);
   h->set_peer_name(options_.name);
   h->set_scene_hash(options_.sceneHash);
+  h->set_auth_token(options_.authToken);
   connection->Send(hello);
 }
 
@@ -356,6 +361,15 @@ void RendererPool::OnMessage(const std::shared_ptr<Link>& link, wire::Envelope&&
         std::lock_guard lock(mutex_);
         auto it = link->batches.find(error.request_id());
         if (error.code() == wire::ERROR_CODE_SHUTTING_DOWN) link->draining = true;
+        if (error.code() == wire::ERROR_CODE_AUTH_FAILED) {
+          // Permanent until an operator changes a token or TLS flag: said
+          // at error level, retried only every reconnectMax.
+          log->error("renderer {} refused this SMA (AUTH_FAILED): {} (check --renderer-auth-token-file and the renderer's "
+                     "--auth-token-file); retrying every {} ms",
+                     link->label, Printable(error.message(), 256), options_.reconnectMax.count());
+          link->backoff = options_.reconnectMax;
+          return;
+        }
         if (it == link->batches.end()) {
           log->warn("renderer {}: {}: {}", link->label, wire::ErrorCode_Name(error.code()), error.message());
           return;

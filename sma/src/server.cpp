@@ -11,6 +11,7 @@
 #include <fmt/format.h>
 
 #include "job_queue.h"
+#include "penumbra/common/auth.h"
 #include "penumbra/sma/cache_snapshot.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
@@ -98,9 +99,12 @@ class SmaServer::Impl {
                  "to that", fit, options_.maxConnections);
       options_.maxConnections = fit;
     }
-    listener_ = net::Listener::Create(io_, [this](tcp::socket socket) { Accept(std::move(socket)); });
+    listener_ = net::Listener::Create(io_, [this](net::Stream stream) { Accept(std::move(stream)); });
+    if (options_.tls) listener_->SetTls(options_.tls, options_.clientConnection.handshakeTimeout);
     auto bound = listener_->Listen(options_.listen);
-    if (bound) log_->info("{}: listening for clients on {}:{}", options_.name, bound->address().to_string(), bound->port());
+    if (bound)
+      log_->info("{}: listening for clients on {}:{} ({}{})", options_.name, bound->address().to_string(),
+                 bound->port(), options_.tls ? "TLS" : "plain TCP", options_.authToken.empty() ? "" : ", token required");
     return bound;
   }
 
@@ -215,7 +219,7 @@ class SmaServer::Impl {
   std::shared_ptr<spdlog::logger> log_;
 
  private:
-  void Accept(tcp::socket socket);
+  void Accept(net::Stream stream);
   void ArmStats();
   void PollShutdown();
 
@@ -491,6 +495,8 @@ void SmaServer::Impl::Session::OnHello(const wire::Hello& hello) {
   if (handshook_) return Fatal(wire::ERROR_CODE_UNEXPECTED_MESSAGE, "second hello on one connection");
   wire::ErrorCode code = wire::ERROR_CODE_UNSPECIFIED;
   const Scene& scene = server_.scene_;
+  // The token first: a peer without it learns nothing else.
+  if (auto ok = CheckHelloToken(hello, server_.options_.authToken, &code); !ok) return Fatal(code, ok.error().message);
   if (auto ok = ValidateHello(hello, wire::ROLE_CLIENT, scene.identity, &code); !ok) return Fatal(code, ok.error().message);
   handshook_ = true;
   wire::Envelope welcome;
@@ -1177,12 +1183,12 @@ void SmaServer::Impl::Session::OnClosed(const std::string& reason) {
 
 // --- Server -----------------------------------------------------------------
 
-void SmaServer::Impl::Accept(tcp::socket socket) {
+void SmaServer::Impl::Accept(net::Stream stream) {
   if (shuttingDown_) {
-    net::RefuseConnection(std::move(socket), MakeError(0, wire::ERROR_CODE_SHUTTING_DOWN, "SMA is shutting down", true));
+    net::RefuseConnection(std::move(stream), MakeError(0, wire::ERROR_CODE_SHUTTING_DOWN, "SMA is shutting down", true));
     return;
   }
-  const std::string peer = net::PeerAddress(socket);
+  const std::string peer = net::PeerAddress(stream);
   std::shared_ptr<Session> session;
   {
     std::lock_guard lock(sessionsMutex_);
@@ -1192,7 +1198,7 @@ void SmaServer::Impl::Accept(tcp::socket socket) {
       if (const uint64_t n = refusals_.Note())
         log_->warn("{} client connection(s) refused, latest from {}: at the cap of {} connections (--max-connections)",
                    n, peer, options_.maxConnections);
-      net::RefuseConnection(std::move(socket),
+      net::RefuseConnection(std::move(stream),
                             MakeError(0, wire::ERROR_CODE_TOO_MANY_CONNECTIONS,
                                       fmt::format("this SMA serves at most {} connections at once; try again later",
                                                   options_.maxConnections),
@@ -1201,7 +1207,7 @@ void SmaServer::Impl::Accept(tcp::socket socket) {
     }
     const uint64_t id = nextSessionId_++;
     auto connection =
-        net::Connection::Create(std::move(socket), options_.clientConnection, fmt::format("client#{} {}", id, peer));
+        net::Connection::Create(std::move(stream), options_.clientConnection, fmt::format("client#{} {}", id, peer));
     log_->info("{}: connected", connection->Id());
     session = std::make_shared<Session>(*this, std::move(connection), id);
     sessions_.emplace(id, session);

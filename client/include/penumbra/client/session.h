@@ -101,7 +101,8 @@ struct SessionStatus {
   std::string lastError;          // why the last connection or attempt failed; empty if none
   /// Set when the SMA's address answered with something retrying cannot fix
   /// (another role -- e.g. a renderer's port --, another protocol version, a
-  /// scene mismatch): the session has stopped (state kStopped) and this says
+  /// scene mismatch; AUTH_FAILED: a missing or wrong token, or TLS
+  /// required): the session has stopped (state kStopped) and this says
   /// why. Empty otherwise.
   std::string permanentError;
   /// When the state is kConnecting or kWaiting: since when the client has
@@ -123,6 +124,11 @@ struct SmaSessionOptions {
   /// this many bytes of events, so a slow renderer backs the SMA up (which
   /// then coalesces its deltas) instead of growing memory.
   size_t maxPendingEventBytes = size_t(64) << 20;
+  /// Sent in the Hello (the SMA's --auth-token-file); empty: none.
+  std::string authToken;
+  /// TLS to the SMA, verified against this context's CA and the host name
+  /// in `sma`; null: plain TCP.
+  std::shared_ptr<net::ssl::context> tls;
 };
 
 class SmaSession final : public SessionRequests {

@@ -1,5 +1,6 @@
 #pragma once
-// A framed TCP connection carrying wire::Envelopes (Boost.Beast/Asio style):
+// A framed connection carrying wire::Envelopes (Boost.Beast/Asio style)
+// over a net::Stream -- plain TCP, or TLS once its handshake is done (tls.h):
 // one strand per connection, every handler runs on it; one write queue with a
 // byte limit; a size limit on every frame; a read timeout; heartbeats when
 // idle. Protocol logic (handshake, requests) belongs to the owner, which
@@ -25,6 +26,7 @@
 #include "penumbra/common/endpoint.h"
 #include "penumbra/common/expected.h"
 #include "penumbra/common/framing.h"
+#include "penumbra/common/tls.h"
 #include "penumbra/wire.pb.h"
 
 namespace spdlog {
@@ -54,7 +56,10 @@ class Connection : public std::enable_shared_from_this<Connection> {
   using CloseHandler = std::function<void(const std::string& reason)>;
 
   /// `id` names the connection in every log line ("sma#3 127.0.0.1:51234").
-  static std::shared_ptr<Connection> Create(tcp::socket socket, ConnectionOptions options, std::string id);
+  static std::shared_ptr<Connection> Create(Stream stream, ConnectionOptions options, std::string id);
+  static std::shared_ptr<Connection> Create(tcp::socket socket, ConnectionOptions options, std::string id) {
+    return Create(Stream(std::move(socket)), options, std::move(id));
+  }
   ~Connection();
 
   /// Begins reading. Heartbeats are answered here and not passed on.
@@ -94,7 +99,7 @@ class Connection : public std::enable_shared_from_this<Connection> {
   const asio::strand<asio::any_io_executor>& Strand() const { return strand_; }
 
  private:
-  Connection(tcp::socket socket, ConnectionOptions options, std::string id);
+  Connection(Stream stream, ConnectionOptions options, std::string id);
 
   void DoRead();
   void OnRead(const boost::system::error_code& ec, size_t n);
@@ -106,7 +111,7 @@ class Connection : public std::enable_shared_from_this<Connection> {
   void BeginDrain(std::string reason);
 
   asio::strand<asio::any_io_executor> strand_;
-  tcp::socket socket_;
+  Stream stream_;
   asio::steady_timer tick_;
   ConnectionOptions options_;
   std::string id_;
@@ -157,8 +162,9 @@ class LogThrottle {
 /// Refuses a just-accepted connection that a server cannot take: sends
 /// `error` (fatal) without blocking -- a new socket's send buffer holds it --
 /// and closes at once, so the refusal costs no descriptor, strand or timer
-/// beyond this call. Call on any thread.
-void RefuseConnection(tcp::socket socket, const wire::Envelope& error);
+/// beyond this call; on a TLS stream the error goes through TLS (the
+/// handshake is done). Call on any thread.
+void RefuseConnection(Stream stream, const wire::Envelope& error);
 
 /// Makes room for `connections` peer connections plus `headroom` other
 /// descriptors (files, outgoing links): raises the soft RLIMIT_NOFILE toward
@@ -174,12 +180,22 @@ Status CheckListenAddress(const HostPort& where);
 /// When accepting fails (out of descriptors: EMFILE, ENFILE) it pauses, from
 /// 100 ms doubling to 2 s while the failures last, and logs at most one line
 /// per 10 s, so that neither the CPU nor the log is flooded.
+/// With TLS (SetTls), each accepted socket first completes a TLS handshake
+/// on its strand within the handshake timeout -- a peer that does not is
+/// dropped and the failure logged -- and only then reaches the handler; a
+/// peer that speaks plain Penumbra to a TLS listener gets a plain fatal
+/// ErrorReply (AUTH_FAILED, "TLS required") and is closed.
 /// Start/Stop are thread-safe.
 class Listener : public std::enable_shared_from_this<Listener> {
  public:
-  using AcceptHandler = std::function<void(tcp::socket)>;
+  /// Runs on an I/O thread (the new stream's strand or the acceptor's).
+  using AcceptHandler = std::function<void(Stream)>;
 
   static std::shared_ptr<Listener> Create(asio::io_context& io, AcceptHandler onAccept);
+
+  /// Serves TLS with `context` (null: plain TCP, the default). Call before
+  /// Start().
+  void SetTls(std::shared_ptr<ssl::context> context, std::chrono::milliseconds handshakeTimeout);
 
   /// Resolves, binds and listens. Port 0 picks a free port; the returned
   /// endpoint says which.
@@ -190,8 +206,11 @@ class Listener : public std::enable_shared_from_this<Listener> {
  private:
   Listener(asio::io_context& io, AcceptHandler onAccept);
   void DoAccept();
+  void StartTls(tcp::socket socket);
 
   asio::io_context& io_;
+  std::shared_ptr<ssl::context> tls_;
+  std::chrono::milliseconds tlsHandshakeTimeout_{10000};
   tcp::acceptor acceptor_;
   AcceptHandler onAccept_;
   std::atomic<bool> stopped_{false};
@@ -208,7 +227,17 @@ Expected<std::vector<tcp::endpoint>> ResolveAll(asio::io_context& io, const Host
 void AsyncConnect(asio::io_context& io, const tcp::endpoint& endpoint, std::chrono::milliseconds timeout,
                   std::function<void(const boost::system::error_code&, tcp::socket)> handler);
 
+/// Connects, and when `tls` has a context completes a TLS handshake that
+/// verifies the server's certificate against the context's CA and
+/// `tls.hostName` -- connection and handshake together within `timeout`.
+/// The handler runs on an io_context thread (the stream's strand) with the
+/// stream or a message saying what failed (refused, timed out, which TLS
+/// check failed).
+void AsyncConnectStream(asio::io_context& io, const tcp::endpoint& endpoint, const TlsClientTarget& tls,
+                        std::chrono::milliseconds timeout, std::function<void(Expected<Stream>)> handler);
+
 /// "host:port" of a socket's peer, or "?" when it has none.
 std::string PeerAddress(const tcp::socket& socket);
+inline std::string PeerAddress(const Stream& stream) { return PeerAddress(stream.Socket()); }
 
 }  // namespace penumbra::net

@@ -44,6 +44,12 @@ struct RendererServerOptions {
   /// Connections (SMAs, and peers that have not said Hello yet) served at
   /// once; more are refused with TOO_MANY_CONNECTIONS and closed at once.
   size_t maxConnections = 64;
+  /// Required of every SMA's Hello (constant-time comparison, never
+  /// logged); empty: none required.
+  std::string authToken;
+  /// TLS for every connection (net::MakeTlsServerContext); null: plain TCP.
+  /// The TLS handshake must complete within connection.handshakeTimeout.
+  std::shared_ptr<net::ssl::context> tls;
 };
 
 class RendererServer {

@@ -100,6 +100,11 @@ struct RendererPoolOptions {
   std::chrono::milliseconds resolveInterval{10000};
   std::chrono::milliseconds connectTimeout{3000};
   net::ConnectionOptions connection;
+  /// Sent in every Hello to renderers (their --auth-token-file); empty: none.
+  std::string authToken;
+  /// TLS to renderers: verify them against this context's CA and the name
+  /// each was configured by; null: plain TCP.
+  std::shared_ptr<net::ssl::context> tls;
 };
 
 struct RendererStatus {
@@ -169,7 +174,7 @@ class RendererPool : public std::enable_shared_from_this<RendererPool> {
   void Resolve();
   void OnResolved(size_t configured, const boost::system::error_code& ec, const std::vector<tcp::endpoint>& endpoints);
   void Connect(const std::shared_ptr<Link>& link);
-  void OnConnected(const std::shared_ptr<Link>& link, tcp::socket socket);
+  void OnConnected(const std::shared_ptr<Link>& link, net::Stream stream);
   void OnMessage(const std::shared_ptr<Link>& link, wire::Envelope&& envelope);
   void OnReply(const std::shared_ptr<Link>& link, const wire::ShadeReply& reply);
   void OnClosed(const std::shared_ptr<Link>& link, const std::string& reason);

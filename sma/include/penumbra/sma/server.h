@@ -47,6 +47,13 @@ struct SmaOptions {
   RefinementParams refinement;         // each session starts with these; clients may change theirs
   net::ConnectionOptions clientConnection{.handshakeTimeout = std::chrono::milliseconds(10000),
                                           .maxFrameBytesBeforeHandshake = 64 * 1024};
+  /// Required of every client's Hello (constant-time comparison, never
+  /// logged); empty: none required. What the SMA presents to renderers is
+  /// another secret: pool.authToken.
+  std::string authToken;
+  /// TLS for client connections (net::MakeTlsServerContext); null: plain
+  /// TCP. The handshake must complete within clientConnection.handshakeTimeout.
+  std::shared_ptr<net::ssl::context> tls;
   int ioThreads = 1;
   int viewThreads = 2;                 // visibility jobs in parallel (each also uses TBB inside)
   size_t clientSoftQueueBytes = size_t(4) << 20;  // beyond this, a client's deltas are coalesced
