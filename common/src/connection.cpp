@@ -388,6 +388,8 @@ size_t FitConnectionsToDescriptorLimit(size_t connections, size_t headroom) {
   }
   if (limit.rlim_cur == RLIM_INFINITY || limit.rlim_cur >= wanted) return connections;
   return limit.rlim_cur > headroom ? size_t(limit.rlim_cur - headroom) : 1;
+}
+
 void Listener::SetTls(std::shared_ptr<ssl::context> context, std::chrono::milliseconds handshakeTimeout) {
   tls_ = std::move(context);
   tlsHandshakeTimeout_ = handshakeTimeout;

@@ -181,8 +181,8 @@ Expected<std::unique_ptr<HttpServer>> HttpServer::Start(const HostPort& where, R
   auto state = std::make_shared<State>(std::move(routes), options);
   state->self = state;
   std::weak_ptr<State> weak = state;
-  state->listener = Listener::Create(state->io, [weak](tcp::socket socket) {
-    if (auto s = weak.lock()) s->Accept(std::move(socket));
+  state->listener = Listener::Create(state->io, [weak](Stream stream) {
+    if (auto s = weak.lock()) s->Accept(std::move(stream).TakePlainSocket());
   });
   auto bound = state->listener->Listen(where);
   if (!bound) return Fail(fmt::format("--http: {}", bound.error().message));

@@ -19,6 +19,7 @@
 #include <variant>
 
 #include "penumbra/common/asio.h"
+#include "penumbra/common/check.h"
 #include "penumbra/common/expected.h"
 
 #include <boost/asio/ssl.hpp>
@@ -37,6 +38,12 @@ class Stream {
   explicit Stream(std::unique_ptr<TlsStream> tls) : stream_(std::move(tls)) {}
 
   bool IsTls() const { return stream_.index() == 1; }
+  /// The plain socket, moved out, for a listener that serves something else
+  /// than Penumbra frames (the operator HTTP endpoint never sets TLS).
+  tcp::socket TakePlainSocket() && {
+    PENUMBRA_CHECK(!IsTls(), "TakePlainSocket on a TLS stream");
+    return std::move(std::get<0>(stream_));
+  }
   /// The TCP socket underneath (options, shutdown, close, addresses).
   tcp::socket& Socket() {
     if (auto* tls = std::get_if<1>(&stream_)) return (*tls)->next_layer();
