@@ -10,9 +10,9 @@
 #include <fmt/format.h>
 
 #include "job_queue.h"
-#include "penumbra/sma/cache_snapshot.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
+#include "penumbra/sma/cache_snapshot.h"
 #include "penumbra/sma/delta.h"
 #include "penumbra/sma/hierarchy.h"
 #include "penumbra/sma/refinement.h"
