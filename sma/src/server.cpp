@@ -12,9 +12,9 @@
 
 #include "job_queue.h"
 #include "penumbra/common/auth.h"
-#include "penumbra/sma/cache_snapshot.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
+#include "penumbra/sma/cache_snapshot.h"
 #include "penumbra/sma/client_requests.h"
 #include "penumbra/sma/delta.h"
 #include "penumbra/sma/hierarchy.h"
