@@ -211,8 +211,11 @@ TEST_F(OperatorHttpTest, MetricsAreValidAndSaneAfterAClientConverged) {
     EXPECT_NE(sma.FindFamily(name), nullptr) << name;
   EXPECT_EQ(Value(sma, "penumbra_sma_clients"), 1.0);
   EXPECT_EQ(Value(sma, "penumbra_sma_renderers_up"), 1.0);
-  const std::string rendererLabel = "127.0.0.1:" + std::to_string(rendererPort_);
-  EXPECT_EQ(Value(sma, "penumbra_sma_renderer_connected", {{"renderer", rendererLabel}}), 1.0);
+  // Renderers are labelled by index, as clients see them; the info family
+  // pairs the index with the address, for operators only.
+  const std::string rendererAddress = "127.0.0.1:" + std::to_string(rendererPort_);
+  EXPECT_EQ(Value(sma, "penumbra_sma_renderer_info", {{"renderer", "1"}, {"address", rendererAddress}}), 1.0);
+  EXPECT_EQ(Value(sma, "penumbra_sma_renderer_connected", {{"renderer", "1"}}), 1.0);
   const double shaded = Value(sma, "penumbra_sma_samples_shaded_total");
   // Every sample in the cache was requested and answered at least once
   // (improvement rounds answer some of them again).

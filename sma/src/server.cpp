@@ -1273,6 +1273,11 @@ void SmaServer::Impl::WriteMetrics(metrics::ExpositionWriter& out) {
   wire::StatsReply counters;
   AddGlobalCounters(&counters);
   WriteSmaMetrics(out, counters, latencies_);
+  // The endpoint is the operators': it may say where each renderer is (the
+  // counters name them by index only, as clients see them).
+  out.Family("penumbra_sma_renderer_info", "gauge", "1 per renderer endpoint: its index (the renderer label) and address");
+  for (const RendererStatus& r : pool_->Stats().renderers)
+    out.Sample("penumbra_sma_renderer_info", 1.0, {{"renderer", std::to_string(r.index)}, {"address", r.endpoint}});
 }
 
 std::string SmaServer::Impl::NotReadyReason() {
