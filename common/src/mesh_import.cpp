@@ -148,6 +148,11 @@ Status CheckGlbSizes(const fs::path& path) {
       return Fail(fmt::format("{}: the GLB (version 1) content does not fit in its {} bytes", path.string(), length));
     return Status::Ok();
   }
+  // Assimp reads the first (JSON) chunk's header whatever the total length
+  // says, and allocates what it declares: it must be there.
+  if (length < 20)
+    return Fail(fmt::format("{}: the GLB header declares {} bytes, too few for its JSON chunk", path.string(),
+                            length));
   uint64_t at = 12;
   for (int chunk = 0; at + 8 <= length; ++chunk) {
     in.seekg(std::streamoff(at));

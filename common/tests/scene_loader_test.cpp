@@ -627,6 +627,15 @@ TEST(SceneLoaderTest, GlbDeclaringMoreBytesThanItHasIsRefusedBeforeReading) {
   EXPECT_NE(scene.error().message.find("total.glb: the GLB header declares 2147483647 bytes but the file has 22"),
             std::string::npos)
       << scene.error().message;
+  // Found by fuzz_scene_gltf: a total length too short for the first chunk's
+  // header, which assimp then read anyway (and allocated its 2 GB).
+  const fs::path shortHeader =
+      dir.Write("short.glb", "glTF" + Le32(2) + Le32(19) + Le32(0x80000758u) + json + "{\"asset\": {}}");
+  scene = LoadScene(shortHeader);
+  ASSERT_FALSE(scene.ok());
+  EXPECT_NE(scene.error().message.find("short.glb: the GLB header declares 19 bytes, too few for its JSON chunk"),
+            std::string::npos)
+      << scene.error().message;
   EXPECT_LT(testing::PeakRssMiB() - rssBefore, 64) << "MiB taken by refused files";
   // The committed GLB (chunks that fit) still loads.
   EXPECT_TRUE(LoadScene(TestData("two_materials.glb")).ok());
