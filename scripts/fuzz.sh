@@ -24,7 +24,7 @@ while [ $# -gt 0 ]; do
     --build-only) build_only=1; shift ;;
     --list) list=1; shift ;;
     --) shift; extra=("$@"); break ;;
-    -h|--help) sed -n '2,13p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,12p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     -*) echo "fuzz.sh: unknown option $1" >&2; exit 2 ;;
     *) target="$1"; shift ;;
   esac
