@@ -24,7 +24,7 @@ while [ $# -gt 0 ]; do
     --build-only) build_only=1; shift ;;
     --list) list=1; shift ;;
     --) shift; extra=("$@"); break ;;
-    -h|--help) sed -n '2,13p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,12p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     -*) echo "fuzz.sh: unknown option $1" >&2; exit 2 ;;
     *) target="$1"; shift ;;
   esac
@@ -59,7 +59,8 @@ if [ ! -x "./$target" ]; then
   exit 2
 fi
 mkdir -p "corpus/$target" artifacts
-ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
+ASAN_OPTIONS=detect_leaks=1 LSAN_OPTIONS="suppressions=$root/tests/fuzz/lsan.supp" \
+  UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
   "./$target" -max_total_time="${seconds:-600}" -rss_limit_mb=2048 -malloc_limit_mb=1024 -timeout=10 \
   -print_final_stats=1 -artifact_prefix="artifacts/$target-" "${extra[@]}" \
   "corpus/$target" "$root/tests/fuzz/corpus/$target"

@@ -627,6 +627,15 @@ TEST(SceneLoaderTest, GlbDeclaringMoreBytesThanItHasIsRefusedBeforeReading) {
   EXPECT_NE(scene.error().message.find("total.glb: the GLB header declares 2147483647 bytes but the file has 22"),
             std::string::npos)
       << scene.error().message;
+  // Found by fuzz_scene_gltf: a total length too short for the first chunk's
+  // header, which assimp then read anyway (and allocated its 2 GB).
+  const fs::path shortHeader =
+      dir.Write("short.glb", "glTF" + Le32(2) + Le32(19) + Le32(0x80000758u) + json + "{\"asset\": {}}");
+  scene = LoadScene(shortHeader);
+  ASSERT_FALSE(scene.ok());
+  EXPECT_NE(scene.error().message.find("short.glb: the GLB header declares 19 bytes, too few for its JSON chunk"),
+            std::string::npos)
+      << scene.error().message;
   EXPECT_LT(testing::PeakRssMiB() - rssBefore, 64) << "MiB taken by refused files";
   // The committed GLB (chunks that fit) still loads.
   EXPECT_TRUE(LoadScene(TestData("two_materials.glb")).ok());
@@ -648,6 +657,31 @@ TEST(SceneLoaderTest, TextureThatWouldDecodeTooLargeFailsTheSceneBeforeAllocatin
             std::string::npos)
       << scene.error().message;
   EXPECT_LT(testing::PeakRssMiB() - rssBefore, 64) << "MiB taken by the refused texture";
+}
+
+// Assimp 5.2.4 crashes (SEGV) on these files, found by fuzz_scene_obj and
+// fuzz_scene_gltf (tests/fuzz/corpus/): LoadScene reports an error naming
+// the file, and this process lives on.
+TEST(SceneLoaderTest, FilesThatCrashAssimpAreAnErrorNotACrash) {
+  ScratchDir dir;
+  const fs::path corpus = SourceDir() / "tests/fuzz/corpus";
+  // The OBJ target's input: the OBJ, then "%%MTL%%" and the MTL it names.
+  const std::string objInput = ReadFile(corpus / "fuzz_scene_obj/crash-assimp-segv-obj-reader");
+  const size_t split = objInput.find("\n%%MTL%%\n");
+  ASSERT_NE(split, std::string::npos);
+  dir.Write("fuzz.mtl", objInput.substr(split + 9));
+  const fs::path obj = dir.Write("fuzz.obj", objInput.substr(0, split));
+  const fs::path glb =
+      dir.Write("fuzz.glb", ReadFile(corpus / "fuzz_scene_gltf/crash-assimp-segv-glb-image-mime-type"));
+  for (const fs::path& file : {obj, glb}) {
+    auto scene = LoadScene(file);
+    ASSERT_FALSE(scene.ok()) << file;
+    EXPECT_NE(scene.error().message.find(file.filename().string() + ": the mesh reader (assimp) crashed on this file"),
+              std::string::npos)
+        << scene.error().message;
+  }
+  // A file assimp reads well still loads (the probe does not get in the way).
+  EXPECT_TRUE(LoadScene(TestData("two_materials.glb")).ok());
 }
 
 // --- The repository's default scene ------------------------------------------

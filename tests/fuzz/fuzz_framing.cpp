@@ -9,6 +9,8 @@
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   using namespace penumbra;
+  static const bool quiet = (fuzz::QuietLogs(), true);
+  (void)quiet;
   if (size < 1) return 0;
   const size_t chunk = size_t(data[0]) + 1;
   ++data;

@@ -14,6 +14,7 @@
 #include <string_view>
 #include <vector>
 
+#include <google/protobuf/stubs/logging.h>
 #include <spdlog/spdlog.h>
 
 #include "penumbra/common/check.h"
@@ -44,9 +45,13 @@ inline std::vector<wire::Envelope> DecodeFrameStream(const uint8_t* data, size_t
   return envelopes;
 }
 
-/// Silences logging: the code under test logs every refusal, which would
-/// cost most of each run's time.
-inline void QuietLogs() { spdlog::set_level(spdlog::level::off); }
+/// Silences logging: the code under test logs every refusal, and Protobuf
+/// logs every string field that is not UTF-8, which would cost most of each
+/// run's time.
+inline void QuietLogs() {
+  spdlog::set_level(spdlog::level::off);
+  google::protobuf::SetLogHandler(nullptr);
+}
 
 /// A private folder for targets that must hand files to a loader, removed
 /// when the process exits normally.
