@@ -111,11 +111,25 @@ fi
 # write: a resolver configuration and a hosts file (`ip netns exec` binds a
 # namespace's hosts file over /etc/hosts, which must exist).
 cp /etc/resolv.conf "$work/root/etc/resolv.conf"
+# ... and the network's own trust anchors: where TLS to the package
+# registries passes through a proxy with its own CA, a machine on that
+# network has the CA installed locally (ca-certificates' postinst, run by
+# install-deps, adds them to the system store) and the trust variables set
+# (Node.js reads NODE_EXTRA_CA_CERTS, not the system store).
+if compgen -G "/usr/local/share/ca-certificates/*.crt" >/dev/null; then
+  mkdir -p "$work/root/usr/local/share/ca-certificates"
+  cp /usr/local/share/ca-certificates/*.crt "$work/root/usr/local/share/ca-certificates/"
+fi
+trust_env=()
+for var in NODE_EXTRA_CA_CERTS SSL_CERT_FILE; do
+  if [ -n "${!var:-}" ]; then trust_env+=("$var=${!var}"); fi
+done
 [ -e "$work/root/etc/hosts" ] || printf '127.0.0.1\tlocalhost\n::1\t\tlocalhost ip6-localhost ip6-loopback\n' >"$work/root/etc/hosts"
 say "root laid out in $(elapsed "$t"); running '$*' in /work/$name"
 
 # A mount namespace of our own: every mount below vanishes with it, whatever happens.
 status=0
+export PENUMBRA_TRUST_ENV="${trust_env[*]:-}"
 unshare --mount --propagation private -- bash -euo pipefail -c '
   r="$1"; name="$2"; shift 2
   # The root a mount point of its own, as on a real machine: `ip netns exec`
@@ -129,7 +143,7 @@ unshare --mount --propagation private -- bash -euo pipefail -c '
   mkdir -p "$r/dev/shm"
   exec chroot "$r" /usr/bin/env -i HOME=/root TERM="${TERM:-dumb}" LANG=C.UTF-8 \
     PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin CI="${CI:-}" \
-    PENUMBRA_REQUIRE_NETNS=1 \
+    PENUMBRA_REQUIRE_NETNS=1 $PENUMBRA_TRUST_ENV \
     bash -c "cd /work/$name && exec \"\$@\"" fresh-machine "$@"
 ' fresh-machine "$work/root" "$name" "$@" || status=$?
 say "'$*' exited $status after $(elapsed "$t") (total $(elapsed "$t_all"))"
