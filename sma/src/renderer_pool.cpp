@@ -160,7 +160,10 @@ void RendererPool::OnResolved(size_t configured, const error_code& ec, const std
     if (link->connection) link->connection->Close("renderer removed from DNS");
   }
   std::erase_if(links_, [](const auto& l) { return l->state == Link::State::kRemoved; });
-  for (const auto& [endpoint, host] : wanted) {
+  for (const auto& entry : wanted) {
+    // Not a structured binding: clang 14 (the fuzz build) cannot capture one in a lambda.
+    const tcp::endpoint& endpoint = entry.first;
+    const std::string& host = entry.second;
     const bool known = std::any_of(links_.begin(), links_.end(), [&](const auto& l) { return l->endpoint == endpoint; });
     if (known) continue;
     auto link = std::make_shared<Link>(io_, endpoint, host);
