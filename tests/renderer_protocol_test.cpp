@@ -502,10 +502,7 @@ TEST(RendererProcessTest, ConnectionsOverTheCapAreRefusedAndTheConnectedSmaIsSer
     auto extra = WireClient::Connect("127.0.0.1", r.port);
     ASSERT_TRUE(extra.ok());
     if (i % 2 == 0) {
-      wire::Envelope hello;
-      hello.mutable_hello()->set_protocol_version(kProtocolVersion);
-      hello.mutable_hello()->set_role(wire::ROLE_SMA);
-      (void)extra->Send(hello);
+      (void)extra->Send(MakeHello(wire::ROLE_SMA, "", 0));
     }
     auto e = extra->Receive(5s);
     ASSERT_TRUE(e.ok()) << "connection " << i << ": " << e.error().message;

@@ -61,14 +61,7 @@ bool WaitForLog(const ChildProcess& process, const std::string& what, std::chron
 }
 
 wire::Envelope Hello(wire::Role role, uint64_t sceneHash, const std::string& token) {
-  wire::Envelope e;
-  auto* h = e.mutable_hello();
-  h->set_protocol_version(kProtocolVersion);
-  h->set_role(role);
-  h->set_peer_name("security-test");
-  h->set_scene_hash(sceneHash);
-  h->set_auth_token(token);
-  return e;
+  return MakeHello(role, "security-test", sceneHash, token);
 }
 
 // Sends a Hello with `token` and returns what the server answered first.

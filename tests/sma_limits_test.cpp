@@ -467,11 +467,7 @@ class NonReadingClient {
     address.sin_port = htons(port);
     address.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
     connected_ = ::connect(fd_, reinterpret_cast<sockaddr*>(&address), sizeof address) == 0;
-    wire::Envelope hello;
-    hello.mutable_hello()->set_protocol_version(kProtocolVersion);
-    hello.mutable_hello()->set_role(wire::ROLE_CLIENT);
-    hello.mutable_hello()->set_peer_name("never-reads");
-    connected_ = connected_ && Write(EncodeEnvelopeFrame(hello));
+    connected_ = connected_ && Write(EncodeEnvelopeFrame(MakeHello(wire::ROLE_CLIENT, "never-reads", 0)));
     thread_ = std::thread([this] {
       for (uint64_t id = 1; !stop_ && connected_; ++id) {
         if (!Write(EncodeEnvelopeFrame(ViewEnvelope(views_[id % views_.size()], id)))) break;

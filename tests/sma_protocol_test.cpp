@@ -409,10 +409,7 @@ TEST(SmaLimitsTest, ConnectionsOverTheCapAreRefusedAndTheConnectedClientIsServed
     auto extra = WireClient::Connect("127.0.0.1", sma.port);
     ASSERT_TRUE(extra.ok());
     if (i % 2 == 0) {  // a client that says Hello at once is refused the same way
-      wire::Envelope hello;
-      hello.mutable_hello()->set_protocol_version(kProtocolVersion);
-      hello.mutable_hello()->set_role(wire::ROLE_CLIENT);
-      (void)extra->Send(hello);
+      (void)extra->Send(MakeHello(wire::ROLE_CLIENT, "", 0));
     }
     auto e = extra->Receive(5s);
     ASSERT_TRUE(e.ok()) << "connection " << i << ": " << e.error().message;

@@ -243,14 +243,8 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
               if (connection == self->connection_) self->OnClosed(reason);
             });
         });
-    wire::Envelope hello;
-    auto* h = hello.mutable_hello();
-    h->set_protocol_version(kProtocolVersion);
-    h->set_role(wire::ROLE_CLIENT);
-    h->set_peer_name(options_.clientName);
-    h->set_scene_hash(0);  // a client takes whatever scene the SMA serves
-    h->set_auth_token(options_.authToken);
-    connection->Send(hello);
+    // Scene 0: a client takes whatever scene the SMA serves.
+    connection->Send(MakeHello(wire::ROLE_CLIENT, options_.clientName, 0, options_.authToken));
   }
 
   void AttemptFailed(const std::string& reason) {

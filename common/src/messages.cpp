@@ -84,6 +84,31 @@ Status ValidateWelcome(const wire::Welcome& welcome, wire::Role expectedRole, ui
                    sceneHash, code);
 }
 
+wire::Envelope MakeHello(wire::Role role, std::string_view peerName, uint64_t sceneHash, std::string_view authToken,
+                         uint32_t protocolVersion) {
+  wire::Envelope envelope;
+  auto* hello = envelope.mutable_hello();
+  hello->set_protocol_version(protocolVersion);
+  hello->set_role(role);
+  hello->set_peer_name(std::string(peerName));
+  hello->set_scene_hash(sceneHash);
+  hello->set_auth_token(std::string(authToken));
+  return envelope;
+}
+
+void AddCounter(wire::StatsReply* reply, std::string_view name, double value) {
+  auto* counter = reply->add_counters();
+  counter->set_name(std::string(name));
+  counter->set_value(value);
+}
+
+std::vector<std::pair<std::string, double>> CounterPairs(const wire::StatsReply& reply) {
+  std::vector<std::pair<std::string, double>> out;
+  out.reserve(size_t(reply.counters_size()));
+  for (const auto& c : reply.counters()) out.emplace_back(c.name(), c.value());
+  return out;
+}
+
 wire::Envelope MakeError(uint64_t requestId, wire::ErrorCode code, std::string message, bool fatal) {
   wire::Envelope envelope;
   auto* error = envelope.mutable_error();

@@ -1,5 +1,7 @@
 #include "renderer_metrics.h"
 
+#include "penumbra/common/messages.h"
+
 namespace penumbra {
 
 void WriteRendererMetrics(metrics::ExpositionWriter& out, const wire::StatsReply& serverCounters) {
@@ -18,10 +20,7 @@ void WriteRendererMetrics(metrics::ExpositionWriter& out, const wire::StatsReply
       {"connections", "penumbra_renderer_connections", "gauge", "Open SMA connections"},
       {"uptime_seconds", "penumbra_renderer_server_uptime_seconds", "gauge", "Seconds since the server started"},
   };
-  std::vector<std::pair<std::string, double>> counters;
-  counters.reserve(size_t(serverCounters.counters_size()));
-  for (const auto& c : serverCounters.counters()) counters.emplace_back(c.name(), c.value());
-  metrics::WriteCounters(out, "penumbra_renderer", counters, specs);
+  metrics::WriteCounters(out, "penumbra_renderer", CounterPairs(serverCounters), specs);
 }
 
 }  // namespace penumbra

@@ -1,9 +1,7 @@
 #include "penumbra/renderer/server.h"
 
-#include <csignal>
 #include <mutex>
 #include <thread>
-#include <unordered_map>
 #include <unordered_set>
 
 #include <fmt/format.h>
@@ -11,6 +9,7 @@
 #include "penumbra/common/auth.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
+#include "penumbra/common/server_skeleton.h"
 #include "penumbra/renderer/shading_pool.h"
 #include "renderer_metrics.h"
 
@@ -18,62 +17,47 @@ namespace penumbra {
 
 namespace {
 using Clock = std::chrono::steady_clock;
-
-void AddCounter(wire::StatsReply* reply, const char* name, double value) {
-  auto* c = reply->add_counters();
-  c->set_name(name);
-  c->set_value(value);
-}
 }  // namespace
 
 class RendererServer::Impl {
  public:
+  class Session;
+
   Impl(const Shader& shader, RendererServerOptions options)
       : shader_(shader),
         options_(std::move(options)),
         pool_(shader, options_.workerThreads > 0 ? options_.workerThreads
                                                  : int(std::max(1u, std::thread::hardware_concurrency()))),
         log_(Logger("renderer")),
-        signals_(io_, SIGINT, SIGTERM),
-        statsTimer_(io_),
-        drainTimer_(io_) {}
+        skeleton_(io_,
+                  net::ServerSkeletonOptions{.name = options_.name,
+                                             .service = "renderer",
+                                             .peer = "sma",
+                                             .peers = "SMAs",
+                                             .logger = "renderer",
+                                             .listen = options_.listen,
+                                             .connection = options_.connection,
+                                             .tls = options_.tls,
+                                             .tokenRequired = !options_.authToken.empty(),
+                                             .maxConnections = options_.maxConnections,
+                                             .reservedDescriptors = 64,
+                                             .statsInterval = options_.statsInterval,
+                                             .drainTimeout = options_.drainTimeout},
+                  net::ServerHooks{.logStats = [this] { LogStats(); }, .beginShutdown = [this] { AbandonAll(); }},
+                  [this](std::shared_ptr<net::Connection> connection, uint64_t id) {
+                    return std::make_shared<Session>(*this, std::move(connection), id);
+                  }) {}
 
-  class Session;
-
-  Expected<tcp::endpoint> Listen() {
-    // Descriptors for every connection allowed, and some for everything else.
-    const size_t fit = net::FitConnectionsToDescriptorLimit(options_.maxConnections, 64);
-    if (fit < options_.maxConnections) {
-      log_->warn("the descriptor limit (ulimit -n) allows only {} connections; --max-connections {} lowered to that",
-                 fit, options_.maxConnections);
-      options_.maxConnections = fit;
-    }
-    listener_ = net::Listener::Create(io_, [this](net::Stream stream) { Accept(std::move(stream)); });
-    if (options_.tls) listener_->SetTls(options_.tls, options_.connection.handshakeTimeout);
-    auto bound = listener_->Listen(options_.listen);
-    if (bound)
-      log_->info("{}: listening on {}:{} ({}{})", options_.name, bound->address().to_string(), bound->port(),
-                 options_.tls ? "TLS" : "plain TCP", options_.authToken.empty() ? "" : ", token required");
-    return bound;
-  }
+  Expected<tcp::endpoint> Listen() { return skeleton_.Listen(); }
 
   void Run() {
-    signals_.async_wait([this](const boost::system::error_code& ec, int signal) {
-      if (ec) return;
-      log_->info("signal {} received: draining", signal);
-      Shutdown();
-    });
-    if (listener_) listener_->Start();
-    ArmStats();
-    io_.run();
+    skeleton_.RunIo();
     log_->info("{}: stopped", options_.name);
   }
 
-  void Shutdown() {
-    asio::post(io_, [this] { BeginShutdown(); });
-  }
+  void Shutdown() { skeleton_.Shutdown(); }
 
-  bool Draining() const { return draining_.load(); }
+  bool Draining() const { return skeleton_.Draining(); }
   const Shader& GetShader() const { return shader_; }
   const RendererServerOptions& Options() const { return options_; }
   ShadingPool& Pool() { return pool_; }
@@ -90,36 +74,24 @@ class RendererServer::Impl {
     AddCounter(reply, "rays_traced", double(totals.rays));
     AddCounter(reply, "samples_buried", double(totals.buriedSamples));
     AddCounter(reply, "worker_threads", double(pool_.Threads()));
-    AddCounter(reply, "connections", double(SessionCount()));
+    AddCounter(reply, "connections", double(skeleton_.SessionCount()));
     AddCounter(reply, "uptime_seconds", std::chrono::duration<double>(Clock::now() - started_).count());
   }
-  size_t SessionCount() const {
-    std::lock_guard lock(sessionsMutex_);
-    return sessions_.size();
-  }
-  void RemoveSession(uint64_t id) {
-    std::lock_guard lock(sessionsMutex_);
-    sessions_.erase(id);
-  }
+  void RemoveSession(uint64_t id) { skeleton_.Remove(id); }
 
  private:
-  void Accept(net::Stream stream);
-  void BeginShutdown();
-  void PollDrain();
+  // Shutdown, on the I/O thread: abandon the work rather than finish it (a
+  // deep queue once took 19 s): the SMAs send the samples to other renderers.
+  void AbandonAll();
 
-  void ArmStats() {
-    statsTimer_.expires_after(options_.statsInterval);
-    statsTimer_.async_wait([this](const boost::system::error_code& ec) {
-      if (ec) return;
-      const auto totals = pool_.GetTotals();
-      const double seconds = std::chrono::duration<double>(options_.statsInterval).count();
-      log_->info("stats: {} connection(s), {:.0f} samples/s, {:.2f} Mrays/s, {} queued, {} shaded, {} cancelled",
-                 SessionCount(), double(totals.samplesShaded - lastTotals_.samplesShaded) / seconds,
-                 double(totals.rays - lastTotals_.rays) / seconds * 1e-6, totals.samplesQueued,
-                 totals.samplesShaded, totals.samplesCancelled);
-      lastTotals_ = totals;
-      ArmStats();
-    });
+  void LogStats() {
+    const auto totals = pool_.GetTotals();
+    const double seconds = std::chrono::duration<double>(options_.statsInterval).count();
+    log_->info("stats: {} connection(s), {:.0f} samples/s, {:.2f} Mrays/s, {} queued, {} shaded, {} cancelled",
+               skeleton_.SessionCount(), double(totals.samplesShaded - lastTotals_.samplesShaded) / seconds,
+               double(totals.rays - lastTotals_.rays) / seconds * 1e-6, totals.samplesQueued,
+               totals.samplesShaded, totals.samplesCancelled);
+    lastTotals_ = totals;
   }
 
   const Shader& shader_;
@@ -127,19 +99,9 @@ class RendererServer::Impl {
   asio::io_context io_;
   ShadingPool pool_;
   std::shared_ptr<spdlog::logger> log_;
-  std::shared_ptr<net::Listener> listener_;
-  asio::signal_set signals_;
-  asio::steady_timer statsTimer_;
-  asio::steady_timer drainTimer_;
-  std::atomic<bool> draining_{false};
-  Clock::time_point drainDeadline_;
-  net::LogThrottle refusals_{std::chrono::seconds(10)};
   Clock::time_point started_ = Clock::now();
   ShadingPool::Totals lastTotals_;
-
-  mutable std::mutex sessionsMutex_;
-  std::unordered_map<uint64_t, std::shared_ptr<Session>> sessions_;
-  uint64_t nextSessionId_ = 1;
+  net::ServerSkeleton<Session> skeleton_;
 };
 
 // One SMA connection. All members are touched on the connection's strand
@@ -309,79 +271,11 @@ class RendererServer::Impl::Session : public std::enable_shared_from_this<Sessio
   uint64_t samplesReceived_ = 0;
 };
 
-void RendererServer::Impl::Accept(net::Stream stream) {
-  if (draining_) {
-    net::RefuseConnection(std::move(stream),
-                          MakeError(0, wire::ERROR_CODE_SHUTTING_DOWN, "renderer is shutting down", true));
-    return;
-  }
-  const std::string peer = net::PeerAddress(stream);
-  std::shared_ptr<Session> session;
-  {
-    std::lock_guard lock(sessionsMutex_);
-    if (sessions_.size() >= options_.maxConnections) {
-      // Refused at once: idle or anonymous peers cannot exhaust descriptors,
-      // and the SMAs already connected are served as before.
-      if (const uint64_t n = refusals_.Note())
-        log_->warn("{} connection(s) refused, latest from {}: at the cap of {} connections (--max-connections)", n,
-                   peer, options_.maxConnections);
-      net::RefuseConnection(
-          std::move(stream),
-          MakeError(0, wire::ERROR_CODE_TOO_MANY_CONNECTIONS,
-                    fmt::format("this renderer serves at most {} connections at once; try again later",
-                                options_.maxConnections),
-                    true));
-      return;
-    }
-    const uint64_t id = nextSessionId_++;
-    auto connection =
-        net::Connection::Create(std::move(stream), options_.connection, fmt::format("sma#{} {}", id, peer));
-    log_->info("{}: connected", connection->Id());
-    session = std::make_shared<Session>(*this, std::move(connection), id);
-    sessions_.emplace(id, session);
-  }
-  session->Start();
-}
-
-void RendererServer::Impl::BeginShutdown() {
-  if (draining_.exchange(true)) return;
-  if (listener_) listener_->Stop();
-  signals_.cancel();
-  drainDeadline_ = Clock::now() + options_.drainTimeout;
-  // Abandon the work rather than finish it (a deep queue once took 19 s):
-  // the SMAs send the samples to other renderers.
-  std::vector<std::shared_ptr<Session>> sessions;
-  {
-    std::lock_guard lock(sessionsMutex_);
-    for (auto& [id, s] : sessions_) sessions.push_back(s);
-  }
+void RendererServer::Impl::AbandonAll() {
   size_t abandoned = 0;
+  const auto sessions = skeleton_.Sessions();
   for (auto& s : sessions) abandoned += s->AbandonWork();
   log_->info("shutting down: {} connection(s), {} queued sample(s) abandoned", sessions.size(), abandoned);
-  for (auto& s : sessions)
-    s->Connection().FailAndClose(MakeError(0, wire::ERROR_CODE_SHUTTING_DOWN, "renderer is shutting down", true),
-                                 "renderer shutting down");
-  PollDrain();
-}
-
-void RendererServer::Impl::PollDrain() {
-  size_t remaining = 0;
-  {
-    std::lock_guard lock(sessionsMutex_);
-    remaining = sessions_.size();
-  }
-  // Every connection was told and is closing; stop when they are gone, or at
-  // the deadline whatever a slow peer does.
-  if (remaining == 0 || Clock::now() >= drainDeadline_) {
-    if (remaining > 0) log_->warn("{} connection(s) still closing at the shutdown deadline; dropped", remaining);
-    statsTimer_.cancel();
-    io_.stop();
-    return;
-  }
-  drainTimer_.expires_after(std::chrono::milliseconds(20));
-  drainTimer_.async_wait([this](const boost::system::error_code& ec) {
-    if (!ec) PollDrain();
-  });
 }
 
 RendererServer::RendererServer(const Shader& shader, RendererServerOptions options)

@@ -215,14 +215,7 @@ void RendererPool::OnConnected(const std::shared_ptr<Link>& link, net::Stream st
   auto self = shared_from_this();
   connection->Start([self, link](wire::Envelope&& e) { self->OnMessage(link, std::move(e)); },
                     [self, link](const std::string& reason) { self->OnClosed(link, reason); });
-  wire::Envelope hello;
-  auto* h = hello.mutable_hello();
-  h->set_protocol_version(kProtocolVersion);
-  h->set_role(wire::ROLE_SMA);
-  h->set_peer_name(options_.name);
-  h->set_scene_hash(options_.sceneHash);
-  h->set_auth_token(options_.authToken);
-  connection->Send(hello);
+  connection->Send(MakeHello(wire::ROLE_SMA, options_.name, options_.sceneHash, options_.authToken));
 }
 
 void RendererPool::ScheduleReconnect(const std::shared_ptr<Link>& link) {

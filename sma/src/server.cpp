@@ -2,7 +2,6 @@
 
 #include <array>
 #include <map>
-#include <csignal>
 #include <mutex>
 #include <shared_mutex>
 #include <unordered_map>
@@ -14,6 +13,7 @@
 #include "penumbra/common/auth.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
+#include "penumbra/common/server_skeleton.h"
 #include "penumbra/sma/cache_snapshot.h"
 #include "penumbra/sma/client_requests.h"
 #include "penumbra/sma/delta.h"
@@ -32,12 +32,6 @@ using Clock = std::chrono::steady_clock;
 using boost::system::error_code;
 
 double Ms(Clock::duration d) { return std::chrono::duration<double, std::milli>(d).count(); }
-
-void AddCounter(wire::StatsReply* reply, const std::string& name, double value) {
-  auto* c = reply->add_counters();
-  c->set_name(name);
-  c->set_value(value);
-}
 
 void ToWire(const Vec3& v, wire::Vec3* out) {
   out->set_x(v.x);
@@ -72,9 +66,24 @@ class SmaServer::Impl {
                   [this](std::function<void()> job) { backgroundJobs_.Post(std::move(job)); }),
         backgroundJobs_(1),
         log_(Logger("sma")),
-        signals_(io_, SIGINT, SIGTERM),
-        statsTimer_(io_),
-        shutdownTimer_(io_),
+        skeleton_(io_,
+                  net::ServerSkeletonOptions{.name = options_.name,
+                                             .service = "SMA",
+                                             .peer = "client",
+                                             .peers = "clients",
+                                             .logger = "sma",
+                                             .listen = options_.listen,
+                                             .connection = options_.clientConnection,
+                                             .tls = options_.tls,
+                                             .tokenRequired = !options_.authToken.empty(),
+                                             .maxConnections = options_.maxConnections,
+                                             // room for renderer links and files
+                                             .reservedDescriptors = 256,
+                                             .statsInterval = options_.statsInterval},
+                  net::ServerHooks{.logStats = [this] { LogStats(); }, .beginShutdown = [this] { StopWork(); }},
+                  [this](std::shared_ptr<net::Connection> connection, uint64_t id) {
+                    return std::make_shared<Session>(*this, std::move(connection), id);
+                  }),
         snapshots_(std::move(snapshots)) {
     cache_.Reserve(hierarchy_.VertexCount());
     if (restored) cache_.Restore(restored->samples);
@@ -91,43 +100,18 @@ class SmaServer::Impl {
     }
   }
 
-  Expected<tcp::endpoint> Listen() {
-    // Descriptors for every client allowed, and room for renderer links and files.
-    const size_t fit = net::FitConnectionsToDescriptorLimit(options_.maxConnections, 256);
-    if (fit < options_.maxConnections) {
-      log_->warn("the descriptor limit (ulimit -n) allows only {} client connections; --max-connections {} lowered "
-                 "to that", fit, options_.maxConnections);
-      options_.maxConnections = fit;
-    }
-    listener_ = net::Listener::Create(io_, [this](net::Stream stream) { Accept(std::move(stream)); });
-    if (options_.tls) listener_->SetTls(options_.tls, options_.clientConnection.handshakeTimeout);
-    auto bound = listener_->Listen(options_.listen);
-    if (bound)
-      log_->info("{}: listening for clients on {}:{} ({}{})", options_.name, bound->address().to_string(),
-                 bound->port(), options_.tls ? "TLS" : "plain TCP", options_.authToken.empty() ? "" : ", token required");
-    return bound;
-  }
+  Expected<tcp::endpoint> Listen() { return skeleton_.Listen(); }
 
   void Run() {
-    signals_.async_wait([this](const error_code& ec, int signal) {
-      if (ec) return;
-      log_->info("signal {} received: shutting down", signal);
-      Shutdown();
-    });
     pool_->Start();
-    if (listener_) listener_->Start();
-    ArmStats();
     if (snapshots_) snapshots_->Start(stateMutex_, hierarchy_, cache_);
     ArmRendererWatch();
-    std::vector<std::thread> extra;
-    for (int i = 1; i < options_.ioThreads; ++i) extra.emplace_back([this] { io_.run(); });
-    io_.run();
-    for (auto& t : extra) t.join();
+    skeleton_.RunIo(options_.ioThreads);
     if (snapshots_) snapshots_->Stop();  // the final snapshot
     log_->info("{}: stopped", options_.name);
   }
 
-  void Shutdown();
+  void Shutdown() { skeleton_.Shutdown(); }
 
   // Called by the renderer pool (I/O thread) with shaded samples.
   void OnResults(std::vector<ShadedSample>&& samples) {
@@ -166,17 +150,8 @@ class SmaServer::Impl {
     }
   }
 
-  std::vector<std::shared_ptr<Session>> Sessions() {
-    std::lock_guard lock(sessionsMutex_);
-    std::vector<std::shared_ptr<Session>> out;
-    out.reserve(sessions_.size());
-    for (auto& [id, s] : sessions_) out.push_back(s);
-    return out;
-  }
-  void RemoveSession(uint64_t id) {
-    std::lock_guard lock(sessionsMutex_);
-    sessions_.erase(id);
-  }
+  std::vector<std::shared_ptr<Session>> Sessions() { return skeleton_.Sessions(); }
+  void RemoveSession(uint64_t id) { skeleton_.Remove(id); }
   void NotifyArrived(const std::shared_ptr<Session>& session, std::shared_ptr<const std::vector<VertexId>> vertices);
   // `answered`: improvements that came back (some may have changed nothing);
   // `improved`: the vertices whose cached estimate changed.
@@ -219,14 +194,12 @@ class SmaServer::Impl {
   std::shared_ptr<spdlog::logger> log_;
 
  private:
-  void Accept(net::Stream stream);
-  void ArmStats();
-  void PollShutdown();
+  void LogStats();
+  // Shutdown, on an I/O thread: abandon the work (a running trace or
+  // refinement step stops at its next tile or split; it took 7 s to finish
+  // them): nobody will see it.
+  void StopWork();
 
-  std::shared_ptr<net::Listener> listener_;
-  asio::signal_set signals_;
-  asio::steady_timer statsTimer_;
-  asio::steady_timer shutdownTimer_;
   // Clients are told when the number of connected renderers differs from
   // what their last delta said (a view waiting on no renderer says so):
   // polled, as the pool has no callback, and compared per session, as a
@@ -234,14 +207,10 @@ class SmaServer::Impl {
   void ArmRendererWatch();
   asio::steady_timer rendererWatchTimer_{io_};
   std::atomic<bool> shuttingDown_{false};  // also tells running jobs to give up
-  Clock::time_point shutdownDeadline_;
-  net::LogThrottle refusals_{std::chrono::seconds(10)};
   RendererPoolStats lastStats_;
   std::mutex viewTimesMutex_;
   std::vector<std::array<double, 3>> viewTimes_;  // trace, map, view -> first delta (ms)
-  std::mutex sessionsMutex_;
-  std::unordered_map<uint64_t, std::shared_ptr<Session>> sessions_;
-  uint64_t nextSessionId_ = 1;
+  net::ServerSkeleton<Session> skeleton_;  // listener, sessions, signals, stats timer, drain
   // Last member: stopped (its thread joined) before the state it reads goes.
   std::unique_ptr<CacheSnapshotter> snapshots_;
 };
@@ -1183,38 +1152,6 @@ void SmaServer::Impl::Session::OnClosed(const std::string& reason) {
 
 // --- Server -----------------------------------------------------------------
 
-void SmaServer::Impl::Accept(net::Stream stream) {
-  if (shuttingDown_) {
-    net::RefuseConnection(std::move(stream), MakeError(0, wire::ERROR_CODE_SHUTTING_DOWN, "SMA is shutting down", true));
-    return;
-  }
-  const std::string peer = net::PeerAddress(stream);
-  std::shared_ptr<Session> session;
-  {
-    std::lock_guard lock(sessionsMutex_);
-    if (sessions_.size() >= options_.maxConnections) {
-      // Refused at once: idle or anonymous peers cannot exhaust descriptors,
-      // and the clients already connected are served as before.
-      if (const uint64_t n = refusals_.Note())
-        log_->warn("{} client connection(s) refused, latest from {}: at the cap of {} connections (--max-connections)",
-                   n, peer, options_.maxConnections);
-      net::RefuseConnection(std::move(stream),
-                            MakeError(0, wire::ERROR_CODE_TOO_MANY_CONNECTIONS,
-                                      fmt::format("this SMA serves at most {} connections at once; try again later",
-                                                  options_.maxConnections),
-                                      true));
-      return;
-    }
-    const uint64_t id = nextSessionId_++;
-    auto connection =
-        net::Connection::Create(std::move(stream), options_.clientConnection, fmt::format("client#{} {}", id, peer));
-    log_->info("{}: connected", connection->Id());
-    session = std::make_shared<Session>(*this, std::move(connection), id);
-    sessions_.emplace(id, session);
-  }
-  session->Start();
-}
-
 void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
   size_t nodes, vertices, shaded;
   uint64_t hits, misses;
@@ -1291,50 +1228,45 @@ std::string SmaServer::Impl::NotReadyReason() {
   return {};
 }
 
-void SmaServer::Impl::ArmStats() {
-  statsTimer_.expires_after(options_.statsInterval);
-  statsTimer_.async_wait([this](const error_code& ec) {
-    if (ec) return;
-    const RendererPoolStats now = pool_->Stats();
-    const double seconds = std::chrono::duration<double>(options_.statsInterval).count();
-    size_t shaded;
-    uint64_t hits, misses;
-    {
-      std::shared_lock lock(stateMutex_);
-      shaded = cache_.ShadedCount();
-      hits = cache_.Hits();
-      misses = cache_.Misses();
+void SmaServer::Impl::LogStats() {
+  const RendererPoolStats now = pool_->Stats();
+  const double seconds = std::chrono::duration<double>(options_.statsInterval).count();
+  size_t shaded;
+  uint64_t hits, misses;
+  {
+    std::shared_lock lock(stateMutex_);
+    shaded = cache_.ShadedCount();
+    hits = cache_.Hits();
+    misses = cache_.Misses();
+  }
+  std::string renderers;
+  for (const RendererStatus& r : now.renderers)
+    renderers += fmt::format(" {}{}:{} in flight", r.endpoint, r.connected ? "" : "(down)", r.samplesInFlight);
+  std::string clients;
+  for (auto& s : Sessions()) clients += fmt::format(" {}:{}B", s->Connection().Id(), s->Connection().BytesSent());
+  std::string views = "none";
+  {
+    std::lock_guard lock(viewTimesMutex_);
+    if (!viewTimes_.empty()) {
+      auto percentile = [&](int column, double p) {
+        std::vector<double> v;
+        for (const auto& t : viewTimes_) v.push_back(t[size_t(column)]);
+        std::sort(v.begin(), v.end());
+        return v[std::min(v.size() - 1, size_t(p * double(v.size() - 1) + 0.5))];
+      };
+      views = fmt::format("{} (trace p50 {:.1f} ms, map p50 {:.1f} ms, view->first delta p50 {:.1f} / p99 {:.1f} ms)",
+                          viewTimes_.size(), percentile(0, 0.5), percentile(1, 0.5), percentile(2, 0.5),
+                          percentile(2, 0.99));
+      viewTimes_.clear();
     }
-    std::string renderers;
-    for (const RendererStatus& r : now.renderers)
-      renderers += fmt::format(" {}{}:{} in flight", r.endpoint, r.connected ? "" : "(down)", r.samplesInFlight);
-    std::string clients;
-    for (auto& s : Sessions()) clients += fmt::format(" {}:{}B", s->Connection().Id(), s->Connection().BytesSent());
-    std::string views = "none";
-    {
-      std::lock_guard lock(viewTimesMutex_);
-      if (!viewTimes_.empty()) {
-        auto percentile = [&](int column, double p) {
-          std::vector<double> v;
-          for (const auto& t : viewTimes_) v.push_back(t[size_t(column)]);
-          std::sort(v.begin(), v.end());
-          return v[std::min(v.size() - 1, size_t(p * double(v.size() - 1) + 0.5))];
-        };
-        views = fmt::format("{} (trace p50 {:.1f} ms, map p50 {:.1f} ms, view->first delta p50 {:.1f} / p99 {:.1f} ms)",
-                            viewTimes_.size(), percentile(0, 0.5), percentile(1, 0.5), percentile(2, 0.5),
-                            percentile(2, 0.99));
-        viewTimes_.clear();
-      }
-    }
-    log_->info("stats: cache {} shaded, hit rate {:.1f}%; {:.0f} requested/s, {:.0f} shaded/s, {} queued; "
-               "renderers:{}; clients:{}; views: {}",
-               shaded, hits + misses > 0 ? 100.0 * double(hits) / double(hits + misses) : 0.0,
-               double(now.requested - lastStats_.requested) / seconds, double(now.shaded - lastStats_.shaded) / seconds,
-               now.queuedVisible + now.queuedBackground, renderers.empty() ? " none" : renderers,
-               clients.empty() ? " none" : clients, views);
-    lastStats_ = now;
-    ArmStats();
-  });
+  }
+  log_->info("stats: cache {} shaded, hit rate {:.1f}%; {:.0f} requested/s, {:.0f} shaded/s, {} queued; "
+             "renderers:{}; clients:{}; views: {}",
+             shaded, hits + misses > 0 ? 100.0 * double(hits) / double(hits + misses) : 0.0,
+             double(now.requested - lastStats_.requested) / seconds, double(now.shaded - lastStats_.shaded) / seconds,
+             now.queuedVisible + now.queuedBackground, renderers.empty() ? " none" : renderers,
+             clients.empty() ? " none" : clients, views);
+  lastStats_ = now;
 }
 
 void SmaServer::Impl::ArmRendererWatch() {
@@ -1348,39 +1280,13 @@ void SmaServer::Impl::ArmRendererWatch() {
   });
 }
 
-void SmaServer::Impl::Shutdown() {
-  asio::post(io_, [this] {
-    if (shuttingDown_.exchange(true)) return;
-    if (listener_) listener_->Stop();
-    signals_.cancel();
-    statsTimer_.cancel();
-    rendererWatchTimer_.cancel();
-    // Abandon the work (a running trace or refinement step stops at its next
-    // tile or split; it took 7 s to finish them): nobody will see it.
-    jobs_.Stop();
-    backgroundJobs_.Stop();
-    pool_->Stop();
-    const auto sessions = Sessions();
-    log_->info("shutting down: telling {} client(s)", sessions.size());
-    for (auto& s : sessions)
-      s->Connection().FailAndClose(MakeError(0, wire::ERROR_CODE_SHUTTING_DOWN, "SMA is shutting down", true),
-                                   "SMA shutting down");
-    // Stop when every client has been told and closed, or after a second
-    // whatever a client that does not read does.
-    shutdownDeadline_ = Clock::now() + std::chrono::seconds(1);
-    PollShutdown();
-  });
-}
-
-void SmaServer::Impl::PollShutdown() {
-  if (Sessions().empty() || Clock::now() >= shutdownDeadline_) {
-    io_.stop();
-    return;
-  }
-  shutdownTimer_.expires_after(std::chrono::milliseconds(20));
-  shutdownTimer_.async_wait([this](const error_code& ec) {
-    if (!ec) PollShutdown();
-  });
+void SmaServer::Impl::StopWork() {
+  shuttingDown_ = true;
+  rendererWatchTimer_.cancel();
+  jobs_.Stop();
+  backgroundJobs_.Stop();
+  pool_->Stop();
+  log_->info("shutting down: telling {} client(s)", skeleton_.SessionCount());
 }
 
 // --- Public wrapper ---------------------------------------------------------

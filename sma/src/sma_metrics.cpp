@@ -1,5 +1,7 @@
 #include "sma_metrics.h"
 
+#include "penumbra/common/messages.h"
+
 namespace penumbra::sma {
 
 namespace {
@@ -54,10 +56,7 @@ const std::vector<metrics::CounterSpec>& Specs() {
 
 void WriteSmaMetrics(metrics::ExpositionWriter& out, const wire::StatsReply& globalCounters,
                      const ViewLatencyHistograms& latencies) {
-  std::vector<std::pair<std::string, double>> counters;
-  counters.reserve(size_t(globalCounters.counters_size()));
-  for (const auto& c : globalCounters.counters()) counters.emplace_back(c.name(), c.value());
-  metrics::WriteCounters(out, "penumbra_sma", counters, Specs());
+  metrics::WriteCounters(out, "penumbra_sma", CounterPairs(globalCounters), Specs());
   out.WriteHistogram("penumbra_sma_view_first_delta_seconds",
                      "New view received -> its first delta sent (visibility traced, mapped, planned)",
                      latencies.toFirstDelta.Read());

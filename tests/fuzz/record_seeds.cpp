@@ -116,11 +116,7 @@ int main(int argc, char** argv) {
     sent.push_back(e);
     client->Send(e);
   };
-  wire::Envelope hello;
-  hello.mutable_hello()->set_protocol_version(kProtocolVersion);
-  hello.mutable_hello()->set_role(wire::ROLE_CLIENT);
-  hello.mutable_hello()->set_peer_name("seed-recorder");
-  send(hello);
+  send(MakeHello(wire::ROLE_CLIENT, "seed-recorder", 0));
   wire::Envelope options;
   options.mutable_session_options()->set_criterion("nld_os");
   options.mutable_session_options()->set_s_req(0.04f);

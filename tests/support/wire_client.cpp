@@ -121,12 +121,8 @@ bool WireClient::WaitClosed(std::chrono::milliseconds timeout) {
 
 Expected<wire::Welcome> WireClient::Handshake(wire::Role role, uint64_t sceneHash, uint32_t version,
                                               const std::string& name) {
-  wire::Envelope hello;
-  hello.mutable_hello()->set_protocol_version(version == 0 ? kProtocolVersion : version);
-  hello.mutable_hello()->set_role(role);
-  hello.mutable_hello()->set_peer_name(name);
-  hello.mutable_hello()->set_scene_hash(sceneHash);
-  if (!Send(hello)) return Fail("send hello failed");
+  if (!Send(MakeHello(role, name, sceneHash, {}, version == 0 ? kProtocolVersion : version)))
+    return Fail("send hello failed");
   auto reply = Receive();
   if (!reply) return reply.error();
   if (reply->has_error())

@@ -5,6 +5,8 @@
 #include <cstdint>
 #include <string>
 #include <string_view>
+#include <utility>
+#include <vector>
 
 #include "penumbra/common/expected.h"
 #include "penumbra/wire.pb.h"
@@ -34,6 +36,17 @@ Status ValidateHello(const wire::Hello& hello, wire::Role expectedRole, uint64_t
 /// Same checks for the Welcome a client receives.
 Status ValidateWelcome(const wire::Welcome& welcome, wire::Role expectedRole, uint64_t sceneHash,
                        wire::ErrorCode* code);
+
+/// The Hello every connecting side sends first (a client, the SMA to its
+/// renderers, tests): `sceneHash` 0 takes whatever scene the server has;
+/// an empty `authToken` presents none.
+wire::Envelope MakeHello(wire::Role role, std::string_view peerName, uint64_t sceneHash,
+                         std::string_view authToken = {}, uint32_t protocolVersion = kProtocolVersion);
+
+/// Appends one named counter to a StatsReply.
+void AddCounter(wire::StatsReply* reply, std::string_view name, double value);
+/// A StatsReply's counters as (name, value) pairs, for metrics::WriteCounters.
+std::vector<std::pair<std::string, double>> CounterPairs(const wire::StatsReply& reply);
 
 wire::Envelope MakeError(uint64_t requestId, wire::ErrorCode code, std::string message, bool fatal);
 wire::Envelope MakeHeartbeat();
