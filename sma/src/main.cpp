@@ -76,6 +76,9 @@ int main(int argc, char** argv) {
   app.add_option("--large-fraction", refine.largeFraction,
                  "NLD_OS: leaves covering more of the image than this are always split")
       ->capture_default_str();
+  app.add_option("--probe-fraction", refine.probeFraction,
+                 "NLD_OS: leaves covering more of the image than this are probed inside (1: never)")
+      ->capture_default_str();
   app.add_option("--aspect-threshold", refine.aspectThreshold,
                  "Propagation: neighbours lower than this times the shared edge split 1->2")
       ->capture_default_str();

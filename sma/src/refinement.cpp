@@ -38,6 +38,7 @@ Status RefinementParams::Validate() const {
   if (maxDepth < 1 || maxDepth > 20) return bad("max_depth", maxDepth);
   if (!(pixelFraction > 0.0f && pixelFraction <= 1.0f)) return bad("pixel_fraction", pixelFraction);
   if (!(noiseZ >= 0.0f && noiseZ <= 10.0f)) return bad("noise_z", noiseZ);
+  if (!(probeFraction > 0.0f && probeFraction <= 1.0f)) return bad("probe_fraction", probeFraction);
   return Status::Ok();
 }
 
@@ -67,6 +68,21 @@ float NoiseAwareLuminanceDifference(std::span<const float> l, std::span<const fl
     }
   const double denominator = double((n * n) / 4) * double(lMax) * double(lMax);
   return float(std::sqrt(sum / denominator));
+}
+
+float MidpointDeviation(const SampleCache& cache, const Node& n, VertexLuminance& lum, float z, float lMax) {
+  if (n.IsLeaf() || !(lMax > 0.0f)) return 0.0f;
+  float deviation = 0.0f;
+  for (int k = 0; k < 3; ++k) {  // edge k joins corners k+1 and k+2
+    const VertexId m = n.mid[size_t(k)];
+    const VertexId a = n.v[size_t((k + 1) % 3)], b = n.v[size_t((k + 2) % 3)];
+    if (m == kNoVertex || !cache.IsShaded(m) || !cache.IsShaded(a) || !cache.IsShaded(b)) continue;
+    const float interpolated = 0.5f * (lum(a) + lum(b));
+    const float sigma = std::sqrt(lum.Sigma(m) * lum.Sigma(m) +
+                                  0.25f * (lum.Sigma(a) * lum.Sigma(a) + lum.Sigma(b) * lum.Sigma(b)));
+    deviation = std::max(deviation, std::abs(lum(m) - interpolated) - z * sigma);
+  }
+  return std::max(0.0f, deviation) / lMax;
 }
 
 // --- VertexLuminance --------------------------------------------------------
@@ -199,9 +215,14 @@ std::vector<NodeId> Refiner::SelectObjectSpace(const Hierarchy& h, const SampleC
     const float l[3] = {lum(n.v[0]), lum(n.v[1]), lum(n.v[2])};
     const float sigma[3] = {lum.Sigma(n.v[0]), lum.Sigma(n.v[1]), lum.Sigma(n.v[2])};
     const float s = NoiseAwareLuminanceDifference(l, sigma, params_.noiseZ, lMax);
-    // Large leaves first (they may hide anything), then by S.
+    // Large leaves first (they may hide anything), then by S, then interior
+    // probes (whose S is at most S_req) -- see "Interior probes" in the header.
     if (large) candidates.push_back(Candidate{2.0f + float(coverage) / pixels, id});
     else if (s > params_.sReq) candidates.push_back(Candidate{s, id});
+    else if (float(coverage) > params_.probeFraction * pixels &&
+             (n.parent == kNoNode ||
+              MidpointDeviation(cache, h.GetNode(n.parent), lum, params_.noiseZ, lMax) > params_.sReq))
+      candidates.push_back(Candidate{s, id});
   }
   const size_t keep = std::min(limit, candidates.size());
   std::partial_sort(candidates.begin(), candidates.begin() + std::ptrdiff_t(keep), candidates.end(),

@@ -159,10 +159,12 @@ struct VisibilityTracer::Impl {
 };
 
 Expected<std::unique_ptr<VisibilityTracer>> VisibilityTracer::Build(const Scene& scene) {
-  // Not robust, the renderer's choice against light leaking through shared
-  // edges: here a ray slipping through an edge only gives one pixel to the
-  // surface behind, while robust traversal made Trace ~45% slower on Sponza.
-  auto embree = EmbreeScene::Build(scene, EmbreeSceneOptions{.logger = "sma.visibility", .robust = false});
+  // Robust, as the renderer's: a ray through a shared edge must hit one of
+  // the two triangles. Slipping through gave its pixel to the surface
+  // behind (or to nothing), so the leaf the client rasterises there was
+  // never sent and the client showed a one-pixel hole (issue 11). Robust
+  // traversal costs Trace time (docs/refinement.md, "Cracks").
+  auto embree = EmbreeScene::Build(scene, EmbreeSceneOptions{.logger = "sma.visibility", .robust = true});
   if (!embree) return embree.error();
   auto impl = std::make_unique<Impl>();
   impl->scene = (*embree)->Handle();

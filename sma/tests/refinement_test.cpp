@@ -44,7 +44,9 @@ struct Fixture {
   HitBuffer hits;
   VisibleSet visible;
 
-  explicit Fixture(bool uniform = false) {
+  // `shade`: the hard shadow (or uniform light) on every vertex; false leaves
+  // the cache empty for a test's own field.
+  explicit Fixture(bool uniform = false, bool shade = true) {
     auto t = VisibilityTracer::Build(scene);
     EXPECT_TRUE(t.ok());
     tracer = std::move(*t);
@@ -55,7 +57,7 @@ struct Fixture {
     view.fovYDeg = 45.0f;
     view.width = view.height = kImage;
     tracer->Trace(view, hits);
-    ShadeHardShadow(hierarchy, cache, uniform);
+    if (shade) ShadeHardShadow(hierarchy, cache, uniform);
     Remap();
   }
   void Remap() {
@@ -134,6 +136,7 @@ TEST(NldOsTest, SplitsExactlyTheLeavesAcrossTheShadowEdge) {
   RefinementParams p;
   p.criterion = Criterion::kNldOs;
   p.largeFraction = 1.0f;  // only the metric decides here
+  p.probeFraction = 1.0f;
   p.batch = 1000;
   Refiner r(p);
   const auto chosen = f.Select(r);
@@ -151,6 +154,7 @@ TEST(NldOsTest, RespectsTheBatchSizeAndTheMinimumArea) {
   Fixture f;
   RefinementParams p;
   p.largeFraction = 1.0f;
+  p.probeFraction = 1.0f;  // no interior probes: the corners decide
   p.batch = 2;
   Refiner r(p);
   EXPECT_EQ(f.Select(r).size(), 2u);
@@ -167,6 +171,7 @@ TEST(NldOsTest, LargeLeavesAreSplitWhateverTheirMetric) {
   Refiner r(p);
   EXPECT_FALSE(f.Select(r).empty());
   p.largeFraction = 1.0f;
+  p.probeFraction = 1.0f;  // no interior probes: the corners decide
   Refiner none(p);
   EXPECT_TRUE(f.Select(none).empty());
 }
@@ -175,6 +180,7 @@ TEST(NldOsTest, IsDoneOnlyWhenNothingIsOutstanding) {
   Fixture f(/*uniform=*/true);
   RefinementParams p;
   p.largeFraction = 1.0f;
+  p.probeFraction = 1.0f;  // no interior probes: the corners decide
   Refiner r(p);
   EXPECT_TRUE(f.Select(r, /*outstanding=*/true).empty());
   EXPECT_FALSE(r.Exhausted());
@@ -186,6 +192,7 @@ TEST(NldOsTest, RefinesDownToTheEdgeAndLeavesTheRestAlone) {
   Fixture f;
   RefinementParams p;
   p.largeFraction = 1.0f;
+  p.probeFraction = 1.0f;  // no interior probes: the corners decide
   p.minPixels = 6.0f;
   Refiner r(p);
   for (int step = 0; step < 200 && !r.Exhausted(); ++step) f.Apply(f.Select(r), p);
@@ -224,6 +231,7 @@ TEST(NldOsTest, NoiseAwareMetricSplitsTheEdgeAndNotTheNoise) {
   noisy.Store(samples);
   RefinementParams p;
   p.largeFraction = 1.0f;
+  p.probeFraction = 1.0f;  // no interior probes: the corners decide
   p.batch = 1000;
   p.noiseZ = 0.0f;
   Refiner plain(p);
@@ -236,6 +244,127 @@ TEST(NldOsTest, NoiseAwareMetricSplitsTheEdgeAndNotTheNoise) {
   EXPECT_GT(plainOffEdge, 0u) << "the plain metric should be fooled by the noise";
   ASSERT_FALSE(awareChoice.empty());
   for (NodeId id : awareChoice) EXPECT_TRUE(f.Straddles(id)) << "leaf " << id << " is off the edge";
+}
+
+// A bump at the circumcentre of a grid cell's diagonal: the corners of the
+// cell's two triangles (right isosceles, the diagonal their hypotenuse) are
+// all sqrt(0.5) from it and read exactly the background, so corners alone
+// never split them; the diagonal's midpoint reads the peak.
+constexpr float kBumpRadius = 0.6f;
+const Vec3 kBumpCentre(2.5f, 0.0f, 2.5f);  // the middle of cell (2, 2)
+
+float BumpIrradiance(const Vec3& p) {
+  const float r = glm::length(p - kBumpCentre) / kBumpRadius;
+  return 1.0f + 4.0f * std::max(0.0f, 1.0f - r * r);
+}
+
+void ShadeBump(const Hierarchy& h, SampleCache& cache) {
+  std::vector<ShadedSample> samples;
+  for (VertexId v = 0; v < h.VertexCount(); ++v) {
+    if (cache.IsShaded(v)) continue;
+    const float e = BumpIrradiance(h.GetVertex(v).position);
+    samples.push_back(ShadedSample{v, Rgb(0.5f * e * kInvPi), Rgb(e)});
+  }
+  cache.Store(samples);
+}
+
+// Runs NLD_OS to exhaustion on the bump field (`f` made unshaded).
+void RefineBump(Fixture& f, const RefinementParams& p) {
+  f.cache.Reserve(f.hierarchy.VertexCount());
+  ShadeBump(f.hierarchy, f.cache);
+  f.Remap();
+  Refiner r(p);
+  for (int step = 0; step < 500 && !r.Exhausted(); ++step) {
+    for (NodeId id : f.Select(r))
+      if (f.hierarchy.GetNode(id).IsLeaf()) f.hierarchy.Refine(id, p.ToRefineOptions());
+    f.cache.Reserve(f.hierarchy.VertexCount());
+    ShadeBump(f.hierarchy, f.cache);
+    f.Remap();
+  }
+  ASSERT_TRUE(r.Exhausted());
+}
+
+TEST(NldOsTest, CornersThatAgreeDoNotHideTheInteriorOfABigLeaf) {
+  RefinementParams p;
+  p.largeFraction = 1.0f;  // each grid triangle covers ~1.4 % of the image: not "large"
+  p.batch = 1000;
+  {
+    Fixture f(/*uniform=*/false, /*shade=*/false);
+    p.probeFraction = 1.0f;  // corners only (the paper's NLD_OS)
+    RefineBump(f, p);
+    EXPECT_EQ(f.hierarchy.NodeCount(), f.scene.triangles.size()) << "corners alone split nothing";
+  }
+  Fixture f(/*uniform=*/false, /*shade=*/false);
+  p.probeFraction = 1.0f / 1024.0f;  // the default: ~9 pixels of this 96 x 96 image
+  RefineBump(f, p);
+  // The peak is sampled: some vertex within a tenth of the bump's radius.
+  float nearest = 1e9f;
+  for (VertexId v = 0; v < f.hierarchy.VertexCount(); ++v)
+    nearest = std::min(nearest, glm::length(f.hierarchy.GetVertex(v).position - kBumpCentre));
+  EXPECT_LT(nearest, 0.1f * kBumpRadius);
+  // Where the field is flat, one probe per root and no deeper: leaves whose
+  // three corners are all off the bump are at depth 2 at most (a probe,
+  // then the propagation of a neighbour's probe); around the bump the
+  // probes went on.
+  size_t flatDeep = 0, bumpDeep = 0;
+  for (NodeId id : f.visible.nodes) {
+    const Node& n = f.hierarchy.GetNode(id);
+    bool off = true;
+    for (VertexId v : n.v) off = off && glm::length(f.hierarchy.GetVertex(v).position - kBumpCentre) > 2.0f;
+    if (off) flatDeep += n.depth > 2;
+    else bumpDeep += n.depth > 2;
+  }
+  EXPECT_EQ(flatDeep, 0u) << bumpDeep;
+  EXPECT_GT(bumpDeep, 8u);
+}
+
+TEST(NldOsTest, InteriorProbesStopWhereTheMidpointsConfirmTheCorners) {
+  // A uniform field: every root is probed (split) once; its midpoints agree
+  // with its corners, so nothing is probed below. Deeper nodes only come
+  // from the splits' propagation, which keeps the mesh conforming: depth 2
+  // at most.
+  Fixture f(/*uniform=*/true);
+  RefinementParams p;
+  p.largeFraction = 1.0f;
+  p.batch = 1000;
+  std::vector<NodeId> big;  // roots covering well over the probe size (~9 pixels)
+  for (size_t i = 0; i < f.visible.nodes.size(); ++i)
+    if (float(f.visible.coverage[i]) > 2.0f * p.probeFraction * float(kImage * kImage)) big.push_back(f.visible.nodes[i]);
+  ASSERT_GT(big.size(), 20u);
+  Refiner r(p);
+  for (int step = 0; step < 100 && !r.Exhausted(); ++step) f.Apply(f.Select(r), p, /*uniform=*/true);
+  ASSERT_TRUE(r.Exhausted());
+  for (NodeId root : big) EXPECT_FALSE(f.hierarchy.GetNode(root).IsLeaf()) << "root " << root << " was not probed";
+  for (NodeId id = 0; id < f.hierarchy.NodeCount(); ++id) EXPECT_LE(f.hierarchy.GetNode(id).depth, 2) << id;
+}
+
+TEST(MidpointDeviationTest, IsTheMidpointsDistanceFromItsEdgesInterpolationBeyondNoise) {
+  Fixture f(/*uniform=*/true);
+  const NodeId root = 0;
+  f.hierarchy.Refine(root, RefineOptions{});
+  const Node& n = f.hierarchy.GetNode(root);
+  ASSERT_EQ(n.childCount, 4);
+  // Corners at E = 1, midpoints at 1 except edge 0's at 3, each +-sigma.
+  SampleCache cache;
+  cache.Reserve(f.hierarchy.VertexCount());
+  std::vector<ShadedSample> samples;
+  for (VertexId v = 0; v < f.hierarchy.VertexCount(); ++v) {
+    const float e = v == n.mid[0] ? 3.0f : 1.0f;
+    samples.push_back(ShadedSample{v, Rgb(0.5f * e * kInvPi), Rgb(e), 0.01f});
+  }
+  cache.Store(samples);
+  // The view's statistics over the children: the midpoint is the brightest.
+  std::vector<NodeId> children;
+  for (uint32_t c = 0; c < n.childCount; ++c) children.push_back(n.firstChild + c);
+  const ViewLuminance view = VertexLuminance::Measure(f.hierarchy, cache, children);
+  VertexLuminance lum(f.hierarchy, cache, view, DragoParams{});
+  const float lMax = std::max(lum(n.mid[0]), lum(n.v[0]));
+  const float plain = MidpointDeviation(cache, n, lum, 0.0f, lMax);
+  const float expected = (lum(n.mid[0]) - lum(n.v[1])) / lMax;  // corners equal: interpolation = lum(corner)
+  EXPECT_NEAR(plain, expected, 1e-5f);
+  EXPECT_GT(plain, 0.1f);
+  EXPECT_LT(MidpointDeviation(cache, n, lum, 2.0f, lMax), plain) << "noise discounted";
+  EXPECT_EQ(MidpointDeviation(cache, f.hierarchy.GetNode(n.firstChild), lum, 0.0f, lMax), 0.0f) << "a leaf";
 }
 
 TEST(RndTest, SpendsItsPixelBudgetAndStops) {
@@ -290,6 +419,7 @@ TEST(NldOsRndTest, RandomPassFindsWorkNldOsAloneDoesNot) {
   RefinementParams p;
   p.criterion = Criterion::kNldOsRnd;
   p.largeFraction = 1.0f;
+  p.probeFraction = 1.0f;  // no interior probes: the corners decide
   p.pixelFraction = 0.05f;
   Refiner r(p);
   size_t chosen = 0;

@@ -80,11 +80,12 @@ struct RefinementParams {
   uint8_t maxDepth = 12;          // leaves this deep are not split
   float pixelFraction = 0.1f;     // NLD_IS, RND: budget as a fraction of the image's pixels
   float noiseZ = 2.0f;            // differences within this many standard errors are noise; 0: the paper's S
+  float probeFraction = 1.0f / 1024.0f;  // NLD_OS: interior probes of leaves covering more of the image; 1: none
   uint64_t seed = 1;              // RND's random stream
 
   /// Checks ranges: sReq in [0, 1], batch in [1, 1e6], minPixels >= 0,
   /// largeFraction in (0, 1], aspectThreshold > 0, maxDepth in [1, 20],
-  /// pixelFraction in (0, 1], noiseZ in [0, 10].
+  /// pixelFraction in (0, 1], noiseZ in [0, 10], probeFraction in (0, 1].
   Status Validate() const;
   RefineOptions ToRefineOptions() const;
 };
@@ -96,6 +97,15 @@ float NormalizedLuminanceDifference(std::span<const float> l, float lMax);
 /// z * sqrt(sigma_i^2 + sigma_j^2), sigma being the standard errors of `l`.
 /// z = 0 gives NormalizedLuminanceDifference.
 float NoiseAwareLuminanceDifference(std::span<const float> l, std::span<const float> sigma, float z, float lMax);
+
+class VertexLuminance;
+
+/// How far the midpoints node `n`'s split added stand from the linear
+/// interpolation of their edges' ends (tone-mapped luminance, each
+/// difference reduced by z standard errors of itself, not below 0), over
+/// lMax: the largest over the split's shaded midpoints; 0 for a leaf or
+/// while the samples are missing.
+float MidpointDeviation(const SampleCache& cache, const Node& n, VertexLuminance& lum, float z, float lMax);
 
 /// Tone-mapped luminance of vertices, memoised, for one view's statistics.
 class VertexLuminance {
