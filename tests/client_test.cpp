@@ -279,6 +279,40 @@ TEST_F(ClientTest, SupersampledImagesAreBoxFilteredToTheViewsSize) {
   EXPECT_LT(interiorDiffers, classes.red.size() / 10);
 }
 
+// --snapshot-path-interval: one image per path time 0, S, 2S, ... named by
+// its milliseconds, at the view's size, whether or not anything changed;
+// once the path rests on the front view and the view is shaded, the image
+// is the Cornell box from the front.
+TEST_F(ClientTest, PathTimeSnapshotsShowThePoseOfTheirTime) {
+  Service sma = StartSma({"--criterion", "none", "--improve-paths", "0"});
+  SetDisplay("");
+  const CameraPreset& front = *scene_->FindCamera("front");
+  const auto& p = front.pose;
+  const std::string path = dir_ + "/moving.json";
+  // From 0.5 to the right of the front view onto it in 1 s, then resting.
+  std::ofstream(path) << fmt::format(
+      R"({{"fov_y_deg": {}, "width": {}, "height": {}, "keyframes": [)"
+      R"({{"t": 0, "eye": [{}, {}, {}], "target": [{}, {}, {}]}}, {{"t": 1, "eye": [{}, {}, {}], "target": [{}, {}, {}]}}]}})",
+      front.fovYDeg, kWidth, kHeight, p.eye.x + 0.5f, p.eye.y, p.eye.z, p.target.x + 0.5f, p.target.y, p.target.z,
+      p.eye.x, p.eye.y, p.eye.z, p.target.x, p.target.y, p.target.z);
+  ChildProcess client = StartClient({"--connect", sma.Address(), "--headless", "--camera-path", path,
+                                     "--snapshot-path-interval", "0.5", "--snapshot-prefix", dir_ + "/walk",
+                                     "--seconds", "6"},
+                                    dir_ + "/client.log");
+  const auto exit = client.WaitExit(120s);
+  ASSERT_TRUE(exit.has_value()) << client.LogTail();
+  ASSERT_EQ(*exit, 0) << client.LogTail();
+  for (const char* ms : {"000000", "000500", "001000", "001500", "002000", "002500", "003000", "003500", "004000"}) {
+    auto image = ReadImage(dir_ + "/walk_t" + ms + ".exr");
+    ASSERT_TRUE(image.ok()) << image.error().message;
+    EXPECT_EQ(image->width, kWidth);
+    EXPECT_EQ(image->height, kHeight);
+  }
+  auto rested = ReadImage(dir_ + "/walk_t004000.exr");
+  ASSERT_TRUE(rested.ok());
+  ExpectCornellBox(*rested, ClassifyPixels(*scene_, FrontView()));
+}
+
 // GLFW with a hidden window on a private Xvfb: the tone-mapped PNG shows the
 // box, and nothing inside it is background. (Refinement stays off in the
 // image tests: the SMA's refined meshes can hold T-junctions where a split

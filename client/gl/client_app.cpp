@@ -1,6 +1,7 @@
 #include "gl/client_app.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cctype>
 #include <csignal>
 #include <ctime>
@@ -127,6 +128,7 @@ class ClientApp {
   void CycleCriterion();
   void SetCriterion(const std::string& criterion);
   void MaybeWriteSnapshot(Clock::time_point now);
+  void WritePathSnapshot(double pathTime);
   void SaveInteractiveScreenshot();
   int Failed(const std::string& message) const;
 
@@ -179,6 +181,7 @@ class ClientApp {
   std::optional<Clock::time_point> convergedSince_;
   std::optional<Clock::time_point> lastSnapshot_;
   uint64_t snapshotSequence_ = 0;  // the mesh's delta sequence at the last snapshot
+  uint64_t pathSnapshots_ = 0;     // path-time snapshots written (--snapshot-path-interval)
   Clock::time_point rateWindowStart_ = start_;
   uint64_t rateWindowFrames_ = 0;
   uint64_t rateWindowBytes_ = 0;
@@ -272,7 +275,15 @@ int ClientApp::Run() {
         continue;
       }
     }
-    if (auto view = CurrentView(now); view && (!sentView_ || !SameView(*view, *sentView_))) {
+    // A path-time snapshot frame shows the pose of exactly its time.
+    std::optional<double> pathSnapshotTime;
+    if (options_.headless && options_.snapshotPathInterval > 0.0 && pathStart_ && !snapshotsFailed_) {
+      const double time = double(pathSnapshots_) * options_.snapshotPathInterval;
+      if (Seconds(now - *pathStart_).count() >= time) pathSnapshotTime = time;
+    }
+    const auto viewTime =
+        pathSnapshotTime ? *pathStart_ + std::chrono::duration_cast<Clock::duration>(Seconds(*pathSnapshotTime)) : now;
+    if (auto view = CurrentView(viewTime); view && (!sentView_ || !SameView(*view, *sentView_))) {
       viewSerial_ = session_->SetView(*view);
       sentView_ = view;
     }
@@ -289,6 +300,7 @@ int ClientApp::Run() {
     }
     ++frames_;
     MaybeWriteSnapshot(now);
+    if (pathSnapshotTime) WritePathSnapshot(*pathSnapshotTime);
     UpdateRates(now);
     WriteStats(now);
     if (finishing) return Finish();
@@ -614,6 +626,16 @@ void ClientApp::MaybeWriteSnapshot(Clock::time_point now) {
   }
   lastSnapshot_ = now;
   snapshotSequence_ = mesh.LastSequence();
+}
+
+void ClientApp::WritePathSnapshot(double pathTime) {
+  const auto path = options_.snapshotPrefix.string() + fmt::format("_t{:06}.exr", std::llround(pathTime * 1000.0));
+  if (auto ok = WriteScreenshot(path); !ok) {
+    log_->error("snapshot: {}; no more snapshots", ok.error().message);
+    snapshotsFailed_ = true;
+    return;
+  }
+  ++pathSnapshots_;
 }
 
 int ClientApp::Finish() {

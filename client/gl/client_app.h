@@ -62,6 +62,11 @@ struct ClientOptions {
   /// the linear radiance to <snapshotPrefix>_<frame>.exr, the frame being the
   /// stats line's (experiments measure convergence from these). 0: none.
   double snapshotEvery = 0.0;
+  /// Headless, with a camera path: at path times 0, S, 2S, ... draw the pose
+  /// of exactly that time and write the linear radiance shown to
+  /// <snapshotPrefix>_t<milliseconds>.exr, changed or not (a walkthrough
+  /// compares these with references of the same poses). 0: none.
+  double snapshotPathInterval = 0.0;
   std::filesystem::path snapshotPrefix;
   /// Refinement settings for the SMA session (criterion, S_req, ...); none:
   /// the SMA's defaults. In a window, R cycles the criterion.

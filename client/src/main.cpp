@@ -135,10 +135,18 @@ int main(int argc, char** argv) {
   auto* snapshotOption = app.add_option("--snapshot-every", options.snapshotEvery,
                                         "Headless: every S seconds, when the image changed, write the linear "
                                         "radiance to PREFIX_<frame>.exr (frame as in --stats)");
-  auto* prefixOption = app.add_option("--snapshot-prefix", snapshotPrefix, "Headless: path prefix of --snapshot-every's files");
+  auto* pathSnapshotOption =
+      app.add_option("--snapshot-path-interval", options.snapshotPathInterval,
+                     "Headless: at path times 0, S, 2S, ... draw exactly that time's pose and write the linear "
+                     "radiance shown to PREFIX_t<milliseconds>.exr")
+          ->check(CLI::Range(0.01, 3600.0));
+  auto* prefixOption = app.add_option("--snapshot-prefix", snapshotPrefix,
+                                      "Headless: path prefix of --snapshot-every's and --snapshot-path-interval's files");
   snapshotOption->needs(prefixOption);
+  pathSnapshotOption->needs(prefixOption);
   for (CLI::Option* o : {glOption, pathOption, screenshotOption, convergedFlag, framesOption, secondsOption,
-                         connectTimeoutOption, timeoutOption, snapshotOption, prefixOption, supersampleOption})
+                         connectTimeoutOption, timeoutOption, snapshotOption, pathSnapshotOption, prefixOption,
+                         supersampleOption})
     o->needs(headless);
 
   try {

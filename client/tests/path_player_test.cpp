@@ -76,6 +76,21 @@ TEST(PathPlayerTest, PlaysFromTheFirstKeyframeAndHoldsTheLast) {
   EXPECT_EQ(player.ViewAt(0s).width, 320);
 }
 
+// A stop (two equal keyframes) is exactly their pose at every time between
+// them: a pose off in the last bit would be a new view for the SMA each frame.
+TEST(PathPlayerTest, AStopHoldsExactlyItsPose) {
+  auto path = LoadCameraPathSpec(WriteFile("stop.json", R"({"keyframes": [
+    {"t": 0, "eye": [0.1, 1.45, -1.3], "target": [3.9, 1.0, -1.6]},
+    {"t": 4, "eye": [0.1, 1.45, -1.3], "target": [3.9, 1.0, -1.6]}]})"));
+  ASSERT_TRUE(path.ok());
+  const PathPlayer player(*path);
+  const CameraPose first = player.ViewAt(0s).pose;
+  for (int ms = 1; ms < 4000; ms += 37) {
+    const CameraPose pose = player.ViewAt(std::chrono::milliseconds(ms)).pose;
+    ASSERT_TRUE(pose.eye == first.eye && pose.target == first.target && pose.up == first.up) << ms << " ms";
+  }
+}
+
 TEST(PathPlayerTest, APresetIsAStillPathFinishedAtOnce) {
   const wire::SceneInfo info = testing::UnitSquareSceneInfo();
   const PathPlayer player(StillPath(info.cameras(0), 64, 48));

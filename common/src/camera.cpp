@@ -61,6 +61,10 @@ CameraPose CameraPath::PoseAt(double t) const {
   while (keyframes[i].timeSeconds < t) ++i;
   const auto& a = keyframes[i - 1];
   const auto& b = keyframes[i];
+  // A stop (two equal keyframes) gives exactly their pose: a mix of equal
+  // values can differ from them in the last bit, and a client would then send
+  // a "new" view every frame of the stop.
+  if (a.pose.eye == b.pose.eye && a.pose.target == b.pose.target && a.pose.up == b.pose.up) return a.pose;
   const double span = b.timeSeconds - a.timeSeconds;
   const float s = span > 0.0 ? float((t - a.timeSeconds) / span) : 1.0f;
   CameraPose pose;

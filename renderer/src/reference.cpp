@@ -40,12 +40,46 @@ ShadeInput SampleAtHit(const Scene& scene, const RayHit& hit, const Vec3& direct
 // Mixed into the seed for the jitter streams, so that they are not the
 // shader's streams of the same ids.
 constexpr uint64_t kJitterStream = 0x6a09e667f3bcc909ull;
+// The same for progressive passes (AddProgressivePass).
+constexpr uint64_t kProgressiveStream = 0xbb67ae8584caa73bull;
+
+// The radiance along the camera ray through image point (px, py) of
+// `camera`, from pathCount paths of sample `sampleId` (0: the shader's
+// paths per sample); the sky's where the ray escapes.
+Rgb RadianceThrough(const Shader& shader, const RayScene& rays, const PinholeCamera& camera, float px, float py,
+                    uint64_t sampleId, int pathCount, ShadeCounters* counters) {
+  constexpr float kInfinity = std::numeric_limits<float>::infinity();
+  const Scene& scene = shader.GetScene();
+  const Vec3 direction = camera.DirectionThrough(px, py);
+  if (const auto hit = rays.Intersect(camera.Origin(), direction, 0.0f, kInfinity))
+    return shader.Shade(SampleAtHit(scene, *hit, direction, sampleId), pathCount, counters).radiance;
+  return scene.sky ? scene.sky->Radiance(direction) : Rgb(0.0f);
+}
+
+// Runs perRow(y, counters) for every row of a view `height` rows tall on
+// `threads` workers, rows going to whichever worker is free (every pixel
+// depends only on its own sample ids, so the assignment does not show).
+template <typename PerRow>
+void ForEachRow(int height, int threads, ShadeCounters* counters, PerRow perRow) {
+  std::atomic<int> nextRow{0};
+  const int workerCount = std::max(1, threads);
+  std::vector<ShadeCounters> work(static_cast<size_t>(workerCount));
+  std::vector<std::thread> workers;
+  for (int w = 0; w < workerCount; ++w) {
+    workers.emplace_back([&, w] {
+      EnableFlushToZero();
+      for (int y; (y = nextRow.fetch_add(1)) < height;) perRow(y, &work[size_t(w)]);
+    });
+  }
+  for (std::thread& t : workers) t.join();
+  if (counters)
+    for (const ShadeCounters& c : work) *counters += c;
+}
 
 }  // namespace
 
 Image RenderReference(const Shader& shader, const RayScene& rays, const CameraView& view, int threads,
                       ShadeCounters* counters, PixelFilter filter) {
-  const Scene& scene = shader.GetScene();
   const PinholeCamera camera(view);
   Image image;
   image.width = view.width;
@@ -54,50 +88,52 @@ Image RenderReference(const Shader& shader, const RayScene& rays, const CameraVi
   image.storedAsFloat = true;
 
   const int paths = shader.Settings().pathsPerSample;
-  constexpr float kInfinity = std::numeric_limits<float>::infinity();
-  // Rows go to whichever worker is free; every pixel depends only on its
-  // own sample id, so the assignment does not show in the image.
-  std::atomic<int> nextRow{0};
-  const int workerCount = std::max(1, threads);
-  std::vector<ShadeCounters> work(static_cast<size_t>(workerCount));
-  std::vector<std::thread> workers;
-  for (int w = 0; w < workerCount; ++w) {
-    workers.emplace_back([&, w] {
-      EnableFlushToZero();
-      for (int y; (y = nextRow.fetch_add(1)) < view.height;) {
-        for (int x = 0; x < view.width; ++x) {
-          const uint64_t pixel = uint64_t(y) * uint64_t(view.width) + uint64_t(x);
-          // The radiance along the ray through (px, py), from pathCount paths.
-          const auto radianceThrough = [&](float px, float py, uint64_t sampleId, int pathCount) {
-            const Vec3 direction = camera.DirectionThrough(px, py);
-            if (const auto hit = rays.Intersect(camera.Origin(), direction, 0.0f, kInfinity))
-              return shader.Shade(SampleAtHit(scene, *hit, direction, sampleId), pathCount, &work[size_t(w)]).radiance;
-            return scene.sky ? scene.sky->Radiance(direction) : Rgb(0.0f);
-          };
-          Rgb radiance(0.0f);
-          if (filter == PixelFilter::kCentre) {
-            radiance = radianceThrough(float(x) + 0.5f, float(y) + 0.5f, pixel, 0);
-          } else {
-            Pcg32 jitter = Pcg32::ForSample(shader.Settings().seed ^ kJitterStream, pixel);
-            for (int k = 0; k < paths; ++k) {
-              const float px = float(x) + jitter.NextFloat();
-              const float py = float(y) + jitter.NextFloat();
-              radiance += radianceThrough(px, py, pixel * uint64_t(paths) + uint64_t(k), 1);
-            }
-            radiance /= float(paths);
-          }
-          float* out = image.rgb.data() + 3 * pixel;
-          out[0] = radiance.r;
-          out[1] = radiance.g;
-          out[2] = radiance.b;
+  ForEachRow(view.height, threads, counters, [&](int y, ShadeCounters* work) {
+    for (int x = 0; x < view.width; ++x) {
+      const uint64_t pixel = uint64_t(y) * uint64_t(view.width) + uint64_t(x);
+      Rgb radiance(0.0f);
+      if (filter == PixelFilter::kCentre) {
+        radiance = RadianceThrough(shader, rays, camera, float(x) + 0.5f, float(y) + 0.5f, pixel, 0, work);
+      } else {
+        Pcg32 jitter = Pcg32::ForSample(shader.Settings().seed ^ kJitterStream, pixel);
+        for (int k = 0; k < paths; ++k) {
+          const float px = float(x) + jitter.NextFloat();
+          const float py = float(y) + jitter.NextFloat();
+          radiance += RadianceThrough(shader, rays, camera, px, py, pixel * uint64_t(paths) + uint64_t(k), 1, work);
         }
+        radiance /= float(paths);
       }
-    });
-  }
-  for (std::thread& t : workers) t.join();
-  if (counters)
-    for (const ShadeCounters& c : work) *counters += c;
+      float* out = image.rgb.data() + 3 * pixel;
+      out[0] = radiance.r;
+      out[1] = radiance.g;
+      out[2] = radiance.b;
+    }
+  });
   return image;
+}
+
+void AddProgressivePass(const Shader& shader, const RayScene& rays, const CameraView& view, int threads,
+                        uint64_t pass, std::vector<float>* sum, ShadeCounters* counters) {
+  const size_t pixelCount = size_t(view.width) * size_t(view.height);
+  if (sum->size() != pixelCount * 3) sum->assign(pixelCount * 3, 0.0f);
+  const PinholeCamera camera(view);
+  // Pass p's ids follow every id of passes before it, and its jitter comes
+  // from a stream apart from the kBox image's (kProgressiveStream), so no
+  // two passes, and no pass and a reference, share a random stream.
+  const uint64_t firstId = pass * uint64_t(pixelCount);
+  ForEachRow(view.height, threads, counters, [&](int y, ShadeCounters* work) {
+    for (int x = 0; x < view.width; ++x) {
+      const uint64_t pixel = uint64_t(y) * uint64_t(view.width) + uint64_t(x);
+      Pcg32 jitter = Pcg32::ForSample(shader.Settings().seed ^ kProgressiveStream, firstId + pixel);
+      const float px = float(x) + jitter.NextFloat();
+      const float py = float(y) + jitter.NextFloat();
+      const Rgb radiance = RadianceThrough(shader, rays, camera, px, py, firstId + pixel, 1, work);
+      float* out = sum->data() + 3 * pixel;
+      out[0] += radiance.r;
+      out[1] += radiance.g;
+      out[2] += radiance.b;
+    }
+  });
 }
 
 }  // namespace penumbra

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cstring>
+#include <vector>
 
 #include "penumbra/renderer/ray_scene.h"
 #include "test_scenes.h"
@@ -109,6 +110,61 @@ TEST_F(ReferenceTest, ImageDoesNotDependOnTheThreadCount) {
   const Image three = RenderReference(shader, *box.rays, view_, 3);
   ASSERT_EQ(one.rgb.size(), three.rgb.size());
   EXPECT_EQ(std::memcmp(one.rgb.data(), three.rgb.data(), one.rgb.size() * sizeof(float)), 0);
+}
+
+TEST_F(ReferenceTest, ProgressivePassesAverageToTheBoxFilteredImage) {
+  ShadingSettings settings;
+  const Shader shader(t_.scene, *t_.rays, settings);
+  std::vector<float> sum;
+  constexpr int kPasses = 64;
+  for (int pass = 0; pass < kPasses; ++pass) AddProgressivePass(shader, *t_.rays, view_, 2, uint64_t(pass), &sum);
+  ASSERT_EQ(sum.size(), size_t(view_.width * view_.height * 3));
+  // Each path reads the plane or the sky exactly, so the mean is one of
+  // them where the pixel lies wholly on one, and in between across the edge.
+  int inBetween = 0;
+  for (int y = 0; y < view_.height; ++y)
+    for (int x = 0; x < view_.width; ++x) {
+      const float* s = sum.data() + 3 * (size_t(y) * size_t(view_.width) + size_t(x));
+      const Rgb p = Rgb(s[0], s[1], s[2]) / float(kPasses);
+      if (Near(p, kSky) || Near(p, 0.5f * kSky)) continue;
+      const float f = (kSky.b - p.b) / (0.5f * kSky.b);
+      EXPECT_GT(f, 0.0f) << "pixel " << x << ", " << y;
+      EXPECT_LT(f, 1.0f) << "pixel " << x << ", " << y;
+      ++inBetween;
+    }
+  EXPECT_GE(inBetween, view_.width / 2) << "the edge crosses every column of the image";
+  EXPECT_LE(inBetween, 2 * view_.width);
+}
+
+TEST_F(ReferenceTest, ProgressivePassesAreDeterministicAndIndependent) {
+  SceneBuilder b;
+  testing::AddBox(b, Vec3(-2.0f, -1.0f, -2.0f), Vec3(2.0f, 2.0f, 4.0f), b.AddMaterial(MakeMaterial(Rgb(0.6f))), true);
+  AddHorizontalSquare(b, Vec3(0.0f, 1.99f, 0.0f), 1.0f, b.AddMaterial(MakeMaterial(Rgb(0.0f), Rgb(10.0f))), false);
+  const TestScene box = Finish(b);
+  const Shader shader(box.scene, *box.rays, ShadingSettings{});
+  std::vector<float> one, three, next;
+  AddProgressivePass(shader, *box.rays, view_, 1, 5, &one);
+  AddProgressivePass(shader, *box.rays, view_, 3, 5, &three);
+  AddProgressivePass(shader, *box.rays, view_, 2, 6, &next);
+  ASSERT_EQ(one.size(), three.size());
+  EXPECT_EQ(std::memcmp(one.data(), three.data(), one.size() * sizeof(float)), 0);
+  EXPECT_NE(std::memcmp(one.data(), next.data(), one.size() * sizeof(float)), 0) << "pass 6 repeats pass 5";
+
+  // Many passes converge to the reference: the mean radiance of 256 passes
+  // is within 3 % of a 256-path box-filtered image's.
+  std::vector<float> sum;
+  for (int pass = 0; pass < 256; ++pass) AddProgressivePass(shader, *box.rays, view_, 2, uint64_t(pass), &sum);
+  ShadingSettings many;
+  many.pathsPerSample = 256;
+  const Shader reference(box.scene, *box.rays, many);
+  const Image image = RenderReference(reference, *box.rays, view_, 2);
+  double progressiveTotal = 0.0, referenceTotal = 0.0;
+  for (size_t i = 0; i < sum.size(); ++i) {
+    progressiveTotal += sum[i] / 256.0;
+    referenceTotal += image.rgb[i];
+  }
+  EXPECT_GT(referenceTotal, 0.0);
+  EXPECT_NEAR(progressiveTotal / referenceTotal, 1.0, 0.03);
 }
 
 }  // namespace

@@ -20,6 +20,9 @@
 // p * paths + k for its k-th path under kBox; the jitter of pixel p comes
 // from its own stream too, so images do not depend on the thread count.
 
+#include <cstdint>
+#include <vector>
+
 #include "penumbra/common/camera.h"
 #include "penumbra/common/image_io.h"
 #include "penumbra/renderer/shading.h"
@@ -37,5 +40,16 @@ enum class PixelFilter { kBox, kCentre };
 /// on the thread count. Blocks until done; call from any one thread.
 Image RenderReference(const Shader& shader, const RayScene& rays, const CameraView& view, int threads,
                       ShadeCounters* counters = nullptr, PixelFilter filter = PixelFilter::kBox);
+
+/// One pass of progressive per-pixel path tracing: adds one path per pixel of
+/// `view`, through a uniformly random point of the pixel (as kBox), to `sum`
+/// (linear radiance, view.width * view.height * 3, row 0 at the top; resized
+/// and zeroed when it has another size). The mean of passes 0..n-1 is an
+/// n-path box-filtered image that converges to RenderReference's; every pass
+/// has random streams of its own (ids pass * pixels + pixel), so an image
+/// restarted at pass 0 repeats itself. Threads and blocking as
+/// RenderReference.
+void AddProgressivePass(const Shader& shader, const RayScene& rays, const CameraView& view, int threads,
+                        uint64_t pass, std::vector<float>* sum, ShadeCounters* counters = nullptr);
 
 }  // namespace penumbra
