@@ -88,6 +88,22 @@ bool Connection::SendFrame(std::shared_ptr<const std::string> frame) {
   return true;
 }
 
+void Connection::NotifyWhenQueuedAtMost(size_t bytes, std::function<void()> handler) {
+  asio::post(strand_, [self = shared_from_this(), bytes, handler = std::move(handler)]() mutable {
+    if (self->closed_) return;
+    self->queuedAtMostBytes_ = bytes;
+    self->onQueuedAtMost_ = std::move(handler);
+    self->MaybeNotifyQueued();
+  });
+}
+
+void Connection::MaybeNotifyQueued() {
+  if (!onQueuedAtMost_ || queuedBytes_.load() > queuedAtMostBytes_) return;
+  auto handler = std::move(onQueuedAtMost_);
+  onQueuedAtMost_ = nullptr;
+  handler();
+}
+
 void Connection::FailAndClose(const wire::Envelope& error, std::string reason) {
   auto frame = std::make_shared<const std::string>(EncodeEnvelopeFrame(error));
   asio::post(strand_, [self = shared_from_this(), frame = std::move(frame), reason = std::move(reason)]() mutable {
@@ -214,6 +230,7 @@ void Connection::DoWrite() {
                          self->queuedBytes_.fetch_sub(self->writeQueue_.front()->size());
                          self->writeQueue_.pop_front();
                        }
+                       self->MaybeNotifyQueued();
                        if (!self->writeQueue_.empty())
                          self->DoWrite();
                        else if (self->draining_)
@@ -272,6 +289,7 @@ void Connection::DoClose(const std::string& reason) {
   writeQueue_.clear();
   log_->debug("{}: closed: {}", id_, reason);
   onMessage_ = nullptr;
+  onQueuedAtMost_ = nullptr;
   // Handlers usually capture their owner; dropping them here breaks the
   // owner <-> connection cycle.
   if (auto handler = std::move(onClose_)) handler(reason);

@@ -9,7 +9,6 @@
 
 #include <fmt/format.h>
 
-#include "job_queue.h"
 #include "penumbra/common/auth.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
@@ -18,9 +17,12 @@
 #include "penumbra/sma/client_requests.h"
 #include "penumbra/sma/delta.h"
 #include "penumbra/sma/hierarchy.h"
+#include "penumbra/sma/job_scheduler.h"
 #include "penumbra/sma/refinement.h"
 #include "penumbra/sma/sample_cache.h"
+#include "penumbra/sma/refinement_driver.h"
 #include "penumbra/sma/texture_frames.h"
+#include "penumbra/sma/view_session.h"
 #include "penumbra/sma/visibility.h"
 #include "sma_metrics.h"
 
@@ -63,7 +65,7 @@ class SmaServer::Impl {
         jobs_(options_.viewThreads),
         visibilityBudget_(options_.visibilityBudgetPixels),
         textures_(scene, options_.clientConnection.maxFrameBytes / 2,
-                  [this](std::function<void()> job) { backgroundJobs_.Post(std::move(job)); }),
+                  [this](std::function<void()> job) { backgroundJobs_.Post(0, JobClass::kNewView, std::move(job)); }),
         backgroundJobs_(1),
         log_(Logger("sma")),
         skeleton_(io_,
@@ -87,6 +89,9 @@ class SmaServer::Impl {
         snapshots_(std::move(snapshots)) {
     cache_.Reserve(hierarchy_.VertexCount());
     if (restored) cache_.Restore(restored->samples);
+    // Every texture is encoded once, on the background thread, from now on:
+    // clients' requests find them ready (or wait for their encoding).
+    textures_.PrepareAll();
     options_.pool.sceneHash = scene.identity;
     options_.pool.name = options_.name;
     options_.pool.radianceBounds = RadianceBounds::ForScene(scene);
@@ -182,15 +187,18 @@ class SmaServer::Impl {
   SampleCache cache_;
   std::unique_ptr<VisibilityTracer> tracer_;
   std::shared_ptr<RendererPool> pool_;
-  JobQueue jobs_;
+  // View jobs and refinement steps of every client: new views first, then
+  // re-maps, then refinement steps, clients taking turns (job_scheduler.h).
+  JobScheduler jobs_;
   // Resource limits per client (issue 12). Views above largeViewPixels and
-  // texture encoding run on backgroundJobs_, one job at a time, so they
-  // never hold up ordinary views; textures_ posts its encodings there and
-  // is declared first, so that the thread is joined before it goes.
+  // texture encoding run on backgroundJobs_, one job at a time (in the same
+  // order), so they never hold up ordinary views; textures_ posts its
+  // encodings there and is declared first, so that the thread is joined
+  // before it goes.
   VisibilityBudget visibilityBudget_;
   std::atomic<uint64_t> viewTraces_{0};  // visibility traces made, for every client
   TextureFrames textures_;
-  JobQueue backgroundJobs_;
+  JobScheduler backgroundJobs_;
   std::shared_ptr<spdlog::logger> log_;
 
  private:
@@ -215,7 +223,10 @@ class SmaServer::Impl {
   std::unique_ptr<CacheSnapshotter> snapshots_;
 };
 
-// One client connection. Everything here runs on the connection's strand.
+// One client connection: moves bytes and runs jobs and timers. What to do
+// next is decided by its ViewSession (view_session.h), which owns the view's
+// state and its RefinementDriver. Everything here runs on the connection's
+// strand, except the bodies of posted jobs (JobScheduler threads).
 class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
  public:
   Session(Impl& server, std::shared_ptr<net::Connection> connection, uint64_t id)
@@ -224,9 +235,8 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
         id_(id),
         log_(Logger("sma.client")),
         refreshTimer_(connection_->Strand()),
-        unblockTimer_(connection_->Strand()),
         params_(server.options_.refinement),
-        refiner_(std::make_shared<Refiner>(params_)) {}
+        state_(params_, server.options_.clientRefinement.maxSamplesPerView, server.options_.pool.improvePaths > 0) {}
 
   void Start() {
     auto self = shared_from_this();
@@ -240,8 +250,13 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   void OnSamplesArrived(const std::vector<VertexId>& vertices);
   // Strand: improvements came back; `improved` changed the cache.
   void OnSamplesImproved(const std::vector<VertexId>& answered, const std::vector<VertexId>& improved);
+  /// Strand: `renderers` are connected now; tell the client if it was told otherwise.
+  void OnRendererCount(size_t renderers) {
+    if (state_.RenderersOutdated(renderers)) SendStatus();
+  }
 
  private:
+  using JobStart = ViewSession::JobStart;
   struct JobTimings {
     double traceMs = 0.0;
     double mapMs = 0.0;
@@ -261,7 +276,7 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
 
   void StartJob();
   // Views above --large-view-pixels work on the background thread.
-  JobQueue& JobsFor(const CameraView& view) {
+  JobScheduler& JobsFor(const CameraView& view) {
     return uint64_t(view.width) * uint64_t(view.height) > server_.options_.largeViewPixels ? server_.backgroundJobs_
                                                                                          : server_.jobs_;
   }
@@ -270,107 +285,59 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   /// more than OnView reserved, so it only shrinks.
   void UpdateReservation() {
     const auto pixels = [](const CameraView& v) { return uint64_t(v.width) * uint64_t(v.height); };
-    server_.visibilityBudget_.Resize(reservedPixels_,
-                                     std::max({pixels(view_), runningJobPixels_, hits_ ? pixels(hits_->view) : 0}));
+    server_.visibilityBudget_.Resize(reservedPixels_, std::max({pixels(state_.View()), runningJobPixels_,
+                                                                hits_ ? pixels(hits_->view) : 0}));
   }
   void OnTextureReady(uint32_t texture, TextureFrames::Frame frame);
   void SendTextures();
   void OnJobDone(uint64_t viewId, bool newView, std::shared_ptr<HitBuffer> hits, std::shared_ptr<VisibleSet> visible,
-                 JobTimings timings, Clock::time_point started);
+                 JobTimings timings);
   void ApplyVisibility(bool newView);
   void ScheduleRefresh();
   bool Blocked() const { return connection_->QueuedBytes() > server_.options_.clientSoftQueueBytes; }
+  /// Asks the connection to call back once the client's queue is under the
+  /// soft limit; then one refresh sends what built up.
   void WaitUntilUnblocked();
-  /// Sends removals and additions in as many deltas as the size limit asks.
-  /// `last`: no other delta for this event follows, so the final one may
-  /// report convergence; `alwaysSend`: send even when nothing changed.
-  void SendChanges(wire::DeltaKind kind, std::span<const NodeId> removals, std::span<const NodeId> additions,
-                   bool alwaysSend, bool last);
-  // Stage 2: the view is shaded, and refinement or improvement goes on.
-  bool RefiningNow() const {
-    return Stage1Done() && !Converged() && (params_.criterion != Criterion::kNone || ImprovementOn());
-  }
+  /// Builds removals and additions into as many deltas as the size limit
+  /// asks, into the outbox (caller holds the state lock shared; Flush sends
+  /// them after it is released). `last`: no other delta for this event
+  /// follows, so the final one may report convergence; `alwaysSend`: send
+  /// even when nothing changed.
+  void QueueChanges(wire::DeltaKind kind, std::span<const NodeId> removals, std::span<const NodeId> additions,
+                    bool alwaysSend, bool last);
+  /// Encodes and sends the outbox -- never under the state lock.
+  void Flush();
   void FillStatus(wire::Delta& delta, bool last) {
-    delta.set_view_id(appliedViewId_);
-    delta.set_pending_samples(uint32_t(waiting_.size() + refinementPending_.size()));
-    const bool converged = last && Converged();
-    delta.set_converged(converged);
-    delta.set_refining(!converged && RefiningNow());
-    // Progress for the people waiting (issue 16).
-    sentRenderers_ = server_.pool_->ReadyRenderers();
-    delta.set_renderers_connected(uint32_t(sentRenderers_));
-    delta.set_stage1_samples_total(uint32_t(stage1Total_));
-    delta.set_stage1_samples_done(uint32_t(std::min(stage1Done_, stage1Total_)));
-    delta.set_refinement_samples_total(uint32_t(refineTotal_));
-    delta.set_refinement_samples_done(uint32_t(std::min(refineDone_, refineTotal_)));
-    sentConverged_ = converged;
-    sentRefining_ = delta.refining();
-    if (converged && stage2Ms_ < 0.0) {
-      stage2Ms_ = Ms(Clock::now() - viewReceived_);
-      server_.latencies_.toConverged.Observe(stage2Ms_ / 1000.0);
-    }
+    if (auto ms = state_.FillStatus(delta, last, server_.pool_->ReadyRenderers(), Clock::now()))
+      server_.latencies_.toConverged.Observe(*ms / 1000.0);
   }
-  // Stage 1 (paper §5): every initially visible triangle of the view shaded.
-  bool Stage1Done() const {
-    return hasVisible_ && appliedViewId_ == viewId_ && !jobRunning_ && waiting_.empty() && pending_.empty();
-  }
-  bool RefinementDone() const {
-    return params_.criterion == Criterion::kNone ||
-           (refinementDone_ && refinementPending_.empty() && !refineRunning_ && !refreshWanted_);
-  }
-  bool ImprovementDone() const { return !ImprovementOn() || (improvementDone_ && improvePending_.empty()); }
-  bool ImprovementOn() const { return server_.options_.pool.improvePaths > 0; }
-  bool Converged() const { return Stage1Done() && RefinementDone() && ImprovementDone(); }
   void NoteStage1();
   // Improvement of the view's samples (SmaOptions::improveTargetError).
   void MaybeImprove();
   void SendUpdates();
   void MaybeRefine();
-  void OnRefineStepDone(const std::shared_ptr<Refiner>& refiner, size_t chosen, std::vector<VertexId> newVertices,
-                        bool exhausted);
+  void OnRefineStepDone(RefinementStep step);
   void SendStatus();
   /// Sends a STATUS delta if the client's last word on this view (converged,
   /// refining) is out of date -- e.g. after a coalesced refresh that changed
   /// no triangle, or when stage 1 ends without a delta of its own.
   void SyncStatus() {
-    if (hasVisible_ && (Converged() != sentConverged_ || RefiningNow() != sentRefining_)) SendStatus();
+    if (state_.StatusOutdated()) SendStatus();
   }
-
- public:
-  /// Strand: `renderers` are connected now; tell the client if it was told otherwise.
-  void OnRendererCount(size_t renderers) {
-    if (hasVisible_ && renderers != sentRenderers_) SendStatus();
-  }
-
- private:
-  void RestartRefinement();
 
   Impl& server_;
   std::shared_ptr<net::Connection> connection_;
   uint64_t id_;
   std::shared_ptr<spdlog::logger> log_;
   asio::steady_timer refreshTimer_;
-  asio::steady_timer unblockTimer_;
+  RefinementParams params_;  // the client's refinement options, as last accepted
+  ViewSession state_;
 
-  bool handshook_ = false;
-  bool hasView_ = false;
-  bool hasVisible_ = false;
-  uint64_t viewId_ = 0;          // newest view received
-  uint64_t appliedViewId_ = 0;   // view whose visibility is applied
-  CameraView view_;
-  bool jobRunning_ = false;
-  bool refreshWanted_ = false;
-  bool refreshArmed_ = false;
-  bool unblockArmed_ = false;
-  Clock::time_point lastRefresh_;
-  Clock::time_point viewReceived_;
   std::shared_ptr<HitBuffer> hits_;        // base hits of the applied view
   std::shared_ptr<VisibleSet> visible_;    // latest mapping of hits_
-
   ClientMirror mirror_;
-  std::unordered_set<NodeId> pending_;                           // visible, waiting for samples
-  std::unordered_map<VertexId, std::vector<NodeId>> waiting_;    // missing vertex -> pending nodes
-  std::vector<VertexId> interest_;                               // vertices we asked the pool for
+  std::vector<VertexId> interest_;         // vertices we asked the pool for
+  std::vector<wire::Envelope> outbox_;     // built under the state lock, sent by Flush after it
   uint64_t sequence_ = 0;
   uint64_t deltasSent_ = 0;
   uint64_t trianglesSent_ = 0;
@@ -378,46 +345,21 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   JobTimings lastTimings_;
   double lastFirstDeltaMs_ = 0.0;
 
-  // Refinement of the current view (paper §4): one Refiner per view; its
-  // steps run on job threads one at a time.
-  RefinementParams params_;
-  std::shared_ptr<Refiner> refiner_;
-  bool refineRunning_ = false;
-  bool refinementDone_ = false;
-  // Improvement of the view's samples: asked for and not yet answered; done
-  // when nothing visible needs more; updates owed to the client (held
-  // vertices whose estimate improved), sent when its queue allows.
-  std::unordered_set<VertexId> improvePending_;
-  bool improvementDone_ = false;
+  // Improvement: updates owed to the client (held vertices whose estimate
+  // improved), sent when its queue allows.
   std::unordered_set<VertexId> updatesOwed_;
   uint64_t updatesSent_ = 0;
   uint64_t improvementsAsked_ = 0;
-  std::unordered_set<VertexId> refinementPending_;  // split vertices not yet shaded
-  uint64_t refinementSplits_ = 0;
-  uint64_t refinementSamples_ = 0;
-  double stage1Ms_ = -1.0;  // view received -> stage 1 done
-  double stage2Ms_ = -1.0;  // view received -> converged
-  bool sentConverged_ = false;  // as the last delta sent said
-  bool sentRefining_ = false;
 
   // Resource limits (issue 12). Visibility: this client's reservation in
   // the server's budget -- the largest of its latest view, the trace running
   // for it and the buffers it holds (one view's buffers at a time: a new
-  // view drops the old one's). Views traced in a row whose results were
-  // dropped as superseded (see OnJobDone).
+  // view drops the old one's).
   uint64_t reservedPixels_ = 0;
   uint64_t runningJobPixels_ = 0;
-  static constexpr int kMaxNewViewsDroppedInARow = 3;
-  int newViewsDroppedInARow_ = 0;
   // Textures asked for and not yet queued: null while being encoded.
   std::map<uint32_t, TextureFrames::Frame> texturesOutstanding_;
   uint64_t textureRequestsRefused_ = 0;
-  size_t sentRenderers_ = 0;
-  // Progress of the applied view (Delta fields 20-23).
-  size_t stage1Total_ = 0;
-  size_t stage1Done_ = 0;
-  size_t refineTotal_ = 0;
-  size_t refineDone_ = 0;
 };
 
 void SmaServer::Impl::NotifyArrived(const std::shared_ptr<Session>& session,
@@ -437,7 +379,7 @@ void SmaServer::Impl::NotifyImproved(const std::shared_ptr<Session>& session,
 
 void SmaServer::Impl::Session::OnMessage(wire::Envelope&& envelope) {
   if (envelope.has_hello()) return OnHello(envelope.hello());
-  if (!handshook_) {
+  if (!state_.Handshook()) {
     return Fatal(wire::ERROR_CODE_HANDSHAKE_REQUIRED,
                  fmt::format("expected hello as the first message, got {}", BodyName(envelope)));
   }
@@ -461,13 +403,13 @@ void SmaServer::Impl::Session::OnMessage(wire::Envelope&& envelope) {
 }
 
 void SmaServer::Impl::Session::OnHello(const wire::Hello& hello) {
-  if (handshook_) return Fatal(wire::ERROR_CODE_UNEXPECTED_MESSAGE, "second hello on one connection");
+  if (state_.Handshook()) return Fatal(wire::ERROR_CODE_UNEXPECTED_MESSAGE, "second hello on one connection");
   wire::ErrorCode code = wire::ERROR_CODE_UNSPECIFIED;
   const Scene& scene = server_.scene_;
   // The token first: a peer without it learns nothing else.
   if (auto ok = CheckHelloToken(hello, server_.options_.authToken, &code); !ok) return Fatal(code, ok.error().message);
   if (auto ok = ValidateHello(hello, wire::ROLE_CLIENT, scene.identity, &code); !ok) return Fatal(code, ok.error().message);
-  handshook_ = true;
+  state_.OnHello();
   wire::Envelope welcome;
   auto* w = welcome.mutable_welcome();
   w->set_protocol_version(kProtocolVersion);
@@ -518,9 +460,10 @@ void SmaServer::Impl::Session::OnView(const wire::View& v) {
   auto checked = ViewFromWire(v, server_.options_.maxViewPixels);
   if (!checked) return Fatal(wire::ERROR_CODE_INVALID_REQUEST, checked.error().message);
   const CameraView view = *checked;
-  if (hasView_ && v.view_id() <= viewId_) {
+  if (!state_.Accepts(v.view_id())) {
     connection_->Send(MakeError(v.view_id(), wire::ERROR_CODE_INVALID_REQUEST,
-                                fmt::format("view id {} does not increase (last {}); ignored", v.view_id(), viewId_),
+                                fmt::format("view id {} does not increase (last {}); ignored", v.view_id(),
+                                            state_.ViewId()),
                                 false));
     return;
   }
@@ -544,43 +487,33 @@ void SmaServer::Impl::Session::OnView(const wire::View& v) {
   // refinement and improvement wait for the new view's stage 1).
   hits_.reset();
   visible_.reset();
-  hasView_ = true;
-  viewId_ = v.view_id();
-  view_ = view;
-  viewReceived_ = Clock::now();
-  stage1Ms_ = stage2Ms_ = -1.0;
-  RestartRefinement();
   // A new view supersedes whatever this client was waiting for: a running
   // job's result is dropped when it lands, and StartJob picks this view.
+  state_.OnNewView(v.view_id(), view, Clock::now());
   StartJob();
 }
 
 void SmaServer::Impl::Session::StartJob() {
-  if (jobRunning_ || !hasView_ || connection_->IsOpen() == false) return;
-  const bool newView = !hits_ || appliedViewId_ != viewId_;
-  if (!newView && !refreshWanted_) return;
-  // No work for a client that cannot take its results (four clients that
-  // never read once cost 1.8 cores): its latest view is traced, or the
-  // refresh made, once its queue drains.
-  if (Blocked()) {
+  if (!connection_->IsOpen()) return;
+  const JobStart next = state_.NextJob(Blocked());
+  if (next == JobStart::kNothing) return;
+  if (next == JobStart::kWaitForDrain) {
     WaitUntilUnblocked();
     return;
   }
-  jobRunning_ = true;
-  runningJobPixels_ = uint64_t(view_.width) * uint64_t(view_.height);
+  const bool newView = next == JobStart::kNewView;
+  const CameraView view = state_.View();
+  const uint64_t id = state_.ViewId();
+  runningJobPixels_ = uint64_t(view.width) * uint64_t(view.height);
   if (newView) {  // one view's buffers at a time
     hits_.reset();
     visible_.reset();
   }
   UpdateReservation();
-  refreshWanted_ = false;
-  lastRefresh_ = Clock::now();
+  state_.OnJobStarted(next, Clock::now());
   auto self = shared_from_this();
-  const CameraView view = view_;
-  const uint64_t id = viewId_;
   std::shared_ptr<HitBuffer> hits = newView ? nullptr : hits_;
-  const auto started = Clock::now();
-  JobsFor(view).Post([self, view, id, hits, newView, started]() mutable {
+  JobsFor(view).Post(id_, newView ? JobClass::kNewView : JobClass::kRefresh, [self, view, id, hits, newView]() mutable {
     Impl& server = self->server_;
     JobTimings t;
     auto t0 = Clock::now();
@@ -600,56 +533,43 @@ void SmaServer::Impl::Session::StartJob() {
     auto t2 = Clock::now();
     t.traceMs = newView ? Ms(t1 - t0) : 0.0;
     t.mapMs = Ms(t2 - t1);
-    asio::post(self->connection_->Strand(), [self, id, newView, hits, visible, t, started] {
-      self->OnJobDone(id, newView, hits, visible, t, started);
-    });
+    asio::post(self->connection_->Strand(),
+               [self, id, newView, hits, visible, t] { self->OnJobDone(id, newView, hits, visible, t); });
   });
 }
 
 void SmaServer::Impl::Session::OnJobDone(uint64_t viewId, bool newView, std::shared_ptr<HitBuffer> hits,
-                                         std::shared_ptr<VisibleSet> visible, JobTimings timings,
-                                         Clock::time_point started) {
-  jobRunning_ = false;
+                                         std::shared_ptr<VisibleSet> visible, JobTimings timings) {
+  const ViewSession::JobDone done = state_.OnJobDone(viewId, newView);
   if (!connection_->IsOpen()) return;
   runningJobPixels_ = 0;
-  // Superseded while it ran: the result is dropped and the latest view
-  // traced -- unless the last few new views were dropped too. A client
-  // sending views faster than they are traced would otherwise never receive
-  // one, and one that never reads would cost a trace per view without its
-  // queue ever backing up (issue 12). Then this slightly older view is
-  // applied, and the latest one traced next.
-  const bool stale = viewId != viewId_;
-  if (stale && (!newView || ++newViewsDroppedInARow_ < kMaxNewViewsDroppedInARow)) {
+  if (done.outcome == ViewSession::JobOutcome::kDrop) {  // superseded: trace the latest view
     UpdateReservation();
     StartJob();
     return;
   }
-  if (newView) newViewsDroppedInARow_ = 0;
-  const bool firstForView = (appliedViewId_ != viewId || !hasVisible_) && !stale;
   hits_ = std::move(hits);
   visible_ = std::move(visible);
-  appliedViewId_ = viewId;
-  hasVisible_ = true;
   // The counters report the last new view's visibility; refreshes of the
   // same view (no trace, a re-map) would overwrite its trace time with 0.
   if (newView) lastTimings_ = timings;
   const auto planStart = Clock::now();
   ApplyVisibility(newView);
-  if (firstForView) {
-    lastFirstDeltaMs_ = Ms(Clock::now() - viewReceived_);
+  if (done.firstForView) {
+    lastFirstDeltaMs_ = Ms(Clock::now() - state_.ViewReceived());
     server_.RecordView(timings.traceMs, timings.mapMs, lastFirstDeltaMs_);
     log_->debug("{}: view {}: trace {:.1f} ms, map {:.1f} ms, plan+send {:.1f} ms, view->first delta {:.1f} ms; "
                 "{} visible, {} held, {} pending ({} samples)",
                 connection_->Id(), viewId, timings.traceMs, timings.mapMs, Ms(Clock::now() - planStart),
-                lastFirstDeltaMs_, visible_->nodes.size(), mirror_.TriangleCount(), pending_.size(), waiting_.size());
+                lastFirstDeltaMs_, visible_->nodes.size(), mirror_.TriangleCount(), state_.PendingNodes(),
+                state_.WaitingSamples());
   }
-  (void)started;
   UpdateReservation();
-  if (stale) {
+  if (done.outcome == ViewSession::JobOutcome::kApplyStale) {  // applied, but the latest view is traced next
     StartJob();
     return;
   }
-  if (refreshWanted_) ScheduleRefresh();
+  if (state_.RemapWanted()) ScheduleRefresh();
   NoteStage1();
   MaybeRefine();
   MaybeImprove();
@@ -658,7 +578,6 @@ void SmaServer::Impl::Session::OnJobDone(uint64_t viewId, bool newView, std::sha
 
 void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
   Impl& server = server_;
-  improvementDone_ = false;  // what is displayed changed: look again
   std::shared_lock lock(server.stateMutex_);
   ViewPlan plan = PlanView(*visible_, mirror_, server.hierarchy_, server.cache_);
 
@@ -671,20 +590,12 @@ void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
   server.pool_->Request(requests, Priority::kVisible);
   server.pool_->ReleaseInterest(interest_);
   interest_ = plan.missing;
-
-  pending_.clear();
-  waiting_.clear();
-  for (NodeId id : plan.pending) {
-    pending_.insert(id);
-    for (VertexId v : server.hierarchy_.GetNode(id).v)
-      if (!server.cache_.IsShaded(v)) waiting_[v].push_back(id);
-  }
-  if (newView) stage1Done_ = 0;
-  stage1Total_ = stage1Done_ + waiting_.size();
+  state_.BeginShading(plan.pending, server.hierarchy_, server.cache_, newView);
 
   if (Blocked()) {
     // The client is behind: send nothing now; once its queue drains, one
     // refresh sends the difference that has built up (coalescing).
+    lock.unlock();
     WaitUntilUnblocked();
     return;
   }
@@ -692,19 +603,20 @@ void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
     // The paper's order: what the cache already has, then what is gone;
     // what must be rendered follows as it arrives.
     const bool removalsFollow = !plan.removeGone.empty();
-    SendChanges(wire::DELTA_KIND_CACHED, plan.removeReplaced, plan.addCached, /*alwaysSend=*/true, !removalsFollow);
-    SendChanges(wire::DELTA_KIND_REMOVED, plan.removeGone, {}, /*alwaysSend=*/false, /*last=*/true);
+    QueueChanges(wire::DELTA_KIND_CACHED, plan.removeReplaced, plan.addCached, /*alwaysSend=*/true, !removalsFollow);
+    QueueChanges(wire::DELTA_KIND_REMOVED, plan.removeGone, {}, /*alwaysSend=*/false, /*last=*/true);
   } else {
     std::vector<NodeId> removals = plan.removeReplaced;
     removals.insert(removals.end(), plan.removeGone.begin(), plan.removeGone.end());
-    SendChanges(wire::DELTA_KIND_REFINED, removals, plan.addCached, /*alwaysSend=*/false, /*last=*/true);
+    QueueChanges(wire::DELTA_KIND_REFINED, removals, plan.addCached, /*alwaysSend=*/false, /*last=*/true);
   }
   lock.unlock();
+  Flush();
   SendUpdates();
 }
 
-void SmaServer::Impl::Session::SendChanges(wire::DeltaKind kind, std::span<const NodeId> removals,
-                                           std::span<const NodeId> additions, bool alwaysSend, bool last) {
+void SmaServer::Impl::Session::QueueChanges(wire::DeltaKind kind, std::span<const NodeId> removals,
+                                            std::span<const NodeId> additions, bool alwaysSend, bool last) {
   // Caller holds the state lock (shared).
   const size_t chunk = std::max<size_t>(1, server_.options_.maxTrianglesPerDelta);
   size_t offset = 0;
@@ -722,6 +634,14 @@ void SmaServer::Impl::Session::SendChanges(wire::DeltaKind kind, std::span<const
     if (empty && !alwaysSend) continue;
     delta.set_sequence(++sequence_);
     FillStatus(delta, last && offset >= additions.size());
+    outbox_.push_back(std::move(envelope));
+  }
+}
+
+void SmaServer::Impl::Session::Flush() {
+  std::vector<wire::Envelope> out;
+  out.swap(outbox_);
+  for (const wire::Envelope& envelope : out) {
     if (!connection_->Send(envelope)) {
       // Over the hard queue limit: this client is not reading at all.
       connection_->Close("client send queue overflow");
@@ -732,54 +652,40 @@ void SmaServer::Impl::Session::SendChanges(wire::DeltaKind kind, std::span<const
 }
 
 void SmaServer::Impl::Session::OnSamplesArrived(const std::vector<VertexId>& vertices) {
-  if (!hasVisible_ || !connection_->IsOpen()) return;
-  std::unordered_set<NodeId> candidates;
-  bool refinement = false;
-  const size_t baseVertices = server_.hierarchy_.BaseVertexCount();
-  for (VertexId v : vertices) {
-    refineDone_ += refinementPending_.erase(v);
-    auto it = waiting_.find(v);
-    if (it == waiting_.end()) {
-      // A midpoint this client was not waiting for may complete the children
-      // of a node it shows: re-map (throttled) to pick them up.
-      refinement |= v >= baseVertices;
-      continue;
-    }
-    candidates.insert(it->second.begin(), it->second.end());
-    waiting_.erase(it);
-    ++stage1Done_;
-  }
-  if (refinement) {
-    refreshWanted_ = true;
+  if (!state_.HasVisible() || !connection_->IsOpen()) return;
+  const ViewSession::Arrived arrived = state_.OnSamplesArrived(vertices, server_.hierarchy_.BaseVertexCount());
+  if (arrived.remapWanted) {
+    state_.WantRemap();
     ScheduleRefresh();
   }
-  if (candidates.empty()) return;
+  if (arrived.candidates.empty()) return;
   std::shared_lock lock(server_.stateMutex_);
-  std::vector<NodeId> ready;
-  for (NodeId id : candidates)
-    if (pending_.contains(id) && CornersShaded(server_.hierarchy_.GetNode(id), server_.cache_)) ready.push_back(id);
-  std::sort(ready.begin(), ready.end());
-  for (NodeId id : ready) pending_.erase(id);
+  const std::vector<NodeId> ready = state_.TakeReady(arrived.candidates, server_.hierarchy_, server_.cache_);
   if (Blocked()) {
+    lock.unlock();
     WaitUntilUnblocked();
     return;
   }
-  SendChanges(wire::DELTA_KIND_SHADED, {}, ready, /*alwaysSend=*/Converged(), /*last=*/true);
+  QueueChanges(wire::DELTA_KIND_SHADED, {}, ready, /*alwaysSend=*/state_.Converged(), /*last=*/true);
   lock.unlock();
+  Flush();
   NoteStage1();
   MaybeRefine();
   MaybeImprove();
 }
 
 void SmaServer::Impl::Session::MaybeImprove() {
-  if (!ImprovementOn() || improvementDone_ || !Stage1Done() || !connection_->IsOpen()) return;
-  if (Blocked()) {  // no work for a client that cannot take it; resumed by the refresh on drain
-    WaitUntilUnblocked();
-    return;
-  }
+  if (!connection_->IsOpen()) return;
   const SmaOptions& o = server_.options_;
-  // Keep about a batch in flight: look for more once half of it is back.
-  if (improvePending_.size() > o.improveBatch / 2) return;
+  switch (state_.NextImprovement(Blocked(), o.improveBatch)) {
+    case ViewSession::ImproveStart::kNothing:
+      return;
+    case ViewSession::ImproveStart::kWaitForDrain:  // no work for a client that cannot take it
+      WaitUntilUnblocked();
+      return;
+    case ViewSession::ImproveStart::kLook:
+      break;
+  }
   std::vector<SampleRequest> requests;
   {
     std::shared_lock lock(server_.stateMutex_);
@@ -787,10 +693,10 @@ void SmaServer::Impl::Session::MaybeImprove() {
     const SampleCache& cache = server_.cache_;
     std::unordered_set<VertexId> seen;
     for (NodeId id : visible_->nodes) {
-      if (requests.size() + improvePending_.size() >= o.improveBatch) break;
+      if (requests.size() + state_.ImprovementsPending() >= o.improveBatch) break;
       if (!mirror_.Holds(id)) continue;  // only what the client shows
       for (VertexId v : hierarchy.GetNode(id).v) {
-        if (!seen.insert(v).second || improvePending_.contains(v) || !cache.IsShaded(v)) continue;
+        if (!seen.insert(v).second || state_.ImprovementPending(v) || !cache.IsShaded(v)) continue;
         if (cache.Paths(v) >= o.improveMaxPaths || !(cache.RelativeError(v) > o.improveTargetError)) continue;
         SampleRequest r = MakeSampleRequest(hierarchy, v);
         r.round = uint16_t(cache.Rounds(v) + 1);
@@ -801,18 +707,17 @@ void SmaServer::Impl::Session::MaybeImprove() {
     // Under the state lock, like every request (RendererPool: "requested once").
     if (!requests.empty()) server_.pool_->Request(requests, Priority::kImprove);
   }
-  for (const SampleRequest& r : requests) improvePending_.insert(r.vertex);
+  std::vector<VertexId> asked;
+  asked.reserve(requests.size());
+  for (const SampleRequest& r : requests) asked.push_back(r.vertex);
   improvementsAsked_ += requests.size();
-  if (requests.empty() && improvePending_.empty()) {
-    improvementDone_ = true;
-    SyncStatus();
-  }
+  if (state_.OnImprovementsAsked(asked)) SyncStatus();
 }
 
 void SmaServer::Impl::Session::OnSamplesImproved(const std::vector<VertexId>& answered,
                                                  const std::vector<VertexId>& improved) {
-  for (VertexId v : answered) improvePending_.erase(v);
-  if (!hasVisible_ || !connection_->IsOpen()) return;
+  state_.OnImprovementsAnswered(answered);
+  if (!state_.HasVisible() || !connection_->IsOpen()) return;
   for (VertexId v : improved)
     if (mirror_.HoldsVertex(v)) updatesOwed_.insert(v);
   SendUpdates();
@@ -828,142 +733,99 @@ void SmaServer::Impl::Session::SendUpdates() {
   std::vector<VertexId> owed(updatesOwed_.begin(), updatesOwed_.end());
   updatesOwed_.clear();
   std::sort(owed.begin(), owed.end());
-  std::shared_lock lock(server_.stateMutex_);
-  const size_t chunk = std::max<size_t>(1, server_.options_.maxTrianglesPerDelta);
-  for (size_t offset = 0; offset < owed.size(); offset += chunk) {
-    wire::Envelope envelope;
-    wire::Delta& delta = *envelope.mutable_delta();
-    delta.set_kind(wire::DELTA_KIND_IMPROVED);
-    const size_t n = mirror_.AppendUpdates(std::span(owed).subspan(offset, std::min(chunk, owed.size() - offset)),
-                                           server_.cache_, delta);
-    if (n == 0) continue;
-    delta.set_sequence(++sequence_);
-    FillStatus(delta, /*last=*/offset + chunk >= owed.size());
-    if (!connection_->Send(envelope)) {
-      connection_->Close("client send queue overflow");
-      return;
+  {
+    std::shared_lock lock(server_.stateMutex_);
+    const size_t chunk = std::max<size_t>(1, server_.options_.maxTrianglesPerDelta);
+    for (size_t offset = 0; offset < owed.size(); offset += chunk) {
+      wire::Envelope envelope;
+      wire::Delta& delta = *envelope.mutable_delta();
+      delta.set_kind(wire::DELTA_KIND_IMPROVED);
+      const size_t n = mirror_.AppendUpdates(std::span(owed).subspan(offset, std::min(chunk, owed.size() - offset)),
+                                             server_.cache_, delta);
+      if (n == 0) continue;
+      delta.set_sequence(++sequence_);
+      FillStatus(delta, /*last=*/offset + chunk >= owed.size());
+      outbox_.push_back(std::move(envelope));
+      updatesSent_ += n;
     }
-    ++deltasSent_;
-    updatesSent_ += n;
   }
+  Flush();
 }
 
 void SmaServer::Impl::Session::NoteStage1() {
-  if (stage1Ms_ < 0.0 && Stage1Done()) {
-    stage1Ms_ = Ms(Clock::now() - viewReceived_);
-    server_.latencies_.toShaded.Observe(stage1Ms_ / 1000.0);
-    log_->debug("{}: view {}: stage 1 in {:.0f} ms, {} triangles", connection_->Id(), appliedViewId_, stage1Ms_,
+  if (const std::optional<double> ms = state_.NoteStage1(Clock::now())) {
+    server_.latencies_.toShaded.Observe(*ms / 1000.0);
+    log_->debug("{}: view {}: stage 1 in {:.0f} ms, {} triangles", connection_->Id(), state_.AppliedViewId(), *ms,
                 mirror_.TriangleCount());
     // Tell the client at once that stage 2 (refinement) has begun.
     SyncStatus();
   }
 }
 
-void SmaServer::Impl::Session::RestartRefinement() {
-  // A running step keeps the old Refiner; its result is recognised as stale.
-  refiner_ = std::make_shared<Refiner>(params_);
-  refinementDone_ = false;
-  refinementPending_.clear();
-  refineTotal_ = refineDone_ = 0;
-  improvementDone_ = false;
-  improvePending_.clear();
-}
-
 void SmaServer::Impl::Session::MaybeRefine() {
-  if (params_.criterion == Criterion::kNone || refineRunning_ || refinementDone_ || !Stage1Done() ||
-      !connection_->IsOpen())
-    return;
-  if (Blocked()) {  // no work for a client that cannot take it; resumed by the refresh on drain
-    WaitUntilUnblocked();
-    return;
+  if (!connection_->IsOpen()) return;
+  switch (state_.NextRefinement(Blocked())) {
+    case ViewSession::RefineStart::kNothing:
+      return;
+    case ViewSession::RefineStart::kWaitForDrain:  // no work for a client that cannot take it
+      WaitUntilUnblocked();
+      return;
+    case ViewSession::RefineStart::kCapReached:
+      log_->info("{}: view {}: refinement stopped at {} new samples (--client-max-refinement-samples {})",
+                 connection_->Id(), state_.AppliedViewId(), state_.Refinement().Requested(),
+                 server_.options_.clientRefinement.maxSamplesPerView);
+      SyncStatus();
+      return;
+    case ViewSession::RefineStart::kStep:
+      break;
   }
-  // The samples one client's refinement may create for one view are capped
-  // (fuzzed options once grew the SMA by 17 MiB/s, for good).
-  if (const uint64_t cap = server_.options_.clientRefinement.maxSamplesPerView; refiner_->Requested() >= cap) {
-    log_->info("{}: view {}: refinement stopped at {} new samples (--client-max-refinement-samples {})",
-               connection_->Id(), appliedViewId_, refiner_->Requested(), cap);
-    refinementDone_ = true;
-    SyncStatus();
-    return;
-  }
-  refineRunning_ = true;
   auto self = shared_from_this();
-  auto refiner = refiner_;
+  auto refiner = state_.Refinement().CurrentRefiner();
   auto hits = hits_;
   auto visible = visible_;
-  // Splits still waiting for samples, or shaded but not yet re-mapped: an
-  // empty choice now would not mean NLD_OS is done.
-  const bool outstanding = !refinementPending_.empty() || refreshWanted_ || refreshArmed_;
-  JobsFor(hits->view).Post([self, refiner, hits, visible, outstanding] {
+  const bool outstanding = state_.RefinementOutstanding();
+  JobsFor(hits->view).Post(id_, JobClass::kRefinement, [self, refiner, hits, visible, outstanding] {
     Impl& server = self->server_;
-    std::vector<NodeId> chosen;
-    {
-      std::shared_lock lock(server.stateMutex_);
-      chosen = refiner->Select(server.hierarchy_, server.cache_, *hits, *visible, server.DragoForClients(), outstanding);
-    }
-    std::vector<VertexId> created;
-    if (!chosen.empty()) {
-      std::unique_lock lock(server.stateMutex_);
-      const RefineOptions options = refiner->Params().ToRefineOptions();
-      for (NodeId id : chosen) {
-        if (server.shuttingDown_.load(std::memory_order_relaxed)) break;  // a step of 10^5 splits takes long
-        if (!server.hierarchy_.GetNode(id).IsLeaf()) continue;  // split meanwhile, by another client
-        RefineResult r = server.hierarchy_.Refine(id, options);
-        created.insert(created.end(), r.newVertices.begin(), r.newVertices.end());
-      }
-      server.cache_.Reserve(server.hierarchy_.VertexCount());
-      std::vector<SampleRequest> requests;
-      requests.reserve(created.size());
-      for (VertexId v : created) requests.push_back(MakeSampleRequest(server.hierarchy_, v));
-      server.pool_->Request(requests, Priority::kBackground);
-    }
-    refiner->CountRequested(created.size());
-    const bool exhausted = refiner->Exhausted();
-    asio::post(self->connection_->Strand(), [self, refiner, n = chosen.size(), created = std::move(created), exhausted]() mutable {
-      self->OnRefineStepDone(refiner, n, std::move(created), exhausted);
-    });
+    const RefinementStepContext context{
+        server.stateMutex_, server.hierarchy_, server.cache_, server.DragoForClients(), &server.shuttingDown_,
+        [&server](std::span<const VertexId> created) {
+          std::vector<SampleRequest> requests;
+          requests.reserve(created.size());
+          for (VertexId v : created) requests.push_back(MakeSampleRequest(server.hierarchy_, v));
+          server.pool_->Request(requests, Priority::kBackground);
+        }};
+    RefinementStep step = RefinementDriver::RunStep(refiner, *hits, *visible, outstanding, context);
+    asio::post(self->connection_->Strand(),
+               [self, step = std::move(step)]() mutable { self->OnRefineStepDone(std::move(step)); });
   });
 }
 
-void SmaServer::Impl::Session::OnRefineStepDone(const std::shared_ptr<Refiner>& refiner, size_t chosen,
-                                                std::vector<VertexId> newVertices, bool exhausted) {
-  refineRunning_ = false;
-  if (refiner != refiner_ || !connection_->IsOpen()) {  // the view changed meanwhile
-    MaybeRefine();
-    return;
-  }
-  refinementSplits_ += chosen;
-  refinementSamples_ += newVertices.size();
-  const size_t pendingBefore = refinementPending_.size();
-  log_->trace("{}: refinement step: {} split, {} new vertices, exhausted {}; pending {}, refresh wanted {} armed {}, "
-              "job running {}",
-              connection_->Id(), chosen, newVertices.size(), exhausted, refinementPending_.size(), refreshWanted_,
-              refreshArmed_, jobRunning_);
+void SmaServer::Impl::Session::OnRefineStepDone(RefinementStep step) {
+  const size_t chosen = step.chosen, created = step.created.size();
+  const bool exhausted = step.exhausted;
+  RefinementDriver::After after;
   {
-    // Results may have landed before this step's report: only wait for
-    // what is still unshaded.
     std::shared_lock lock(server_.stateMutex_);
-    for (VertexId v : newVertices)
-      if (!server_.cache_.IsShaded(v)) refinementPending_.insert(v);
+    after = state_.OnRefineStepDone(std::move(step), server_.cache_);
   }
-  refineTotal_ += newVertices.size();
-  refineDone_ += newVertices.size() - std::min(newVertices.size(), refinementPending_.size() - pendingBefore);
-  if (chosen > 0) {
-    // Bounded batches (the paper's R): give the strand's queue -- a new view
-    // above all -- a turn before the next step.
-    asio::post(connection_->Strand(), [self = shared_from_this()] { self->MaybeRefine(); });
-    return;
+  log_->trace("{}: refinement step: {} split, {} new vertices, exhausted {}; pending {}, next {}", connection_->Id(),
+              chosen, created, exhausted, state_.Refinement().PendingSamples(), int(after));
+  switch (after) {
+    case RefinementDriver::After::kStale:    // the view changed meanwhile: its refinement may start
+    case RefinementDriver::After::kStepNow:  // nothing outstanding will wake it: look again now
+      MaybeRefine();
+      return;
+    case RefinementDriver::After::kStepAgain:
+      // Bounded batches (the paper's R): give the strand's queue -- a new view
+      // above all -- a turn before the next step.
+      asio::post(connection_->Strand(), [self = shared_from_this()] { self->MaybeRefine(); });
+      return;
+    case RefinementDriver::After::kFinished:
+      SyncStatus();
+      return;
+    case RefinementDriver::After::kWait:  // an arriving sample or a re-map starts the next step
+      return;
   }
-  if (exhausted) {
-    refinementDone_ = true;
-    SyncStatus();
-    return;
-  }
-  // Nothing to split now. If samples are still on their way, or a re-map is
-  // due or running, its completion starts the next step. If all of that
-  // happened while this step ran (its trigger found a step running), look
-  // again now, or refinement would never be woken.
-  if (refinementPending_.empty() && !refreshWanted_ && !refreshArmed_ && !jobRunning_) MaybeRefine();
 }
 
 void SmaServer::Impl::Session::SendStatus() {
@@ -976,7 +838,8 @@ void SmaServer::Impl::Session::SendStatus() {
   delta.set_kind(wire::DELTA_KIND_STATUS);
   delta.set_sequence(++sequence_);
   FillStatus(delta, /*last=*/true);
-  if (connection_->Send(envelope)) ++deltasSent_;
+  outbox_.push_back(std::move(envelope));
+  Flush();
 }
 
 void SmaServer::Impl::Session::OnSessionOptions(const wire::SessionOptions& o) {
@@ -993,49 +856,53 @@ void SmaServer::Impl::Session::OnSessionOptions(const wire::SessionOptions& o) {
   params_ = p;
   log_->info("{}: refinement {} (S_req {}, noise z {}, R {}, min {} px)", connection_->Id(), CriterionName(p.criterion),
              p.sReq, p.noiseZ, p.batch, p.minPixels);
-  RestartRefinement();
+  state_.SetRefinementParams(p);
   MaybeRefine();
   SyncStatus();
 }
 
 void SmaServer::Impl::Session::ScheduleRefresh() {
-  if (refreshArmed_ || !refreshWanted_) return;
-  const auto due = lastRefresh_ + server_.options_.refreshInterval;
-  if (Clock::now() >= due && !jobRunning_) {
-    StartJob();
-    return;
+  Clock::time_point due;
+  switch (state_.ScheduleRemap(Clock::now(), server_.options_.refreshInterval, &due)) {
+    case ViewSession::RemapAction::kNothing:
+      return;
+    case ViewSession::RemapAction::kStartNow:
+      StartJob();
+      return;
+    case ViewSession::RemapAction::kArmTimer:
+      break;
   }
-  refreshArmed_ = true;
   refreshTimer_.expires_at(std::max(due, Clock::now() + std::chrono::milliseconds(1)));
   refreshTimer_.async_wait([self = shared_from_this()](const error_code& ec) {
-    self->refreshArmed_ = false;
-    if (ec) return;
-    if (self->jobRunning_) {
-      self->ScheduleRefresh();  // try again after the running job
-      return;
+    switch (self->state_.OnRemapTimer(bool(ec))) {
+      case ViewSession::TimerAction::kNothing:
+        return;
+      case ViewSession::TimerAction::kReschedule:  // try again after the running job
+        self->ScheduleRefresh();
+        return;
+      case ViewSession::TimerAction::kStartJob:
+        break;
     }
     self->StartJob();
     // Another path (a new view, a client that caught up) may have run the
     // refresh while this timer waited, leaving nothing to start. A refinement
     // step that found nothing to split was waiting for this timer to wake it:
     // wake it here, or it would wait forever (seen on the breakfast room).
-    if (!self->jobRunning_) self->MaybeRefine();
+    if (self->state_.RunningJob() == ViewSession::Job::kNone) self->MaybeRefine();
   });
 }
 
 void SmaServer::Impl::Session::WaitUntilUnblocked() {
-  if (unblockArmed_) return;
-  unblockArmed_ = true;
-  unblockTimer_.expires_after(std::chrono::milliseconds(10));
-  unblockTimer_.async_wait([self = shared_from_this()](const error_code& ec) {
-    self->unblockArmed_ = false;
-    if (ec || !self->connection_->IsOpen()) return;
-    if (self->Blocked()) {
-      self->WaitUntilUnblocked();
-      return;
-    }
+  if (!state_.BeginDrainWait()) return;
+  // The connection calls back on this strand once the client has read down
+  // to the soft limit: no polling.
+  std::weak_ptr<Session> weak = shared_from_this();
+  connection_->NotifyWhenQueuedAtMost(server_.options_.clientSoftQueueBytes, [weak] {
+    auto self = weak.lock();
+    if (!self) return;
+    self->state_.OnDrained();
+    if (!self->connection_->IsOpen()) return;
     self->SendTextures();
-    self->refreshWanted_ = true;
     self->StartJob();
   });
 }
@@ -1045,15 +912,15 @@ void SmaServer::Impl::Session::OnStatsRequest(const wire::StatsRequest& request)
   auto* reply = envelope.mutable_stats_reply();
   reply->set_request_id(request.request_id());
   server_.AddGlobalCounters(reply);
-  AddCounter(reply, "client_view_id", double(appliedViewId_));
+  AddCounter(reply, "client_view_id", double(state_.AppliedViewId()));
   AddCounter(reply, "client_views_received", double(viewsReceived_));
   AddCounter(reply, "client_triangles_held", double(mirror_.TriangleCount()));
   AddCounter(reply, "client_vertices_held", double(mirror_.VertexCount()));
-  AddCounter(reply, "client_pending_triangles", double(pending_.size()));
-  AddCounter(reply, "client_pending_samples", double(waiting_.size()));
-  AddCounter(reply, "client_converged", Converged() ? 1.0 : 0.0);
+  AddCounter(reply, "client_pending_triangles", double(state_.PendingNodes()));
+  AddCounter(reply, "client_pending_samples", double(state_.WaitingSamples()));
+  AddCounter(reply, "client_converged", state_.Converged() ? 1.0 : 0.0);
   AddCounter(reply, "client_deltas_sent", double(deltasSent_));
-  AddCounter(reply, "client_improvements_pending", double(improvePending_.size()));
+  AddCounter(reply, "client_improvements_pending", double(state_.ImprovementsPending()));
   AddCounter(reply, "client_improvements_asked", double(improvementsAsked_));
   AddCounter(reply, "client_vertex_updates_sent", double(updatesSent_));
   AddCounter(reply, "client_bytes_sent", double(connection_->BytesSent()));
@@ -1062,11 +929,11 @@ void SmaServer::Impl::Session::OnStatsRequest(const wire::StatsRequest& request)
   AddCounter(reply, "client_last_map_ms", lastTimings_.mapMs);
   AddCounter(reply, "client_last_view_to_first_delta_ms", lastFirstDeltaMs_);
   AddCounter(reply, "client_triangles_sent", double(trianglesSent_));
-  AddCounter(reply, "client_stage1_ms", stage1Ms_);
-  AddCounter(reply, "client_stage2_ms", stage2Ms_);
-  AddCounter(reply, "client_refinement_splits", double(refinementSplits_));
-  AddCounter(reply, "client_refinement_samples", double(refinementSamples_));
-  AddCounter(reply, "client_refinement_pending", double(refinementPending_.size()));
+  AddCounter(reply, "client_stage1_ms", state_.Stage1Ms());
+  AddCounter(reply, "client_stage2_ms", state_.Stage2Ms());
+  AddCounter(reply, "client_refinement_splits", double(state_.Refinement().Splits()));
+  AddCounter(reply, "client_refinement_samples", double(state_.Refinement().Samples()));
+  AddCounter(reply, "client_refinement_pending", double(state_.Refinement().PendingSamples()));
   AddCounter(reply, "client_visibility_pixels_reserved", double(reservedPixels_));
   AddCounter(reply, "client_texture_requests_outstanding", double(texturesOutstanding_.size()));
   AddCounter(reply, "client_texture_requests_refused", double(textureRequestsRefused_));
@@ -1139,7 +1006,6 @@ void SmaServer::Impl::Session::SendTextures() {
 
 void SmaServer::Impl::Session::OnClosed(const std::string& reason) {
   refreshTimer_.cancel();
-  unblockTimer_.cancel();
   server_.pool_->ReleaseInterest(interest_);
   interest_.clear();
   server_.visibilityBudget_.Resize(reservedPixels_, 0);

@@ -48,6 +48,17 @@ TextureFrames::Frame TextureFrames::Get(uint32_t index, ReadyHandler onReady) {
   return nullptr;
 }
 
+void TextureFrames::PrepareAll() {
+  for (uint32_t index = 0; index < slots_.size(); ++index) {
+    {
+      std::lock_guard lock(mutex_);
+      Slot& slot = slots_[index];
+      if (slot.frame || std::exchange(slot.encoding, true)) continue;
+    }
+    post_([this, index] { Encode(index); });
+  }
+}
+
 size_t TextureFrames::EncodedCount() const {
   std::lock_guard lock(mutex_);
   return size_t(std::count_if(slots_.begin(), slots_.end(), [](const Slot& s) { return s.frame != nullptr; }));

@@ -132,5 +132,28 @@ TEST(TextureFramesTest, EachTextureIsEncodedOnceWhateverTheRequests) {
   EXPECT_EQ(jobs.size(), 2u);
 }
 
+TEST(TextureFramesTest, PreparedAtLoadRequestsWaitForTheEncodingAlreadyStarted) {
+  Scene scene;
+  scene.textures.push_back(Uniform(8, 8, 0.5f));
+  scene.textures.push_back(Uniform(4, 4, 1.0f));
+  scene.textures.push_back(Uniform(2, 2, 0.25f));
+  std::vector<std::function<void()>> jobs;
+  TextureFrames frames(scene, 1 << 20, [&](std::function<void()> job) { jobs.push_back(std::move(job)); });
+  frames.PrepareAll();
+  ASSERT_EQ(jobs.size(), 3u);  // every texture, before any request
+  jobs[0]();
+  // Encoded: served at once. Being encoded: waits for that job, starts none.
+  EXPECT_NE(frames.Get(0, [](TextureFrames::Frame) { ADD_FAILURE() << "not called when ready"; }), nullptr);
+  TextureFrames::Frame later;
+  EXPECT_EQ(frames.Get(2, [&](TextureFrames::Frame f) { later = f; }), nullptr);
+  EXPECT_EQ(jobs.size(), 3u);
+  frames.PrepareAll();  // nothing new to start
+  EXPECT_EQ(jobs.size(), 3u);
+  jobs[2]();
+  ASSERT_NE(later, nullptr);
+  jobs[1]();
+  EXPECT_EQ(frames.EncodedCount(), 3u);
+}
+
 }  // namespace
 }  // namespace penumbra::sma

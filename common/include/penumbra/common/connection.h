@@ -89,6 +89,13 @@ class Connection : public std::enable_shared_from_this<Connection> {
   /// suspended. Thread-safe.
   void SetReadPaused(bool paused);
 
+  /// Calls `handler` once, on the strand, as soon as at most `bytes` are
+  /// queued (at once -- posted -- if that is so already): a sender held back
+  /// by its own soft limit resumes when the peer has read, without polling.
+  /// One handler at a time (a second call replaces the first); dropped
+  /// unrun when the connection closes. Thread-safe.
+  void NotifyWhenQueuedAtMost(size_t bytes, std::function<void()> handler);
+
   bool IsOpen() const { return !closed_.load(); }
   size_t QueuedBytes() const { return queuedBytes_.load(); }
   uint64_t BytesSent() const { return bytesSent_.load(); }
@@ -133,6 +140,9 @@ class Connection : public std::enable_shared_from_this<Connection> {
   std::chrono::steady_clock::time_point drainDeadline_;
   MessageHandler onMessage_;
   CloseHandler onClose_;
+  std::function<void()> onQueuedAtMost_;  // NotifyWhenQueuedAtMost
+  size_t queuedAtMostBytes_ = 0;
+  void MaybeNotifyQueued();
 
   // Shared with other threads.
   std::atomic<bool> closed_{false};

@@ -137,8 +137,10 @@ class VertexLuminance {
   std::unordered_map<VertexId, Value> memo_;
 };
 
-/// One client view's refinement. Reset() on every new view; Select() once
-/// per step with the latest visibility.
+/// One client view's refinement. The session's RefinementDriver makes a new
+/// one for every new view (a step still running keeps the old one, so its
+/// result is recognised as stale); Select() once per step with the latest
+/// visibility.
 class Refiner {
  public:
   explicit Refiner(RefinementParams params);

@@ -7,15 +7,21 @@
 // Threads:
 //  * I/O threads run the io_context: every client session and renderer
 //    connection on its own strand, timers, signal handling.
-//  * View workers trace visibility and map it onto the hierarchy, so a
-//    client's view never waits behind another's.
+//  * View workers (viewThreads, a JobScheduler) trace visibility, map it
+//    onto the hierarchy and run refinement steps for every client: new
+//    views first, then re-maps, then refinement steps, clients taking turns
+//    within each. A client's new view waits for the jobs already running
+//    (any client's), never for another client's queued refinement.
 //  * One background worker takes the jobs of views above largeViewPixels
-//    and encodes textures (once each, for every client), so that neither
-//    delays ordinary views nor runs on an I/O thread.
+//    and encodes every texture once, right after start (for every client),
+//    so that neither delays ordinary views nor runs on an I/O thread.
 //  * State lock (shared_mutex): the hierarchy and the cache. Visibility
-//    mapping and delta planning hold it shared; storing samples and
-//    refining hold it exclusively, briefly. Lock order: state lock before the
-//    renderer pool's lock; never the other way round.
+//    mapping, delta planning and refinement choices hold it shared (a
+//    mapping on a refined scene for tens of milliseconds); storing samples
+//    and splitting hold it exclusively. Samples are stored on the I/O thread
+//    that received them, which waits meanwhile for a running mapping to let
+//    go. Frames are encoded after the lock is released. Lock order: state
+//    lock before the renderer pool's lock; never the other way round.
 
 #include <chrono>
 #include <cstdint>

@@ -1,9 +1,11 @@
 #pragma once
 // The scene's textures as clients receive them (TextureData): box-filtered
 // down by powers of two to fit a frame, sRGB-encoded to 8 bits and framed
-// -- once per texture, on first request, off the I/O threads, and shared by
-// every client (a burst of requests once redid this work on the network
-// thread for each request, issue 12).
+// -- once per texture, off the I/O threads, and shared by every client (a
+// burst of requests once redid this work on the network thread for each
+// request, issue 12). The SMA starts encoding them all right after the scene
+// loads (PrepareAll); a request that comes before its texture is ready waits
+// for that encoding.
 
 #include <cstddef>
 #include <cstdint>
@@ -38,9 +40,13 @@ class TextureFrames {
 
   /// The frame of texture `index` (< the scene's texture count) if it is
   /// encoded; otherwise nullptr, and `onReady` is called with it later, on
-  /// the encoding thread (post from there to where it is wanted). The first
-  /// request for a texture starts its encoding; later ones wait for it.
+  /// the encoding thread (post from there to where it is wanted). Starts
+  /// the encoding if PrepareAll has not; later requests wait for it.
   Frame Get(uint32_t index, ReadyHandler onReady);
+
+  /// Starts encoding every texture not yet encoded or being encoded (one
+  /// job per texture, in index order), so that requests find them ready.
+  void PrepareAll();
 
   /// Textures encoded so far.
   size_t EncodedCount() const;

@@ -1,0 +1,225 @@
+#pragma once
+// What one client's session is doing with its view, and what it should do
+// next (issue 13) -- without sockets, locks on the network or timers, so it
+// is tested as a plain object. The network session (server.cpp) moves bytes,
+// runs jobs and timers, and asks this class at every event.
+//
+// The phase of the view, in order (Phase()):
+//
+//   AwaitingHello -> NoView -> Tracing -> Shading -> Refining -> Converged
+//                                ^__________________________________|  a new view
+//
+//  * Tracing: the latest view's visibility is not applied yet (a trace and
+//    mapping run, or wait for the client's queue to drain).
+//  * Shading (stage 1, paper §5): applied; some of its initially visible
+//    triangles wait for samples.
+//  * Refining (stage 2): every initially visible triangle shaded; the
+//    refinement driver splits, improvement asks for better samples.
+//  * Converged: the criterion has nothing left, every split is shaded and
+//    re-mapped, nothing shown needs improving.
+//
+// Beside the phase, three orthogonal parts:
+//  * the view job (none, new view, refresh) -- at most one runs;
+//  * the re-map of the applied view (none, due, timer armed, or a timer
+//    armed for a re-map that another path already made), throttled to one
+//    per refresh interval;
+//  * waiting for the client's queue to drain: while it is over the soft
+//    limit no work is started for the client; on drain one refresh sends
+//    the difference that built up.
+//
+// Threads: one at a time -- the session's strand.
+
+#include <chrono>
+#include <cstdint>
+#include <optional>
+#include <span>
+#include <unordered_map>
+#include <unordered_set>
+#include <vector>
+
+#include "penumbra/common/camera.h"
+#include "penumbra/sma/hierarchy.h"
+#include "penumbra/sma/refinement_driver.h"
+#include "penumbra/sma/sample_cache.h"
+#include "penumbra/wire.pb.h"
+
+namespace penumbra::sma {
+
+class ViewSession {
+ public:
+  using Clock = std::chrono::steady_clock;
+
+  enum class Phase { kAwaitingHello, kNoView, kTracing, kShading, kRefining, kConverged };
+  enum class Job { kNone, kNewView, kRefresh };
+  enum class Remap { kNone, kDue, kArmed, kArmedIdle };
+
+  /// `improvementOn`: the SMA improves shown samples (--improve-paths > 0).
+  ViewSession(RefinementParams params, uint64_t maxRefinementSamplesPerView, bool improvementOn);
+
+  Phase CurrentPhase() const;
+  Job RunningJob() const { return job_; }
+  Remap RemapState() const { return remap_; }
+  bool AwaitingDrain() const { return awaitingDrain_; }
+
+  // --- Handshake ------------------------------------------------------------
+  /// False: a second hello.
+  bool OnHello();
+  bool Handshook() const { return handshook_; }
+
+  // --- Views and their jobs -------------------------------------------------
+  /// View ids must increase.
+  bool Accepts(uint64_t viewId) const { return !hasView_ || viewId > viewId_; }
+  /// A new view supersedes the old: its refinement and improvement restart;
+  /// a running job's result will be dropped (OnJobDone).
+  void OnNewView(uint64_t viewId, const CameraView& view, Clock::time_point now);
+  bool HasView() const { return hasView_; }
+  uint64_t ViewId() const { return viewId_; }
+  const CameraView& View() const { return view_; }
+  uint64_t AppliedViewId() const { return appliedViewId_; }
+  bool HasVisible() const { return hasVisible_; }
+  Clock::time_point ViewReceived() const { return viewReceived_; }
+
+  enum class JobStart { kNothing, kWaitForDrain, kNewView, kRefresh };
+  /// Which job to start now, if any (no change of state). `blocked`: the
+  /// client's queue is over its soft limit.
+  JobStart NextJob(bool blocked) const;
+  /// The job chosen by NextJob was posted: a refresh is no longer due.
+  void OnJobStarted(JobStart job, Clock::time_point now);
+
+  enum class JobOutcome {
+    kDrop,        // superseded: drop the result, start the next job
+    kApply,       // apply it
+    kApplyStale,  // superseded, but applied (too many dropped in a row); start the next job after
+  };
+  struct JobDone {
+    JobOutcome outcome;
+    bool firstForView;  // the first visibility applied for this view (latency is recorded)
+  };
+  /// A job's result reached the strand. A client sending views faster than
+  /// they are traced would otherwise never receive one: after
+  /// kMaxNewViewsDroppedInARow new views dropped, a slightly older one is applied.
+  JobDone OnJobDone(uint64_t viewId, bool newView);
+  static constexpr int kMaxNewViewsDroppedInARow = 3;
+
+  // --- Stage 1: the view's own samples --------------------------------------
+  /// The applied visibility's plan: `pending` nodes wait for their unshaded
+  /// corners. Caller holds the state lock (shared).
+  void BeginShading(std::span<const NodeId> pending, const Hierarchy& hierarchy, const SampleCache& cache,
+                    bool newView);
+  struct Arrived {
+    std::vector<NodeId> candidates;  // pending nodes one of whose corners arrived
+    bool remapWanted = false;        // a midpoint arrived that may complete shown nodes' children
+  };
+  /// Samples were stored. `baseVertices`: vertex ids below are base vertices.
+  Arrived OnSamplesArrived(std::span<const VertexId> vertices, size_t baseVertices);
+  /// Of `candidates`, the pending nodes now complete, removed from pending,
+  /// sorted. Caller holds the state lock (shared).
+  std::vector<NodeId> TakeReady(const std::vector<NodeId>& candidates, const Hierarchy& hierarchy,
+                                const SampleCache& cache);
+  bool Stage1Done() const {
+    return hasVisible_ && appliedViewId_ == viewId_ && job_ == Job::kNone && waiting_.empty() && pending_.empty();
+  }
+  /// Stage 1 was reached just now: its time since the view (once per view).
+  std::optional<double> NoteStage1(Clock::time_point now);
+
+  // --- Re-maps (refresh of the applied view) --------------------------------
+  /// A re-map is wanted (a split's samples arrived, or the client caught up).
+  void WantRemap();
+  bool RemapWanted() const { return remap_ == Remap::kDue || remap_ == Remap::kArmed; }
+  enum class RemapAction { kNothing, kStartNow, kArmTimer };
+  /// Throttled to one per `interval`: start now, or arm the timer for
+  /// `*due` (then RemapState() is kArmed).
+  RemapAction ScheduleRemap(Clock::time_point now, Clock::duration interval, Clock::time_point* due);
+  enum class TimerAction { kNothing, kReschedule, kStartJob };
+  /// The re-map timer fired (or was cancelled).
+  TimerAction OnRemapTimer(bool cancelled);
+
+  // --- Waiting for the client to read ---------------------------------------
+  /// True when the caller should ask the connection for a drain callback
+  /// (false: already waiting).
+  bool BeginDrainWait();
+  /// The queue drained: one refresh sends what built up.
+  void OnDrained();
+
+  // --- Refinement (stage 2) -------------------------------------------------
+  RefinementDriver& Refinement() { return driver_; }
+  const RefinementDriver& Refinement() const { return driver_; }
+  /// New options: refinement (and improvement) restart on the current view.
+  void SetRefinementParams(const RefinementParams& params);
+  enum class RefineStart { kNothing, kWaitForDrain, kStep, kCapReached };
+  RefineStart NextRefinement(bool blocked);
+  /// The Select of a step starting now may not conclude the view is done:
+  /// splits await samples or a re-map is due.
+  bool RefinementOutstanding() const { return driver_.Outstanding(remap_ != Remap::kNone); }
+  /// A step's result; see RefinementDriver::OnStepDone. Caller holds the
+  /// state lock (shared).
+  RefinementDriver::After OnRefineStepDone(RefinementStep step, const SampleCache& cache);
+
+  // --- Improvement (stage 2) ------------------------------------------------
+  enum class ImproveStart { kNothing, kWaitForDrain, kLook };
+  /// `batch`: improvements kept in flight; more are looked for once half came back.
+  ImproveStart NextImprovement(bool blocked, size_t batch) const;
+  bool ImprovementPending(VertexId v) const { return improvePending_.contains(v); }
+  size_t ImprovementsPending() const { return improvePending_.size(); }
+  /// The look found `asked` to improve. True when improvement of this view
+  /// is now done (nothing asked, nothing pending): the status changed.
+  bool OnImprovementsAsked(std::span<const VertexId> asked);
+  void OnImprovementsAnswered(std::span<const VertexId> answered);
+  /// What is displayed changed: look for improvements again.
+  void DisplayChanged() { improvementDone_ = false; }
+
+  // --- Status ---------------------------------------------------------------
+  bool RefinementDone() const { return driver_.Finished() && !RemapWanted(); }
+  bool ImprovementDone() const { return !improvementOn_ || (improvementDone_ && improvePending_.empty()); }
+  bool Converged() const { return Stage1Done() && RefinementDone() && ImprovementDone(); }
+  bool RefiningNow() const { return Stage1Done() && !Converged() && (driver_.Enabled() || improvementOn_); }
+  /// Fills a delta's status fields (view id, pending, converged, refining,
+  /// progress). `last`: no delta of this event follows, so it may say
+  /// converged. Returns the view's time to convergence the first time it does.
+  std::optional<double> FillStatus(wire::Delta& delta, bool last, size_t renderers, Clock::time_point now);
+  /// The client's last word on this view (converged, refining) is out of date.
+  bool StatusOutdated() const {
+    return hasVisible_ && (Converged() != sentConverged_ || RefiningNow() != sentRefining_);
+  }
+  /// The client was told another renderer count.
+  bool RenderersOutdated(size_t renderers) const { return hasVisible_ && renderers != sentRenderers_; }
+
+  size_t PendingNodes() const { return pending_.size(); }
+  size_t WaitingSamples() const { return waiting_.size(); }
+  double Stage1Ms() const { return stage1Ms_; }
+  double Stage2Ms() const { return stage2Ms_; }
+
+ private:
+  void RestartRefinement();
+
+  bool handshook_ = false;
+  bool hasView_ = false;
+  bool hasVisible_ = false;       // some view's visibility is applied
+  uint64_t viewId_ = 0;           // newest view received
+  uint64_t appliedViewId_ = 0;    // view whose visibility is applied
+  CameraView view_;
+  Clock::time_point viewReceived_;
+  Job job_ = Job::kNone;
+  Remap remap_ = Remap::kNone;
+  Clock::time_point lastRemap_;
+  bool awaitingDrain_ = false;
+  int newViewsDroppedInARow_ = 0;
+
+  std::unordered_set<NodeId> pending_;                         // visible, waiting for samples
+  std::unordered_map<VertexId, std::vector<NodeId>> waiting_;  // missing vertex -> pending nodes
+  size_t stage1Total_ = 0;
+  size_t stage1Done_ = 0;
+  double stage1Ms_ = -1.0;  // view received -> stage 1 done
+  double stage2Ms_ = -1.0;  // view received -> converged
+
+  RefinementDriver driver_;
+  bool improvementOn_;
+  bool improvementDone_ = false;
+  std::unordered_set<VertexId> improvePending_;  // asked for, not answered
+
+  bool sentConverged_ = false;  // as the last delta sent said
+  bool sentRefining_ = false;
+  size_t sentRenderers_ = 0;
+};
+
+}  // namespace penumbra::sma

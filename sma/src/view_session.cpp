@@ -1,0 +1,227 @@
+#include "penumbra/sma/view_session.h"
+
+#include <algorithm>
+
+namespace penumbra::sma {
+
+namespace {
+double Ms(ViewSession::Clock::duration d) { return std::chrono::duration<double, std::milli>(d).count(); }
+}  // namespace
+
+ViewSession::ViewSession(RefinementParams params, uint64_t maxRefinementSamplesPerView, bool improvementOn)
+    : driver_(params, maxRefinementSamplesPerView), improvementOn_(improvementOn) {}
+
+ViewSession::Phase ViewSession::CurrentPhase() const {
+  if (!handshook_) return Phase::kAwaitingHello;
+  if (!hasView_) return Phase::kNoView;
+  if (!hasVisible_ || appliedViewId_ != viewId_) return Phase::kTracing;
+  if (!Stage1Done()) return Phase::kShading;
+  return Converged() ? Phase::kConverged : Phase::kRefining;
+}
+
+bool ViewSession::OnHello() {
+  if (handshook_) return false;
+  handshook_ = true;
+  return true;
+}
+
+void ViewSession::OnNewView(uint64_t viewId, const CameraView& view, Clock::time_point now) {
+  hasView_ = true;
+  viewId_ = viewId;
+  view_ = view;
+  viewReceived_ = now;
+  stage1Ms_ = stage2Ms_ = -1.0;
+  RestartRefinement();
+}
+
+void ViewSession::RestartRefinement() {
+  driver_.Restart();
+  improvementDone_ = false;
+  improvePending_.clear();
+}
+
+ViewSession::JobStart ViewSession::NextJob(bool blocked) const {
+  if (job_ != Job::kNone || !hasView_) return JobStart::kNothing;
+  const bool newView = !hasVisible_ || appliedViewId_ != viewId_;
+  if (!newView && !RemapWanted()) return JobStart::kNothing;
+  // No work for a client that cannot take its results (four clients that
+  // never read once cost 1.8 cores): its latest view is traced, or the
+  // refresh made, once its queue drains.
+  if (blocked) return JobStart::kWaitForDrain;
+  return newView ? JobStart::kNewView : JobStart::kRefresh;
+}
+
+void ViewSession::OnJobStarted(JobStart job, Clock::time_point now) {
+  job_ = job == JobStart::kNewView ? Job::kNewView : Job::kRefresh;
+  // The job re-maps: a re-map that was due is made by it (an armed timer
+  // will find nothing to do).
+  if (remap_ == Remap::kDue) remap_ = Remap::kNone;
+  if (remap_ == Remap::kArmed) remap_ = Remap::kArmedIdle;
+  lastRemap_ = now;
+}
+
+ViewSession::JobDone ViewSession::OnJobDone(uint64_t viewId, bool newView) {
+  job_ = Job::kNone;
+  // Superseded while it ran: dropped, and the latest view traced -- unless
+  // the last few new views were dropped too. A client sending views faster
+  // than they are traced would otherwise never receive one, and one that
+  // never reads would cost a trace per view without its queue ever backing
+  // up (issue 12).
+  const bool stale = viewId != viewId_;
+  if (stale && (!newView || ++newViewsDroppedInARow_ < kMaxNewViewsDroppedInARow))
+    return {JobOutcome::kDrop, false};
+  if (newView) newViewsDroppedInARow_ = 0;
+  const bool first = (appliedViewId_ != viewId || !hasVisible_) && !stale;
+  appliedViewId_ = viewId;
+  hasVisible_ = true;
+  return {stale ? JobOutcome::kApplyStale : JobOutcome::kApply, first};
+}
+
+void ViewSession::BeginShading(std::span<const NodeId> pending, const Hierarchy& hierarchy, const SampleCache& cache,
+                               bool newView) {
+  improvementDone_ = false;  // what is displayed changed: look again
+  pending_.clear();
+  waiting_.clear();
+  for (NodeId id : pending) {
+    pending_.insert(id);
+    for (VertexId v : hierarchy.GetNode(id).v)
+      if (!cache.IsShaded(v)) waiting_[v].push_back(id);
+  }
+  if (newView) stage1Done_ = 0;
+  stage1Total_ = stage1Done_ + waiting_.size();
+}
+
+ViewSession::Arrived ViewSession::OnSamplesArrived(std::span<const VertexId> vertices, size_t baseVertices) {
+  Arrived out;
+  std::unordered_set<NodeId> candidates;
+  for (VertexId v : vertices) {
+    driver_.OnSampleArrived(v);
+    auto it = waiting_.find(v);
+    if (it == waiting_.end()) {
+      // A midpoint this client was not waiting for may complete the children
+      // of a node it shows: re-map (throttled) to pick them up.
+      out.remapWanted |= v >= baseVertices;
+      continue;
+    }
+    candidates.insert(it->second.begin(), it->second.end());
+    waiting_.erase(it);
+    ++stage1Done_;
+  }
+  out.candidates.assign(candidates.begin(), candidates.end());
+  return out;
+}
+
+std::vector<NodeId> ViewSession::TakeReady(const std::vector<NodeId>& candidates, const Hierarchy& hierarchy,
+                                           const SampleCache& cache) {
+  std::vector<NodeId> ready;
+  for (NodeId id : candidates)
+    if (pending_.contains(id) && CornersShaded(hierarchy.GetNode(id), cache)) ready.push_back(id);
+  std::sort(ready.begin(), ready.end());
+  for (NodeId id : ready) pending_.erase(id);
+  return ready;
+}
+
+std::optional<double> ViewSession::NoteStage1(Clock::time_point now) {
+  if (stage1Ms_ >= 0.0 || !Stage1Done()) return std::nullopt;
+  stage1Ms_ = Ms(now - viewReceived_);
+  return stage1Ms_;
+}
+
+void ViewSession::WantRemap() {
+  if (remap_ == Remap::kNone) remap_ = Remap::kDue;
+  if (remap_ == Remap::kArmedIdle) remap_ = Remap::kArmed;
+}
+
+ViewSession::RemapAction ViewSession::ScheduleRemap(Clock::time_point now, Clock::duration interval,
+                                                    Clock::time_point* due) {
+  if (remap_ != Remap::kDue) return RemapAction::kNothing;  // nothing wanted, or a timer is armed
+  *due = lastRemap_ + interval;
+  if (now >= *due && job_ == Job::kNone) return RemapAction::kStartNow;
+  remap_ = Remap::kArmed;
+  return RemapAction::kArmTimer;
+}
+
+ViewSession::TimerAction ViewSession::OnRemapTimer(bool cancelled) {
+  if (remap_ == Remap::kArmed) remap_ = Remap::kDue;
+  if (remap_ == Remap::kArmedIdle) remap_ = Remap::kNone;
+  if (cancelled) return TimerAction::kNothing;
+  if (job_ != Job::kNone) return TimerAction::kReschedule;  // try again after the running job
+  return TimerAction::kStartJob;
+}
+
+bool ViewSession::BeginDrainWait() {
+  if (awaitingDrain_) return false;
+  awaitingDrain_ = true;
+  return true;
+}
+
+void ViewSession::OnDrained() {
+  awaitingDrain_ = false;
+  WantRemap();
+}
+
+void ViewSession::SetRefinementParams(const RefinementParams& params) {
+  driver_.SetParams(params);
+  RestartRefinement();
+}
+
+ViewSession::RefineStart ViewSession::NextRefinement(bool blocked) {
+  if (!driver_.WantsStep(Stage1Done())) return RefineStart::kNothing;
+  if (blocked) return RefineStart::kWaitForDrain;  // resumed by the refresh on drain
+  switch (driver_.StartStep(Stage1Done())) {
+    case RefinementDriver::Start::kStep:
+      return RefineStart::kStep;
+    case RefinementDriver::Start::kCapReached:
+      return RefineStart::kCapReached;
+    case RefinementDriver::Start::kNothing:
+      break;
+  }
+  return RefineStart::kNothing;
+}
+
+RefinementDriver::After ViewSession::OnRefineStepDone(RefinementStep step, const SampleCache& cache) {
+  // A re-map due, armed or running will call for the next step when it ends.
+  return driver_.OnStepDone(std::move(step), cache, remap_ != Remap::kNone || job_ != Job::kNone);
+}
+
+ViewSession::ImproveStart ViewSession::NextImprovement(bool blocked, size_t batch) const {
+  if (!improvementOn_ || improvementDone_ || !Stage1Done()) return ImproveStart::kNothing;
+  if (blocked) return ImproveStart::kWaitForDrain;  // resumed by the refresh on drain
+  // Keep about a batch in flight: look for more once half of it is back.
+  if (improvePending_.size() > batch / 2) return ImproveStart::kNothing;
+  return ImproveStart::kLook;
+}
+
+bool ViewSession::OnImprovementsAsked(std::span<const VertexId> asked) {
+  improvePending_.insert(asked.begin(), asked.end());
+  if (!asked.empty() || !improvePending_.empty()) return false;
+  improvementDone_ = true;
+  return true;
+}
+
+void ViewSession::OnImprovementsAnswered(std::span<const VertexId> answered) {
+  for (VertexId v : answered) improvePending_.erase(v);
+}
+
+std::optional<double> ViewSession::FillStatus(wire::Delta& delta, bool last, size_t renderers,
+                                              Clock::time_point now) {
+  delta.set_view_id(appliedViewId_);
+  delta.set_pending_samples(uint32_t(waiting_.size() + driver_.PendingSamples()));
+  const bool converged = last && Converged();
+  delta.set_converged(converged);
+  delta.set_refining(!converged && RefiningNow());
+  // Progress for the people waiting (issue 16).
+  sentRenderers_ = renderers;
+  delta.set_renderers_connected(uint32_t(renderers));
+  delta.set_stage1_samples_total(uint32_t(stage1Total_));
+  delta.set_stage1_samples_done(uint32_t(std::min(stage1Done_, stage1Total_)));
+  delta.set_refinement_samples_total(uint32_t(driver_.SamplesTotal()));
+  delta.set_refinement_samples_done(uint32_t(driver_.SamplesDone()));
+  sentConverged_ = converged;
+  sentRefining_ = delta.refining();
+  if (!converged || stage2Ms_ >= 0.0) return std::nullopt;
+  stage2Ms_ = Ms(now - viewReceived_);
+  return stage2Ms_;
+}
+
+}  // namespace penumbra::sma

@@ -1,0 +1,317 @@
+// The view session's state machine (view_session.h) without sockets: what a
+// client's session does next at each event.
+
+#include "penumbra/sma/view_session.h"
+
+#include <gtest/gtest.h>
+
+namespace penumbra::sma {
+namespace {
+
+using Phase = ViewSession::Phase;
+using JobStart = ViewSession::JobStart;
+using Clock = ViewSession::Clock;
+using namespace std::chrono_literals;
+
+Scene QuadScene() {
+  SceneBuilder b;
+  Material m;
+  m.albedo = Rgb(0.5f);
+  b.AddQuad(Vec3(0, 0, 0), Vec3(0, 0, 1), Vec3(1, 0, 0), b.AddMaterial(m));
+  Scene s;
+  s.twoSided = false;
+  EXPECT_TRUE(b.BuildInto(s).ok());
+  return s;
+}
+
+struct Fixture {
+  Scene scene = QuadScene();
+  Hierarchy hierarchy{scene};
+  SampleCache cache;
+  Clock::time_point now = Clock::now();
+  CameraView view;
+
+  Fixture() {
+    cache.Reserve(hierarchy.VertexCount());
+    view.width = view.height = 8;
+  }
+  std::vector<NodeId> Roots() const {
+    std::vector<NodeId> roots;
+    for (NodeId r = 0; r < hierarchy.RootCount(); ++r) roots.push_back(r);
+    return roots;
+  }
+  std::vector<VertexId> Shade() {
+    std::vector<ShadedSample> samples;
+    std::vector<VertexId> vertices;
+    for (VertexId v = 0; v < hierarchy.VertexCount(); ++v)
+      if (!cache.IsShaded(v)) {
+        samples.push_back(ShadedSample{v, Rgb(0.1f), Rgb(1.0f)});
+        vertices.push_back(v);
+      }
+    cache.Store(samples);
+    return vertices;
+  }
+  // Hello, a view, its job run and applied with every root pending.
+  void ToShading(ViewSession& s, uint64_t viewId = 1) {
+    if (!s.Handshook()) s.OnHello();
+    s.OnNewView(viewId, view, now);
+    ASSERT_EQ(s.NextJob(false), JobStart::kNewView);
+    s.OnJobStarted(JobStart::kNewView, now);
+    ASSERT_EQ(s.OnJobDone(viewId, true).outcome, ViewSession::JobOutcome::kApply);
+    s.BeginShading(Roots(), hierarchy, cache, true);
+  }
+  // The view's samples arrive: its nodes are ready.
+  void ToStage2(ViewSession& s) {
+    const auto arrived = s.OnSamplesArrived(Shade(), hierarchy.BaseVertexCount());
+    EXPECT_FALSE(arrived.remapWanted);  // base vertices only
+    EXPECT_EQ(s.TakeReady(arrived.candidates, hierarchy, cache), Roots());
+  }
+};
+
+RefinementParams NoRefinement() {
+  RefinementParams p;
+  p.criterion = Criterion::kNone;
+  return p;
+}
+
+TEST(ViewSessionTest, GoesThroughItsPhasesToConvergence) {
+  Fixture f;
+  ViewSession s(NoRefinement(), 1000, /*improvementOn=*/false);
+  EXPECT_EQ(s.CurrentPhase(), Phase::kAwaitingHello);
+  EXPECT_TRUE(s.OnHello());
+  EXPECT_FALSE(s.OnHello());  // a second hello
+  EXPECT_EQ(s.CurrentPhase(), Phase::kNoView);
+  EXPECT_EQ(s.NextJob(false), JobStart::kNothing);
+  EXPECT_TRUE(s.Accepts(0));
+  s.OnNewView(4, f.view, f.now);
+  EXPECT_FALSE(s.Accepts(4));  // ids must increase
+  EXPECT_TRUE(s.Accepts(5));
+  EXPECT_EQ(s.CurrentPhase(), Phase::kTracing);
+  EXPECT_EQ(s.NextJob(/*blocked=*/true), JobStart::kWaitForDrain);
+  EXPECT_EQ(s.NextJob(false), JobStart::kNewView);
+  s.OnJobStarted(JobStart::kNewView, f.now);
+  EXPECT_EQ(s.RunningJob(), ViewSession::Job::kNewView);
+  EXPECT_EQ(s.NextJob(false), JobStart::kNothing);  // one job at a time
+  const auto done = s.OnJobDone(4, true);
+  EXPECT_EQ(done.outcome, ViewSession::JobOutcome::kApply);
+  EXPECT_TRUE(done.firstForView);
+  s.BeginShading(f.Roots(), f.hierarchy, f.cache, true);
+  EXPECT_EQ(s.CurrentPhase(), Phase::kShading);
+  EXPECT_FALSE(s.Stage1Done());
+  EXPECT_EQ(s.WaitingSamples(), f.hierarchy.BaseVertexCount());  // the quad's corners
+  EXPECT_FALSE(s.NoteStage1(f.now));
+
+  f.ToStage2(s);
+  EXPECT_TRUE(s.Stage1Done());
+  EXPECT_TRUE(s.NoteStage1(f.now + 30ms).has_value());
+  EXPECT_FALSE(s.NoteStage1(f.now + 40ms));  // once per view
+  EXPECT_DOUBLE_EQ(s.Stage1Ms(), 30.0);
+  // No refinement, no improvement: converged as soon as stage 1 is done.
+  EXPECT_EQ(s.CurrentPhase(), Phase::kConverged);
+  EXPECT_TRUE(s.StatusOutdated());
+  wire::Delta delta;
+  const auto converged = s.FillStatus(delta, /*last=*/true, 2, f.now + 50ms);
+  ASSERT_TRUE(converged.has_value());
+  EXPECT_DOUBLE_EQ(*converged, 50.0);
+  EXPECT_TRUE(delta.converged());
+  EXPECT_FALSE(delta.refining());
+  EXPECT_EQ(delta.view_id(), 4u);
+  EXPECT_EQ(delta.stage1_samples_total(), f.hierarchy.BaseVertexCount());
+  EXPECT_EQ(delta.stage1_samples_done(), f.hierarchy.BaseVertexCount());
+  EXPECT_EQ(delta.renderers_connected(), 2u);
+  EXPECT_FALSE(s.StatusOutdated());
+  EXPECT_FALSE(s.RenderersOutdated(2));
+  EXPECT_TRUE(s.RenderersOutdated(1));
+  EXPECT_EQ(s.NextJob(false), JobStart::kNothing);
+
+  // A new view starts over.
+  s.OnNewView(5, f.view, f.now);
+  EXPECT_EQ(s.CurrentPhase(), Phase::kTracing);
+  EXPECT_EQ(s.NextJob(false), JobStart::kNewView);
+}
+
+TEST(ViewSessionTest, AStatusThatWasNotTheLastDeltaNeverSaysConverged) {
+  Fixture f;
+  ViewSession s(NoRefinement(), 1000, false);
+  f.ToShading(s);
+  f.ToStage2(s);
+  wire::Delta delta;
+  EXPECT_FALSE(s.FillStatus(delta, /*last=*/false, 1, f.now));
+  EXPECT_FALSE(delta.converged());
+  EXPECT_TRUE(s.StatusOutdated());  // so a STATUS follows
+}
+
+TEST(ViewSessionTest, ASupersededResultIsDroppedUntilThreeInARow) {
+  Fixture f;
+  ViewSession s(NoRefinement(), 1000, false);
+  s.OnHello();
+  uint64_t id = 1;
+  s.OnNewView(id, f.view, f.now);
+  for (int dropped = 1; dropped < ViewSession::kMaxNewViewsDroppedInARow; ++dropped) {
+    ASSERT_EQ(s.NextJob(false), JobStart::kNewView);
+    s.OnJobStarted(JobStart::kNewView, f.now);
+    s.OnNewView(++id, f.view, f.now);  // the client moved while it was traced
+    EXPECT_EQ(s.OnJobDone(id - 1, true).outcome, ViewSession::JobOutcome::kDrop) << dropped;
+    EXPECT_EQ(s.CurrentPhase(), Phase::kTracing);
+  }
+  ASSERT_EQ(s.NextJob(false), JobStart::kNewView);
+  s.OnJobStarted(JobStart::kNewView, f.now);
+  s.OnNewView(++id, f.view, f.now);
+  // The third in a row is applied (a client sending views faster than they
+  // are traced still gets some), and the latest is traced next.
+  const auto done = s.OnJobDone(id - 1, true);
+  EXPECT_EQ(done.outcome, ViewSession::JobOutcome::kApplyStale);
+  EXPECT_FALSE(done.firstForView);
+  EXPECT_EQ(s.AppliedViewId(), id - 1);
+  EXPECT_EQ(s.NextJob(false), JobStart::kNewView);
+  // A superseded refresh is simply dropped.
+  s.OnJobStarted(JobStart::kNewView, f.now);
+  EXPECT_EQ(s.OnJobDone(id, true).outcome, ViewSession::JobOutcome::kApply);
+  s.WantRemap();
+  ASSERT_EQ(s.NextJob(false), JobStart::kRefresh);
+  s.OnJobStarted(JobStart::kRefresh, f.now);
+  s.OnNewView(++id, f.view, f.now);
+  EXPECT_EQ(s.OnJobDone(id - 1, false).outcome, ViewSession::JobOutcome::kDrop);
+}
+
+TEST(ViewSessionTest, RemapsAreThrottledAndATimerThatFindsItDoneDoesNothing) {
+  Fixture f;
+  ViewSession s(NoRefinement(), 1000, false);
+  f.ToShading(s);
+  f.ToStage2(s);
+  const auto interval = 100ms;
+  Clock::time_point due;
+  EXPECT_EQ(s.ScheduleRemap(f.now, interval, &due), ViewSession::RemapAction::kNothing);  // none wanted
+  s.WantRemap();
+  EXPECT_TRUE(s.RemapWanted());
+  EXPECT_FALSE(s.RefinementDone());  // a re-map owed may show more
+  // The last job started at f.now: the re-map waits for the interval.
+  EXPECT_EQ(s.ScheduleRemap(f.now + 10ms, interval, &due), ViewSession::RemapAction::kArmTimer);
+  EXPECT_EQ(due, f.now + interval);
+  EXPECT_EQ(s.RemapState(), ViewSession::Remap::kArmed);
+  EXPECT_EQ(s.ScheduleRemap(f.now + 20ms, interval, &due), ViewSession::RemapAction::kNothing);  // armed already
+  // Another path (the client caught up) runs the refresh before the timer.
+  ASSERT_EQ(s.NextJob(false), JobStart::kRefresh);
+  s.OnJobStarted(JobStart::kRefresh, f.now + 30ms);
+  EXPECT_EQ(s.RemapState(), ViewSession::Remap::kArmedIdle);
+  EXPECT_FALSE(s.RemapWanted());
+  // The timer fires while that job runs: try again after it...
+  EXPECT_EQ(s.OnRemapTimer(false), ViewSession::TimerAction::kReschedule);
+  EXPECT_EQ(s.ScheduleRemap(f.now + 100ms, interval, &due), ViewSession::RemapAction::kNothing);  // nothing owed
+  EXPECT_EQ(s.OnJobDone(1, false).outcome, ViewSession::JobOutcome::kApply);
+  // ...and past the interval a wanted re-map starts at once.
+  s.WantRemap();
+  EXPECT_EQ(s.ScheduleRemap(f.now + 200ms, interval, &due), ViewSession::RemapAction::kStartNow);
+  // A cancelled timer (the session closed) does nothing.
+  s.OnJobStarted(JobStart::kRefresh, f.now + 200ms);
+  s.WantRemap();
+  EXPECT_EQ(s.ScheduleRemap(f.now + 210ms, interval, &due), ViewSession::RemapAction::kArmTimer);
+  EXPECT_EQ(s.OnRemapTimer(/*cancelled=*/true), ViewSession::TimerAction::kNothing);
+}
+
+TEST(ViewSessionTest, ABlockedClientGetsNoWorkAndOneRefreshOnDrain) {
+  Fixture f;
+  RefinementParams p;  // NLD_OS
+  ViewSession s(p, 1000, /*improvementOn=*/true);
+  f.ToShading(s);
+  f.ToStage2(s);
+  EXPECT_EQ(s.CurrentPhase(), Phase::kRefining);
+  EXPECT_EQ(s.NextRefinement(/*blocked=*/true), ViewSession::RefineStart::kWaitForDrain);
+  EXPECT_EQ(s.NextImprovement(/*blocked=*/true, 64), ViewSession::ImproveStart::kWaitForDrain);
+  EXPECT_TRUE(s.BeginDrainWait());
+  EXPECT_FALSE(s.BeginDrainWait());  // one callback at a time
+  EXPECT_TRUE(s.AwaitingDrain());
+  s.OnDrained();
+  EXPECT_FALSE(s.AwaitingDrain());
+  EXPECT_TRUE(s.RemapWanted());
+  EXPECT_EQ(s.NextJob(false), JobStart::kRefresh);
+}
+
+TEST(ViewSessionTest, RefinementWaitsForStage1AndARunningJob) {
+  Fixture f;
+  RefinementParams p;
+  ViewSession s(p, 1000, false);
+  f.ToShading(s);
+  EXPECT_EQ(s.NextRefinement(false), ViewSession::RefineStart::kNothing);  // stage 1 first
+  f.ToStage2(s);
+  EXPECT_TRUE(s.RefiningNow());
+  EXPECT_EQ(s.CurrentPhase(), Phase::kRefining);
+  s.WantRemap();
+  ASSERT_EQ(s.NextJob(false), JobStart::kRefresh);
+  s.OnJobStarted(JobStart::kRefresh, f.now);
+  EXPECT_FALSE(s.Stage1Done());  // a re-map runs
+  EXPECT_EQ(s.NextRefinement(false), ViewSession::RefineStart::kNothing);
+  EXPECT_EQ(s.OnJobDone(1, false).outcome, ViewSession::JobOutcome::kApply);
+  ASSERT_EQ(s.NextRefinement(false), ViewSession::RefineStart::kStep);
+  EXPECT_EQ(s.NextRefinement(false), ViewSession::RefineStart::kNothing);  // one step at a time
+  // The step found nothing, nothing is outstanding: it is over.
+  EXPECT_FALSE(s.RefinementOutstanding());
+  RefinementStep step{s.Refinement().CurrentRefiner(), 0, {}, /*exhausted=*/true};
+  EXPECT_EQ(s.OnRefineStepDone(std::move(step), f.cache), RefinementDriver::After::kFinished);
+  EXPECT_TRUE(s.RefinementDone());
+  EXPECT_EQ(s.CurrentPhase(), Phase::kConverged);
+  // New options restart refinement on the same view.
+  s.SetRefinementParams(p);
+  EXPECT_EQ(s.CurrentPhase(), Phase::kRefining);
+  EXPECT_EQ(s.NextRefinement(false), ViewSession::RefineStart::kStep);
+}
+
+TEST(ViewSessionTest, AStepThatFoundNothingWaitsOnlyIfSomethingWillWakeIt) {
+  Fixture f;
+  ViewSession s(RefinementParams{}, 1000, false);
+  f.ToShading(s);
+  f.ToStage2(s);
+  ASSERT_EQ(s.NextRefinement(false), ViewSession::RefineStart::kStep);
+  s.WantRemap();  // a split's samples arrived during the step: its re-map will wake refinement
+  EXPECT_TRUE(s.RefinementOutstanding());
+  EXPECT_EQ(s.OnRefineStepDone(RefinementStep{s.Refinement().CurrentRefiner(), 0, {}, false}, f.cache),
+            RefinementDriver::After::kWait);
+  // The re-map ran meanwhile and is done: nothing will wake it but itself.
+  ASSERT_EQ(s.NextJob(false), JobStart::kRefresh);
+  s.OnJobStarted(JobStart::kRefresh, f.now);
+  s.OnJobDone(1, false);
+  ASSERT_EQ(s.NextRefinement(false), ViewSession::RefineStart::kStep);
+  EXPECT_EQ(s.OnRefineStepDone(RefinementStep{s.Refinement().CurrentRefiner(), 0, {}, false}, f.cache),
+            RefinementDriver::After::kStepNow);
+}
+
+TEST(ViewSessionTest, ImprovementKeepsABatchInFlightAndEnds) {
+  Fixture f;
+  ViewSession s(NoRefinement(), 1000, /*improvementOn=*/true);
+  f.ToShading(s);
+  EXPECT_EQ(s.NextImprovement(false, 4), ViewSession::ImproveStart::kNothing);  // stage 1 first
+  f.ToStage2(s);
+  EXPECT_EQ(s.CurrentPhase(), Phase::kRefining);  // improving
+  ASSERT_EQ(s.NextImprovement(false, 4), ViewSession::ImproveStart::kLook);
+  const std::vector<VertexId> asked = {0, 1, 2};
+  EXPECT_FALSE(s.OnImprovementsAsked(asked));
+  EXPECT_EQ(s.NextImprovement(false, 4), ViewSession::ImproveStart::kNothing);  // 3 > 4 / 2 in flight
+  s.OnImprovementsAnswered(std::vector<VertexId>{0, 1});
+  ASSERT_EQ(s.NextImprovement(false, 4), ViewSession::ImproveStart::kLook);
+  EXPECT_FALSE(s.OnImprovementsAsked({}));  // vertex 2 still out
+  s.OnImprovementsAnswered(std::vector<VertexId>{2});
+  EXPECT_FALSE(s.ImprovementDone());
+  ASSERT_EQ(s.NextImprovement(false, 4), ViewSession::ImproveStart::kLook);
+  EXPECT_TRUE(s.OnImprovementsAsked({}));  // nothing needs more
+  EXPECT_TRUE(s.ImprovementDone());
+  EXPECT_EQ(s.CurrentPhase(), Phase::kConverged);
+  s.DisplayChanged();
+  EXPECT_EQ(s.CurrentPhase(), Phase::kRefining);
+}
+
+TEST(ViewSessionTest, ArrivingMidpointsAskForARemap) {
+  Fixture f;
+  ViewSession s(RefinementParams{}, 1000, false);
+  f.ToShading(s);
+  f.ToStage2(s);
+  const RefineResult split = f.hierarchy.Refine(0, RefinementParams{}.ToRefineOptions());
+  ASSERT_FALSE(split.newVertices.empty());
+  f.cache.Reserve(f.hierarchy.VertexCount());
+  f.Shade();
+  const auto arrived = s.OnSamplesArrived(split.newVertices, f.hierarchy.BaseVertexCount());
+  EXPECT_TRUE(arrived.remapWanted);
+  EXPECT_TRUE(arrived.candidates.empty());
+}
+
+}  // namespace
+}  // namespace penumbra::sma
