@@ -16,7 +16,7 @@ ServerSkeletonBase::ServerSkeletonBase(asio::io_context& io, ServerSkeletonOptio
     : io_(io),
       options_(std::move(options)),
       hooks_(std::move(hooks)),
-      log_(Logger(options_.logger)),
+      log_(Logger(options_.role.logger)),
       signals_(io, SIGINT, SIGTERM),
       statsTimer_(io),
       drainTimer_(io) {}
@@ -25,18 +25,19 @@ ServerSkeletonBase::~ServerSkeletonBase() = default;
 
 Expected<tcp::endpoint> ServerSkeletonBase::Listen() {
   // Descriptors for every connection allowed, and some for everything else.
-  const size_t fit = FitConnectionsToDescriptorLimit(options_.maxConnections, options_.reservedDescriptors);
+  const size_t fit = FitConnectionsToDescriptorLimit(options_.maxConnections, options_.role.reservedDescriptors);
   if (fit < options_.maxConnections) {
     log_->warn("the descriptor limit (ulimit -n) allows only {} {} connections; --max-connections {} lowered to that",
-               fit, options_.peer, options_.maxConnections);
+               fit, options_.role.peer, options_.maxConnections);
     options_.maxConnections = fit;
   }
   listener_ = Listener::Create(io_, [this](Stream stream) { Accept(std::move(stream)); });
   if (options_.tls) listener_->SetTls(options_.tls, options_.connection.handshakeTimeout);
   auto bound = listener_->Listen(options_.listen);
   if (bound)
-    log_->info("{}: listening for {} on {}:{} ({}{})", options_.name, options_.peers, bound->address().to_string(),
-               bound->port(), options_.tls ? "TLS" : "plain TCP", options_.tokenRequired ? ", token required" : "");
+    log_->info("{}: listening for {} on {}:{} ({}{})", options_.name, options_.role.peers,
+               bound->address().to_string(), bound->port(), options_.tls ? "TLS" : "plain TCP",
+               options_.tokenRequired ? ", token required" : "");
   return bound;
 }
 
@@ -65,9 +66,9 @@ void ServerSkeletonBase::BeginShutdown() {
   statsTimer_.cancel();
   drainDeadline_ = Clock::now() + options_.drainTimeout;
   if (hooks_.beginShutdown) hooks_.beginShutdown();
-  const std::string message = options_.service + " is shutting down";
+  const std::string message = options_.role.service + " is shutting down";
   TellAndClose(MakeError(0, wire::ERROR_CODE_SHUTTING_DOWN, message, /*fatal=*/true),
-               options_.service + " shutting down");
+               options_.role.service + " shutting down");
   PollDrain();
 }
 
@@ -98,23 +99,23 @@ void ServerSkeletonBase::ArmStats() {
 
 void ServerSkeletonBase::RefuseDraining(Stream stream) {
   RefuseConnection(std::move(stream),
-                   MakeError(0, wire::ERROR_CODE_SHUTTING_DOWN, options_.service + " is shutting down", true));
+                   MakeError(0, wire::ERROR_CODE_SHUTTING_DOWN, options_.role.service + " is shutting down", true));
 }
 
 void ServerSkeletonBase::RefuseAtCap(Stream stream, const std::string& peer) {
   if (const uint64_t n = refusals_.Note())
     log_->warn("{} {} connection(s) refused, latest from {}: at the cap of {} connections (--max-connections)", n,
-               options_.peer, peer, options_.maxConnections);
+               options_.role.peer, peer, options_.maxConnections);
   RefuseConnection(std::move(stream),
                    MakeError(0, wire::ERROR_CODE_TOO_MANY_CONNECTIONS,
                              fmt::format("this {} serves at most {} connections at once; try again later",
-                                         options_.service, options_.maxConnections),
+                                         options_.role.service, options_.maxConnections),
                              true));
 }
 
 std::shared_ptr<Connection> ServerSkeletonBase::NewConnection(Stream stream, uint64_t id, const std::string& peer) {
-  auto connection =
-      Connection::Create(std::move(stream), options_.connection, fmt::format("{}#{} {}", options_.peer, id, peer));
+  auto connection = Connection::Create(std::move(stream), options_.connection,
+                                       fmt::format("{}#{} {}", options_.role.peer, id, peer));
   log_->info("{}: connected", connection->Id());
   return connection;
 }

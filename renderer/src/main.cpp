@@ -62,14 +62,9 @@ int main(int argc, char** argv) {
   if (!rays) return serverMain.Fail(1, rays.error().message);
   Shader shader(*scene, **rays, shading);
 
-  options.listen = serverMain.Listen();
-  options.name = serverMain.Name();
-  options.authToken = serverMain.AuthToken();
-  options.tls = serverMain.Tls();
-  options.maxConnections = serverMain.MaxConnections();
+  serverMain.Fill(options);
   options.workerThreads = threads > 0 ? threads : int(std::max(1u, std::thread::hardware_concurrency()));
   options.connection = serverMain.Connection();
-  options.statsInterval = serverMain.StatsInterval();
 
   RendererServer server(shader, options);
   auto bound = server.Listen();

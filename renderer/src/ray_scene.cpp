@@ -51,7 +51,7 @@ RTCRayHit MakeRayHit(const Vec3& origin, const Vec3& direction, float tMin, floa
 
 struct RayScene::Impl {
   std::unique_ptr<EmbreeScene> embree;
-  RTCScene scene = nullptr;  // embree's, for the queries
+  RTCScene Handle() const { return embree->Handle(); }  // for the queries
 };
 
 Expected<std::unique_ptr<RayScene>> RayScene::Build(const Scene& scene) {
@@ -61,10 +61,7 @@ Expected<std::unique_ptr<RayScene>> RayScene::Build(const Scene& scene) {
   // scene, so its ratios are unaffected.
   auto embree = EmbreeScene::Build(scene, EmbreeSceneOptions{.logger = "renderer.embree", .robust = true});
   if (!embree) return embree.error();
-  auto impl = std::make_unique<Impl>();
-  impl->scene = (*embree)->Handle();
-  impl->embree = std::move(*embree);
-  return std::unique_ptr<RayScene>(new RayScene(std::move(impl)));
+  return std::unique_ptr<RayScene>(new RayScene(std::make_unique<Impl>(Impl{std::move(*embree)})));
 }
 
 RayScene::RayScene(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
@@ -75,7 +72,7 @@ std::optional<RayHit> RayScene::Intersect(const Vec3& origin, const Vec3& direct
   RTCIntersectContext context;
   rtcInitIntersectContext(&context);
   RTCRayHit rayHit = MakeRayHit(origin, direction, tMin, tMax);
-  rtcIntersect1(impl_->scene, &context, &rayHit);
+  rtcIntersect1(impl_->Handle(), &context, &rayHit);
   if (rayHit.hit.geomID == RTC_INVALID_GEOMETRY_ID) return std::nullopt;
   return RayHit{rayHit.hit.primID, rayHit.ray.tfar, rayHit.hit.u, rayHit.hit.v,
                 Vec3(rayHit.hit.Ng_x, rayHit.hit.Ng_y, rayHit.hit.Ng_z)};
@@ -85,7 +82,7 @@ bool RayScene::Occluded(const Vec3& origin, const Vec3& direction, float tMin, f
   RTCIntersectContext context;
   rtcInitIntersectContext(&context);
   RTCRay ray = MakeRay(origin, direction, tMin, tMax);
-  rtcOccluded1(impl_->scene, &context, &ray);
+  rtcOccluded1(impl_->Handle(), &context, &ray);
   // Embree marks an occluded ray by setting tfar to -infinity.
   return ray.tfar < 0.0f;
 }
@@ -97,13 +94,13 @@ size_t RayScene::TraceRaw(std::span<const Ray> rays, RayQuery query) const {
   if (query == RayQuery::kClosestHit) {
     for (const Ray& r : rays) {
       RTCRayHit rayHit = MakeRayHit(r.origin, r.direction, 0.0f, r.tMax);
-      rtcIntersect1(impl_->scene, &context, &rayHit);
+      rtcIntersect1(impl_->Handle(), &context, &rayHit);
       hits += rayHit.hit.geomID != RTC_INVALID_GEOMETRY_ID;
     }
   } else {
     for (const Ray& r : rays) {
       RTCRay ray = MakeRay(r.origin, r.direction, 0.0f, r.tMax);
-      rtcOccluded1(impl_->scene, &context, &ray);
+      rtcOccluded1(impl_->Handle(), &context, &ray);
       hits += ray.tfar < 0.0f;
     }
   }

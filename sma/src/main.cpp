@@ -178,18 +178,13 @@ int main(int argc, char** argv) {
     if (!context) return serverMain.Fail(2, "--renderer-tls-ca: " + context.error().message);
     options.pool.tls = std::move(*context);
   }
-  options.listen = serverMain.Listen();
-  options.name = serverMain.Name();
-  options.authToken = serverMain.AuthToken();
-  options.tls = serverMain.Tls();
-  options.maxConnections = serverMain.MaxConnections();
+  serverMain.Fill(options);
   options.clientConnection = serverMain.Connection();
   options.pool.connection.heartbeatInterval = serverMain.Heartbeat();
   options.pool.connection.readTimeout = std::chrono::milliseconds(rendererTimeoutMs);
   options.pool.resolveInterval = std::chrono::seconds(resolveSeconds);
   options.pool.batchTimeout = std::chrono::seconds(batchTimeoutSeconds);
   options.pool.quarantine = std::chrono::seconds(quarantineSeconds);
-  options.statsInterval = serverMain.StatsInterval();
 
   if (auto failed = serverMain.StartHttp()) return *failed;
   auto scene = LoadScene(scenePath);

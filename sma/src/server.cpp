@@ -69,19 +69,10 @@ class SmaServer::Impl {
         backgroundJobs_(1),
         log_(Logger("sma")),
         skeleton_(io_,
-                  net::ServerSkeletonOptions{.name = options_.name,
-                                             .service = "SMA",
-                                             .peer = "client",
-                                             .peers = "clients",
-                                             .logger = "sma",
-                                             .listen = options_.listen,
-                                             .connection = options_.clientConnection,
-                                             .tls = options_.tls,
-                                             .tokenRequired = !options_.authToken.empty(),
-                                             .maxConnections = options_.maxConnections,
-                                             // room for renderer links and files
-                                             .reservedDescriptors = 256,
-                                             .statsInterval = options_.statsInterval},
+                  // Descriptors beside the clients' for renderer links and files.
+                  net::ServerSkeletonOptions::For(options_, options_.clientConnection,
+                                                  {.service = "SMA", .peer = "client", .peers = "clients",
+                                                   .logger = "sma", .reservedDescriptors = 256}),
                   net::ServerHooks{.logStats = [this] { LogStats(); }, .beginShutdown = [this] { StopWork(); }},
                   [this](std::shared_ptr<net::Connection> connection, uint64_t id) {
                     return std::make_shared<Session>(*this, std::move(connection), id);

@@ -151,7 +151,7 @@ struct Packet {
 
 struct VisibilityTracer::Impl {
   std::unique_ptr<EmbreeScene> embree;
-  RTCScene scene = nullptr;  // embree's, for the queries
+  RTCScene Handle() const { return embree->Handle(); }  // for the queries
   // Per base triangle, its geometric normal (counter-clockwise front): which
   // side a ray meets decides which of the hierarchy's roots it sees. Ours,
   // not Embree's Ng, so that "front" means one thing in every tier.
@@ -167,7 +167,6 @@ Expected<std::unique_ptr<VisibilityTracer>> VisibilityTracer::Build(const Scene&
   auto embree = EmbreeScene::Build(scene, EmbreeSceneOptions{.logger = "sma.visibility", .robust = true});
   if (!embree) return embree.error();
   auto impl = std::make_unique<Impl>();
-  impl->scene = (*embree)->Handle();
   impl->embree = std::move(*embree);
   impl->faceNormals.resize(scene.triangles.size());
   for (uint32_t t = 0; t < scene.triangles.size(); ++t) impl->faceNormals[t] = scene.GeometricNormal(t);
@@ -195,7 +194,7 @@ void VisibilityTracer::Trace(const CameraView& view, HitBuffer& out, const std::
       // A big view takes seconds; a shutdown should not wait for it.
       if (cancel && cancel->load(std::memory_order_relaxed)) break;
       tiling.ForEachPacket(tile, [&](int x0, int y0) {
-        packet.Trace(impl_->scene, context, rays, width, height, x0, y0);
+        packet.Trace(impl_->Handle(), context, rays, width, height, x0, y0);
         for (int lane = 0; lane < kPacketSize; ++lane) {
           if (!packet.valid[lane]) continue;
           PixelHit& hit = out.hits[size_t(y0 + LaneY(lane)) * size_t(width) + size_t(x0 + LaneX(lane))];
@@ -230,7 +229,7 @@ size_t VisibilityTracer::TraceRaw(const CameraView& view, RawTrace mode) const {
                             std::numeric_limits<float>::infinity(), ~0u, 0, 0};
         rayHit.hit.geomID = RTC_INVALID_GEOMETRY_ID;
         rayHit.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-        rtcIntersect1(impl_->scene, &context, &rayHit);
+        rtcIntersect1(impl_->Handle(), &context, &rayHit);
         hits += rayHit.hit.geomID != RTC_INVALID_GEOMETRY_ID;
       }
     }
@@ -240,7 +239,7 @@ size_t VisibilityTracer::TraceRaw(const CameraView& view, RawTrace mode) const {
   Packet packet;
   for (int tile = 0; tile < tiling.Count(); ++tile) {
     tiling.ForEachPacket(tile, [&](int x0, int y0) {
-      packet.Trace(impl_->scene, context, rays, view.width, view.height, x0, y0);
+      packet.Trace(impl_->Handle(), context, rays, view.width, view.height, x0, y0);
       for (int lane = 0; lane < kPacketSize; ++lane) hits += packet.valid[lane] && packet.Hit(lane);
     });
   }

@@ -78,6 +78,18 @@ class ServerMain {
   std::chrono::milliseconds Heartbeat() const { return std::chrono::milliseconds(heartbeatMs_); }
   std::chrono::milliseconds StatsInterval() const { return std::chrono::seconds(statsSeconds_); }
   size_t MaxConnections() const { return maxConnections_; }
+  /// Sets the fields every tier's server options share (listen, name,
+  /// authToken, tls, maxConnections, statsInterval); the connection options
+  /// (Connection()) are the tier's to place.
+  template <class ServerOptions>
+  void Fill(ServerOptions& options) const {
+    options.listen = listen_;
+    options.name = name_;
+    options.authToken = authToken_;
+    options.tls = tls_;
+    options.maxConnections = maxConnections_;
+    options.statsInterval = StatsInterval();
+  }
 
  private:
   ServerMainSpec spec_;

@@ -36,12 +36,18 @@
 
 namespace penumbra::net {
 
+/// The words and sizes that tell the tiers' servers apart.
+struct ServerRole {
+  std::string service;  // what peers are told it is: "SMA" -> "SMA is shutting down"
+  std::string peer;     // connection ids: "<peer>#<n> <address>" ("client#3 10.0.0.2:51000")
+  std::string peers;    // the log's word for its peers: "listening for clients on ..."
+  std::string logger;   // the named logger of its lines ("sma", "renderer")
+  size_t reservedDescriptors = 64;  // descriptors kept for all but its connections
+};
+
 struct ServerSkeletonOptions {
-  std::string name;       // the server's name in its log lines ("penumbra-sma")
-  std::string service;    // what peers are told it is: "SMA" -> "SMA is shutting down"
-  std::string peer;       // connection ids: "<peer>#<n> <address>" ("client#3 10.0.0.2:51000")
-  std::string peers;      // the log's word for its peers: "listening for clients on ..."
-  std::string logger = "net";  // the named logger of its lines ("sma", "renderer")
+  std::string name;  // the server's name in its log lines ("penumbra-sma")
+  ServerRole role;
   HostPort listen{"127.0.0.1", 0};
   ConnectionOptions connection;
   /// TLS for every connection; null: plain TCP. The handshake must complete
@@ -50,12 +56,28 @@ struct ServerSkeletonOptions {
   bool tokenRequired = false;  // only said in the "listening" line
   /// Connections (counting those yet to say Hello) served at once; more are
   /// refused with TOO_MANY_CONNECTIONS and closed at once. Listen() lowers it
-  /// to what the descriptor limit allows beside `reservedDescriptors`.
+  /// to what the descriptor limit allows beside `role.reservedDescriptors`.
   size_t maxConnections = 64;
-  size_t reservedDescriptors = 64;
   std::chrono::milliseconds statsInterval{10000};
   /// Longest wait, on shutdown, for the peers to be told and closed.
   std::chrono::milliseconds drainTimeout{1000};
+
+  /// From a tier's server options, which name their fields alike (listen,
+  /// name, tls, authToken, maxConnections, statsInterval and, if it has one,
+  /// drainTimeout); `connection` is the peers' connection options.
+  template <class TierOptions>
+  static ServerSkeletonOptions For(const TierOptions& tier, const ConnectionOptions& connection, ServerRole role) {
+    ServerSkeletonOptions out{.name = tier.name,
+                              .role = std::move(role),
+                              .listen = tier.listen,
+                              .connection = connection,
+                              .tls = tier.tls,
+                              .tokenRequired = !tier.authToken.empty(),
+                              .maxConnections = tier.maxConnections,
+                              .statsInterval = tier.statsInterval};
+    if constexpr (requires { tier.drainTimeout; }) out.drainTimeout = tier.drainTimeout;
+    return out;
+  }
 };
 
 struct ServerHooks {
