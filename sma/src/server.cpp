@@ -14,6 +14,7 @@
 #include "penumbra/common/auth.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
+#include "penumbra/common/wire_convert.h"
 #include "penumbra/sma/cache_snapshot.h"
 #include "penumbra/sma/client_requests.h"
 #include "penumbra/sma/delta.h"
@@ -37,12 +38,6 @@ void AddCounter(wire::StatsReply* reply, const std::string& name, double value) 
   auto* c = reply->add_counters();
   c->set_name(name);
   c->set_value(value);
-}
-
-void ToWire(const Vec3& v, wire::Vec3* out) {
-  out->set_x(v.x);
-  out->set_y(v.y);
-  out->set_z(v.z);
 }
 
 // Descend into a node's children once every vertex its split added is
@@ -196,7 +191,7 @@ class SmaServer::Impl {
   void WriteMetrics(metrics::ExpositionWriter& out);
   std::string NotReadyReason();
   DragoParams DragoForClients() const {
-    return DragoParams{options_.toneMapping.bias, options_.toneMapping.maxDisplayLuminance, options_.toneMapping.exposure};
+    return options_.toneMapping;
   }
 
   const Scene& scene_;
@@ -509,36 +504,7 @@ void SmaServer::Impl::Session::OnHello(const wire::Hello& hello) {
   connection_->Send(welcome);
 
   wire::Envelope infoEnvelope;
-  auto* info = infoEnvelope.mutable_scene_info();
-  info->set_name(scene.name);
-  ToWire(scene.bounds.min, info->mutable_bounds_min());
-  ToWire(scene.bounds.max, info->mutable_bounds_max());
-  for (const CameraPreset& c : scene.cameras) {
-    auto* p = info->add_cameras();
-    p->set_name(c.name);
-    ToWire(c.pose.eye, p->mutable_eye());
-    ToWire(c.pose.target, p->mutable_target());
-    ToWire(c.pose.up, p->mutable_up());
-    p->set_fov_y_deg(c.fovYDeg);
-  }
-  for (const Material& m : scene.materials) {
-    auto* mi = info->add_materials();
-    ToWire(m.albedo, mi->mutable_albedo());
-    ToWire(m.emission, mi->mutable_emission());
-    mi->set_texture(m.albedoTexture);
-  }
-  const auto& tm = server_.options_.toneMapping;
-  info->mutable_tone_mapping()->set_bias(tm.bias);
-  info->mutable_tone_mapping()->set_exposure(tm.exposure);
-  info->mutable_tone_mapping()->set_max_display_luminance(tm.maxDisplayLuminance);
-  info->set_texture_count(uint32_t(scene.textures.size()));
-  if (scene.sky) {
-    auto* sky = info->mutable_sky();
-    ToWire(scene.sky->up, sky->mutable_up());
-    ToWire(scene.sky->zenith, sky->mutable_zenith());
-    ToWire(scene.sky->horizon, sky->mutable_horizon());
-    ToWire(scene.sky->ground, sky->mutable_ground());
-  }
+  ToWire(MakeClientScene(scene, server_.options_.toneMapping), infoEnvelope.mutable_scene_info());
   connection_->Send(infoEnvelope);
   connection_->MarkHandshakeDone();
   log_->info("{}: client '{}' joined", connection_->Id(), Printable(hello.peer_name()));
@@ -935,7 +901,7 @@ void SmaServer::Impl::Session::MaybeRefine() {
     std::vector<VertexId> created;
     if (!chosen.empty()) {
       std::unique_lock lock(server.stateMutex_);
-      const RefineOptions options = refiner->Params().ToRefineOptions();
+      const RefineOptions options = ToRefineOptions(refiner->Params());
       for (NodeId id : chosen) {
         if (server.shuttingDown_.load(std::memory_order_relaxed)) break;  // a step of 10^5 splits takes long
         if (!server.hierarchy_.GetNode(id).IsLeaf()) continue;  // split meanwhile, by another client

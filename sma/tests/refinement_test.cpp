@@ -75,7 +75,7 @@ struct Fixture {
   size_t Apply(const std::vector<NodeId>& chosen, const RefinementParams& p, bool uniform = false) {
     size_t created = 0;
     for (NodeId id : chosen)
-      if (hierarchy.GetNode(id).IsLeaf()) created += hierarchy.Refine(id, p.ToRefineOptions()).newVertices.size();
+      if (hierarchy.GetNode(id).IsLeaf()) created += hierarchy.Refine(id, ToRefineOptions(p)).newVertices.size();
     cache.Reserve(hierarchy.VertexCount());
     ShadeHardShadow(hierarchy, cache, uniform);
     Remap();
