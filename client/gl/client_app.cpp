@@ -47,24 +47,12 @@ constexpr auto kNoticeDuration = std::chrono::seconds(6);
 // A first Esc with the mouse free only arms quitting: one stray key must not
 // close the window (and, under run.sh, the stack and its cache with it).
 constexpr auto kQuitConfirmWindow = std::chrono::seconds(2);
-// Headless: after convergence, how long to wait for the SMA's counters (which
-// confirm the client holds what the SMA sent) before finishing without them.
-constexpr auto kCountersGrace = std::chrono::seconds(2);
 const glm::vec4 kWireColour(1.0f, 0.75f, 0.2f, 0.55f);
 
-
-Vec3 FromWire(const wire::Vec3& v) { return Vec3(v.x(), v.y(), v.z()); }
 
 bool SameView(const CameraView& a, const CameraView& b) {
   return a.pose.eye == b.pose.eye && a.pose.target == b.pose.target && a.pose.up == b.pose.up &&
          a.fovYDeg == b.fovYDeg && a.width == b.width && a.height == b.height;
-}
-
-/// .exr and .hdr screenshots hold linear radiance; others the display image.
-bool IsRadianceFile(const std::filesystem::path& path) {
-  std::string ext = path.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
-  return ext == ".exr" || ext == ".hdr";
 }
 
 std::string LocalTimestamp() {
@@ -76,28 +64,17 @@ std::string LocalTimestamp() {
   return text;
 }
 
-Bounds3 SceneBounds(const wire::SceneInfo& info) {
-  Bounds3 bounds;
-  bounds.Extend(FromWire(info.bounds_min()));
-  bounds.Extend(FromWire(info.bounds_max()));
-  return bounds;
-}
-
-DragoParams SceneDrago(const wire::SceneInfo* info) {
-  DragoParams params;
-  if (!info) return params;
-  params.bias = info->tone_mapping().bias();
-  params.exposure = info->tone_mapping().exposure();
-  params.maxDisplayLuminance = info->tone_mapping().max_display_luminance();
-  return params;
-}
-
 }  // namespace
 
 class ClientApp {
  public:
   explicit ClientApp(const ClientOptions& options)
-      : options_(options), log_(Logger("client")), tone_(options.tone), start_(Clock::now()) {
+      : options_(options),
+        log_(Logger("client")),
+        tone_(options.tone),
+        start_(Clock::now()),
+        headlessRun_(options.goal, options.sma.ToString(), start_),
+        snapshots_(Seconds(options.headless ? options.snapshotEvery : 0.0), options.snapshotPrefix) {
     SmaSessionOptions session;
     session.sma = options.sma;
     session.authToken = options.authToken;
@@ -115,8 +92,7 @@ class ClientApp {
   void OnKey(const KeyPress& key);
   std::optional<CameraView> CurrentView(Clock::time_point now) const;
   void UpdateAdaptation(double seconds);
-  bool HeadlessGoalMet(Clock::time_point now);
-  std::optional<int> HeadlessFailure(Clock::time_point now);
+  HeadlessObservation ObserveHeadless(Clock::time_point now) const;
   void Render();
   void DrawHud();
   void UpdateRates(Clock::time_point now);
@@ -164,8 +140,7 @@ class ClientApp {
   bool adapted_ = false;
   bool wireframe_ = false;
   std::string criterion_;  // the refinement criterion asked of the SMA; empty: its default
-  std::optional<wire::SessionOptions> refinement_;  // what the SMA session was last asked for
-  bool snapshotsFailed_ = false;
+  std::optional<RefinementRequest> refinement_;  // what the SMA session was last asked for
   bool showHelp_ = false;
   bool screenshotRequested_ = false;
   std::string notice_;
@@ -178,10 +153,10 @@ class ClientApp {
   // Counters.
   const Clock::time_point start_;
   uint64_t frames_ = 0;
-  std::optional<Clock::time_point> convergedSince_;
-  std::optional<Clock::time_point> lastSnapshot_;
-  uint64_t snapshotSequence_ = 0;  // the mesh's delta sequence at the last snapshot
+  HeadlessRun headlessRun_;
+  SnapshotSchedule snapshots_;
   uint64_t pathSnapshots_ = 0;     // path-time snapshots written (--snapshot-path-interval)
+  bool pathSnapshotsFailed_ = false;
   Clock::time_point rateWindowStart_ = start_;
   uint64_t rateWindowFrames_ = 0;
   uint64_t rateWindowBytes_ = 0;
@@ -234,7 +209,7 @@ Status ClientApp::Init() {
   }
   refinement_ = options_.refinement;
   if (refinement_) {
-    criterion_ = refinement_->criterion();
+    if (refinement_->criterion) criterion_ = CriterionName(*refinement_->criterion);
     session_->SetSessionOptions(*refinement_);
   }
   session_->Start();
@@ -277,7 +252,7 @@ int ClientApp::Run() {
     }
     // A path-time snapshot frame shows the pose of exactly its time.
     std::optional<double> pathSnapshotTime;
-    if (options_.headless && options_.snapshotPathInterval > 0.0 && pathStart_ && !snapshotsFailed_) {
+    if (options_.headless && options_.snapshotPathInterval > 0.0 && pathStart_ && !pathSnapshotsFailed_) {
       const double time = double(pathSnapshots_) * options_.snapshotPathInterval;
       if (Seconds(now - *pathStart_).count() >= time) pathSnapshotTime = time;
     }
@@ -288,8 +263,12 @@ int ClientApp::Run() {
       sentView_ = view;
     }
     UpdateAdaptation(seconds);
-    const bool finishing = options_.headless && HeadlessGoalMet(now);
-    if (auto failure = HeadlessFailure(now)) return *failure;
+    bool finishing = false;
+    if (options_.headless) {
+      const HeadlessObservation seen = ObserveHeadless(now);
+      finishing = headlessRun_.GoalMet(seen, now);
+      if (auto failure = headlessRun_.Failure(seen, now)) return Failed(*failure);
+    }
 
     Render();
     if (screenshotRequested_) SaveInteractiveScreenshot();
@@ -313,8 +292,8 @@ int ClientApp::Run() {
 // Places the camera once the first SceneInfo names the presets. Returns false
 // (after logging why) when a headless run asked for a preset the SMA lacks.
 bool ClientApp::EnsureCamera() {
-  const wire::SceneInfo* info = model_.SceneInfo();
-  if (!info) return true;
+  const ClientScene* scene = model_.Scene();
+  if (!scene) return true;
   if (!pathStart_ && model_.Online()) pathStart_ = Clock::now();
   if (cameraReady_ || (options_.headless && player_)) return true;
 
@@ -322,9 +301,9 @@ bool ClientApp::EnsureCamera() {
   if (!options_.cameraPreset.empty()) {
     preset = -1;
     std::string names;
-    for (int i = 0; i < info->cameras_size(); ++i) {
-      if (info->cameras(i).name() == options_.cameraPreset) preset = i;
-      names += (names.empty() ? "" : ", ") + info->cameras(i).name();
+    for (size_t i = 0; i < scene->cameras.size(); ++i) {
+      if (scene->cameras[i].name == options_.cameraPreset) preset = int(i);
+      names += (names.empty() ? "" : ", ") + scene->cameras[i].name;
     }
     if (preset < 0) {
       if (options_.headless) {
@@ -336,20 +315,20 @@ bool ClientApp::EnsureCamera() {
     }
   }
   if (options_.headless) {
-    if (info->cameras_size() == 0) {
+    if (scene->cameras.empty()) {
       Failed("the SMA's scene has no camera preset; give --camera-path");
       return false;
     }
-    player_.emplace(StillPath(info->cameras(preset), options_.size.x, options_.size.y));
+    player_.emplace(StillPath(scene->cameras[size_t(preset)], options_.size.x, options_.size.y));
     if (auto ok = targets_.Resize(options_.size * options_.supersample); !ok) {
       Failed(ok.error().message);
       return false;
     }
     return true;
   }
-  const Vec3 lo = FromWire(info->bounds_min()), hi = FromWire(info->bounds_max());
+  const Vec3 lo = scene->bounds.min, hi = scene->bounds.max;
   speed_ = std::max(kSpeedPerSceneSize * glm::length(hi - lo), 0.01f);
-  if (info->cameras_size() > 0) {
+  if (!scene->cameras.empty()) {
     ApplyPreset(preset);
   } else {
     // No preset: look at the middle of the scene from outside its bounds.
@@ -357,16 +336,16 @@ bool ClientApp::EnsureCamera() {
     camera_.SetPose(CameraPose{centre + Vec3(0.0f, 0.0f, glm::length(hi - lo)), centre, Vec3(0.0f, 1.0f, 0.0f)});
   }
   cameraReady_ = true;
-  window_->SetTitle(fmt::format("Penumbra - {}", info->name()));
+  window_->SetTitle(fmt::format("Penumbra - {}", scene->name));
   return true;
 }
 
 void ClientApp::ApplyPreset(int index) {
-  const wire::SceneInfo* info = model_.SceneInfo();
-  if (!info || index < 0 || index >= info->cameras_size()) return;
-  const auto& preset = info->cameras(index);
-  camera_.SetPose(CameraPose{FromWire(preset.eye()), FromWire(preset.target()), FromWire(preset.up())});
-  fovYDeg_ = preset.fov_y_deg();
+  const ClientScene* scene = model_.Scene();
+  if (!scene || index < 0 || size_t(index) >= scene->cameras.size()) return;
+  const CameraPreset& preset = scene->cameras[size_t(index)];
+  camera_.SetPose(preset.pose);
+  fovYDeg_ = preset.fovYDeg;
 }
 
 void ClientApp::HandleInput(double seconds) {
@@ -467,56 +446,43 @@ void ClientApp::UpdateAdaptation(double seconds) {
   adaptation_.logAverage = blend(adaptation_.logAverage, target.logAverage);
 }
 
-bool ClientApp::HeadlessGoalMet(Clock::time_point now) {
-  switch (options_.stopWhen) {
-    case ClientOptions::StopWhen::kFrames: return frames_ + 1 >= options_.frames;
-    case ClientOptions::StopWhen::kSeconds: return Seconds(now - start_).count() >= options_.seconds;
-    case ClientOptions::StopWhen::kConverged: break;
-  }
-  if (!player_ || !pathStart_ || !player_->Finished(now - *pathStart_) || !model_.Converged(viewSerial_)) {
-    convergedSince_.reset();
-    return false;
-  }
-  if (!convergedSince_) convergedSince_ = now;
-  const auto& report = model_.LastSmaReport();
-  const bool reportCurrent = report && report->atSequence == model_.Mesh().LastSequence();
-  return reportCurrent || now - *convergedSince_ >= kCountersGrace;
-}
-
-std::optional<int> ClientApp::HeadlessFailure(Clock::time_point now) {
-  if (!options_.headless) return std::nullopt;
+HeadlessObservation ClientApp::ObserveHeadless(Clock::time_point now) const {
   const SessionStatus status = session_->Status();
-  if (status.state != ConnectionState::kConnected && now - status.disconnectedSince > options_.connectTimeout)
-    return Failed(fmt::format("no connection to the SMA at {} for {} s (last error: {})", options_.sma.ToString(),
-                              options_.connectTimeout.count(),
-                              status.lastError.empty() ? "none" : status.lastError));
-  if (options_.stopWhen == ClientOptions::StopWhen::kConverged && now - start_ > options_.convergeTimeout)
-    return Failed(fmt::format("the view did not converge within {} s ({} samples pending, {} triangles held)",
-                              options_.convergeTimeout.count(), model_.Mesh().PendingSamples(),
-                              model_.Mesh().TriangleCount()));
-  return std::nullopt;
+  const MeshStore& mesh = model_.Mesh();
+  const auto& report = model_.LastSmaReport();
+  HeadlessObservation seen;
+  seen.framesDrawn = frames_;
+  seen.pathFinished = player_ && pathStart_ && player_->Finished(now - *pathStart_);
+  seen.converged = model_.Converged(viewSerial_);
+  seen.countersCurrent = report && report->atSequence == mesh.LastSequence();
+  seen.connection = status.state;
+  seen.disconnectedSince = status.disconnectedSince;
+  seen.lastError = status.lastError;
+  seen.samplesPending = mesh.PendingSamples();
+  seen.trianglesHeld = mesh.TriangleCount();
+  return seen;
 }
 
 void ClientApp::Render() {
   if (targets_.Size().x == 0) return;
-  const wire::SceneInfo* info = model_.SceneInfo();
+  const ClientScene* scene = model_.Scene();
   const std::optional<glm::mat4> worldToClip =
-      sentView_ && info ? std::optional(WorldToClip(*sentView_, SceneBounds(*info))) : std::nullopt;
+      sentView_ && scene ? std::optional(WorldToClip(*sentView_, scene->bounds)) : std::nullopt;
   targets_.BeginRadiance();
-  if (worldToClip && info->has_sky()) sky_->Draw(*worldToClip, info->sky());
+  if (worldToClip && scene->sky) sky_->Draw(*worldToClip, *scene->sky);
   if (worldToClip) renderer_->DrawRadiance(*worldToClip);
   targets_.BeginDisplay();
-  toneMapper_->Draw(targets_.RadianceTexture(), adaptation_, SceneDrago(info), tone_);
+  toneMapper_->Draw(targets_.RadianceTexture(), adaptation_, scene ? scene->toneMapping : DragoParams{}, tone_);
   if (wireframe_ && worldToClip) renderer_->DrawWireframe(*worldToClip, kWireColour);
 }
 
 void ClientApp::DrawHud() {
   const auto now = Clock::now();
   const SessionStatus status = session_->Status();
-  const wire::SceneInfo* info = model_.SceneInfo();
+  const ClientScene* scene = model_.Scene();
   const MeshStore& mesh = model_.Mesh();
   HudState hud;
-  hud.scene = info ? info->name() : "";
+  hud.scene = scene ? scene->name : "";
   hud.sma = options_.sma.ToString();
   hud.connected = status.state == ConnectionState::kConnected;
   hud.connection = status.state == ConnectionState::kWaiting ? "reconnecting (" + status.lastError + ")"
@@ -597,42 +563,41 @@ void ClientApp::WriteStats(Clock::time_point now) {
 }
 
 void ClientApp::CycleCriterion() {
-  const auto& criteria = Hud::Criteria();
+  const auto criteria = Criteria();
   size_t next = 0;
   for (size_t i = 0; i < criteria.size(); ++i)
-    if (criterion_ == criteria[i]) next = (i + 1) % criteria.size();
-  SetCriterion(criteria[next]);
+    if (criterion_ == criteria[i].name) next = (i + 1) % criteria.size();
+  SetCriterion(std::string(criteria[next].name));
 }
 
 void ClientApp::SetCriterion(const std::string& criterion) {
+  auto parsed = ParseCriterion(criterion);
+  if (!parsed) return;  // the panel offers only the table's names
   criterion_ = criterion;
   if (!refinement_) refinement_.emplace();
-  refinement_->set_criterion(criterion_);
+  refinement_->criterion = *parsed;
   session_->SetSessionOptions(*refinement_);
   notice_ = "refinement criterion: " + criterion_;
   noticeUntil_ = Clock::now() + std::chrono::seconds(3);
 }
 
 void ClientApp::MaybeWriteSnapshot(Clock::time_point now) {
-  if (!options_.headless || options_.snapshotEvery <= 0.0 || snapshotsFailed_) return;
   const MeshStore& mesh = model_.Mesh();
-  if (mesh.TriangleCount() == 0 || mesh.LastSequence() == snapshotSequence_) return;
-  if (lastSnapshot_ && now - *lastSnapshot_ < Seconds(options_.snapshotEvery)) return;
-  const auto path = options_.snapshotPrefix.string() + fmt::format("_{:06}.exr", frames_);
-  if (auto ok = WriteScreenshot(path); !ok) {
+  const auto path = snapshots_.Due(now, mesh.TriangleCount(), mesh.LastSequence(), frames_);
+  if (!path) return;
+  if (auto ok = WriteScreenshot(*path); !ok) {
     log_->error("snapshot: {}; no more snapshots", ok.error().message);
-    snapshotsFailed_ = true;
+    snapshots_.Stop();
     return;
   }
-  lastSnapshot_ = now;
-  snapshotSequence_ = mesh.LastSequence();
+  snapshots_.Written(now, mesh.LastSequence());
 }
 
 void ClientApp::WritePathSnapshot(double pathTime) {
   const auto path = options_.snapshotPrefix.string() + fmt::format("_t{:06}.exr", std::llround(pathTime * 1000.0));
   if (auto ok = WriteScreenshot(path); !ok) {
     log_->error("snapshot: {}; no more snapshots", ok.error().message);
-    snapshotsFailed_ = true;
+    pathSnapshotsFailed_ = true;
     return;
   }
   ++pathSnapshots_;
@@ -655,20 +620,12 @@ Status ClientApp::WriteScreenshot(const std::filesystem::path& path) {
   if (n <= 1) return WriteImage(path, size.x, size.y, pixels);
   // A box of n x n samples per pixel (the display image too: an
   // approximation that resolves edges the way a multisampled display does).
-  const int w = size.x / n, h = size.y / n;
-  std::vector<float> filtered(size_t(w) * size_t(h) * 3, 0.0f);
-  const float weight = 1.0f / float(n * n);
-  for (int y = 0; y < h * n; ++y)
-    for (int x = 0; x < w * n; ++x)
-      for (int c = 0; c < 3; ++c)
-        filtered[(size_t(y / n) * size_t(w) + size_t(x / n)) * 3 + size_t(c)] +=
-            weight * pixels[(size_t(y) * size_t(size.x) + size_t(x)) * 3 + size_t(c)];
-  return WriteImage(path, w, h, filtered);
+  return WriteImage(path, size.x / n, size.y / n, BoxFilterRgb(pixels, size.x, size.y, n));
 }
 
 void ClientApp::SaveInteractiveScreenshot() {
   screenshotRequested_ = false;
-  const std::string stem = fmt::format("penumbra-{}-{}", model_.SceneInfo() ? model_.SceneInfo()->name() : "empty",
+  const std::string stem = fmt::format("penumbra-{}-{}", model_.Scene() ? model_.Scene()->name : "empty",
                                        LocalTimestamp());
   const auto png = options_.screenshotDir / (stem + ".png");
   const auto exr = options_.screenshotDir / (stem + ".exr");

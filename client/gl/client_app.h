@@ -18,10 +18,11 @@
 
 #include "gl/context.h"
 #include "gl/tone_mapper.h"
+#include "penumbra/client/headless_run.h"
 #include "penumbra/common/camera.h"
 #include "penumbra/common/endpoint.h"
+#include "penumbra/common/refinement_params.h"
 #include "penumbra/common/tls.h"
-#include "penumbra/wire.pb.h"
 
 namespace penumbra::client::gl {
 
@@ -44,14 +45,8 @@ struct ClientOptions {
   std::filesystem::path screenshot;
   /// One JSON line per frame (stats_line.h). Empty: none.
   std::filesystem::path statsPath;
-  enum class StopWhen { kConverged, kFrames, kSeconds };
-  StopWhen stopWhen = StopWhen::kConverged;  // headless only
-  uint64_t frames = 0;
-  double seconds = 0.0;
-  /// Headless: give up when no connection has existed for this long.
-  std::chrono::seconds connectTimeout{15};
-  /// Headless, kConverged: give up when not converged this long after start.
-  std::chrono::seconds convergeTimeout{600};
+  /// Headless: when the run is done or has failed (headless_run.h).
+  HeadlessGoal goal;
   /// Frame-rate cap; 0: 60 in a window (plus vsync), 30 headless, so a
   /// headless client leaves the CPU to the renderers it shares a host with.
   double maxFps = 0.0;
@@ -69,8 +64,8 @@ struct ClientOptions {
   double snapshotPathInterval = 0.0;
   std::filesystem::path snapshotPrefix;
   /// Refinement settings for the SMA session (criterion, S_req, ...); none:
-  /// the SMA's defaults. In a window, R cycles the criterion.
-  std::optional<wire::SessionOptions> refinement;
+  /// the SMA's defaults. In a window, C cycles the criterion.
+  std::optional<RefinementRequest> refinement;
   /// Sent to the SMA in the Hello (--auth-token-file); empty: none.
   std::string authToken;
   /// TLS to the SMA (--tls-ca); null: plain TCP.

@@ -12,6 +12,7 @@
 #include <imgui.h>
 
 #include "penumbra/common/logging.h"
+#include "penumbra/common/refinement_params.h"
 
 namespace penumbra::client::gl {
 
@@ -48,26 +49,11 @@ const char* const kHelp[][2] = {
     {"H / F1", "this help"},
 };
 
-// What each criterion means, for the panel's tooltip.
-const char* CriterionMeaning(const std::string& criterion) {
-  if (criterion == "nld_os") return "split where neighbouring samples differ in brightness (object space)";
-  if (criterion == "nld_is") return "split where the image differs most (image space), within a pixel budget";
-  if (criterion == "rnd") return "split at random, within a pixel budget (a baseline)";
-  if (criterion == "nld_os_rnd") return "object-space differences, plus random splits";
-  if (criterion == "none") return "no refinement: the base mesh only";
-  return "whatever the SMA was started with";
-}
-
 void ProgressLine(float fraction, const std::string& overlay) {
   ImGui::ProgressBar(std::clamp(fraction, 0.0f, 1.0f), ImVec2(-FLT_MIN, 0.0f), overlay.c_str());
 }
 
 }  // namespace
-
-const std::vector<std::string>& Hud::Criteria() {
-  static const std::vector<std::string> criteria = {"nld_os", "nld_is", "rnd", "nld_os_rnd", "none"};
-  return criteria;
-}
 
 Expected<std::unique_ptr<Hud>> Hud::Create(Window& window) {
   std::unique_ptr<Hud> hud(new Hud());
@@ -177,12 +163,14 @@ bool Hud::Draw(const HudState& s, HudControls& controls, bool showHelp) {
     if (ImGui::CollapsingHeader("Controls")) {
       const std::string preview = controls.criterion.empty() ? "SMA default" : controls.criterion;
       if (ImGui::BeginCombo("Refinement", preview.c_str())) {
-        for (const std::string& c : Criteria()) {
+        // The criteria in the order of the C key, each with its meaning as a tooltip.
+        for (const CriterionEntry& entry : Criteria()) {
+          const std::string c(entry.name);
           if (ImGui::Selectable(c.c_str(), c == controls.criterion)) {
             changed |= c != controls.criterion;
             controls.criterion = c;
           }
-          if (ImGui::IsItemHovered()) ImGui::SetTooltip("%s", CriterionMeaning(c));
+          if (ImGui::IsItemHovered()) ImGui::SetTooltip("%.*s", int(entry.meaning.size()), entry.meaning.data());
         }
         ImGui::EndCombo();
       }

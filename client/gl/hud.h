@@ -60,9 +60,6 @@ class Hud {
   /// While the cursor turns the camera, ImGui must not see it.
   void SetMouseEnabled(bool enabled);
 
-  /// The refinement criteria, in the order of the panel and of the C key.
-  static const std::vector<std::string>& Criteria();
-
  private:
   Hud() = default;
   void DrawHelp();

@@ -110,9 +110,9 @@ Expected<MeshRenderer> MeshRenderer::Create() {
 Status MeshRenderer::Sync(ClientModel& model) {
   lastUploadBytes_ = 0;
   MeshStore& store = model.Mesh();
-  if (model.SceneInfo() && model.SceneGeneration() != sceneGeneration_) {
+  if (model.Scene() && model.SceneGeneration() != sceneGeneration_) {
     sceneGeneration_ = model.SceneGeneration();
-    UploadMaterials(*model.SceneInfo());
+    UploadMaterials(*model.Scene());
     groups_.clear();  // drops the old scene's textures too
   }
   if (groups_.size() != store.Groups().size()) groups_.resize(store.Groups().size());
@@ -123,12 +123,12 @@ Status MeshRenderer::Sync(ClientModel& model) {
   return Status::Ok();
 }
 
-void MeshRenderer::UploadMaterials(const wire::SceneInfo& info) {
+void MeshRenderer::UploadMaterials(const ClientScene& scene) {
   std::vector<float> texels;
-  texels.reserve(size_t(info.materials_size()) * 8);
-  for (const auto& m : info.materials()) {
-    texels.insert(texels.end(), {m.albedo().x(), m.albedo().y(), m.albedo().z(), 0.0f});
-    texels.insert(texels.end(), {m.emission().x(), m.emission().y(), m.emission().z(), 0.0f});
+  texels.reserve(scene.materials.size() * 8);
+  for (const ClientMaterial& m : scene.materials) {
+    texels.insert(texels.end(), {m.albedo.x, m.albedo.y, m.albedo.z, 0.0f});
+    texels.insert(texels.end(), {m.emission.x, m.emission.y, m.emission.z, 0.0f});
   }
   if (texels.empty()) texels.resize(8, 0.0f);  // a texture buffer needs storage
   glBindBuffer(GL_TEXTURE_BUFFER, materialBuffer_.id());

@@ -58,7 +58,7 @@ class MeshRenderer {
   };
 
   MeshRenderer(Program radiance, Program wire) : radiance_(std::move(radiance)), wire_(std::move(wire)) {}
-  void UploadMaterials(const wire::SceneInfo& info);
+  void UploadMaterials(const ClientScene& scene);
   void UploadTexture(const ReceivedTexture& texture);
   void SyncVertices(MeshStore& store);
   void SyncGroup(TriangleGroup& group, GroupBuffers& gpu);

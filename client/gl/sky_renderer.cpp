@@ -29,8 +29,8 @@ void main() {
 }
 )";
 
-void SetVec3(GLuint program, const char* name, const wire::Vec3& v) {
-  glUniform3f(glGetUniformLocation(program, name), v.x(), v.y(), v.z());
+void SetVec3(GLuint program, const char* name, const Vec3& v) {
+  glUniform3f(glGetUniformLocation(program, name), v.x, v.y, v.z);
 }
 
 }  // namespace
@@ -41,7 +41,7 @@ Expected<SkyRenderer> SkyRenderer::Create() {
   return SkyRenderer(std::move(*program), MakeVertexArray());
 }
 
-void SkyRenderer::Draw(const glm::mat4& worldToClip, const wire::Sky& sky) const {
+void SkyRenderer::Draw(const glm::mat4& worldToClip, const SkyLight& sky) const {
   GLint viewport[4];
   glGetIntegerv(GL_VIEWPORT, viewport);
   const GLuint p = program_.id();
@@ -49,10 +49,10 @@ void SkyRenderer::Draw(const glm::mat4& worldToClip, const wire::Sky& sky) const
   const glm::mat4 clipToWorld = glm::inverse(worldToClip);
   glUniformMatrix4fv(glGetUniformLocation(p, "uClipToWorld"), 1, GL_FALSE, glm::value_ptr(clipToWorld));
   glUniform2f(glGetUniformLocation(p, "uViewportSize"), float(viewport[2]), float(viewport[3]));
-  SetVec3(p, "uUp", sky.up());
-  SetVec3(p, "uZenith", sky.zenith());
-  SetVec3(p, "uHorizon", sky.horizon());
-  SetVec3(p, "uGround", sky.ground());
+  SetVec3(p, "uUp", sky.up);
+  SetVec3(p, "uZenith", sky.zenith);
+  SetVec3(p, "uHorizon", sky.horizon);
+  SetVec3(p, "uGround", sky.ground);
   glDisable(GL_DEPTH_TEST);
   glDepthMask(GL_FALSE);
   glBindVertexArray(empty_.id());

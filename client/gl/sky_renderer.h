@@ -10,7 +10,7 @@
 #include <glm/mat4x4.hpp>
 
 #include "gl/gl_objects.h"
-#include "penumbra/wire.pb.h"
+#include "penumbra/common/scene.h"
 
 namespace penumbra::client::gl {
 
@@ -21,7 +21,7 @@ class SkyRenderer {
   /// Fills the bound RGBA32F framebuffer's viewport with the sky's linear
   /// radiance (alpha 1) seen through `worldToClip`; depth is neither tested
   /// nor written, so draw it before the mesh.
-  void Draw(const glm::mat4& worldToClip, const wire::Sky& sky) const;
+  void Draw(const glm::mat4& worldToClip, const SkyLight& sky) const;
 
  private:
   SkyRenderer(Program program, VertexArray empty) : program_(std::move(program)), empty_(std::move(empty)) {}

@@ -32,25 +32,21 @@ void ClientModel::Apply(std::vector<SessionEvent> events, SessionRequests& reque
 }
 
 void ClientModel::OnConnected(Connected&& event) {
-  const uint64_t hash = event.welcome.scene_hash();
   // Without an identity (hash 0) nothing proves it is the same scene.
-  const bool sameScene = sceneInfo_ && hash != 0 && hash == sceneHash_;
+  const bool sameScene = scene_ && event.scene.identity != 0 && event.scene.identity == scene_->identity;
   if (!sameScene) {
     ++sceneGeneration_;
     texturesReceived_.clear();
     texturesToUpload_.clear();
   }
-  sceneHash_ = hash;
-  sceneInfo_ = std::move(event.sceneInfo);
+  scene_ = std::move(event.scene);
   connection_ = event.connection;
   online_ = true;
   deltaViewSerial_ = 0;
   smaReport_.reset();
   // Requests made on an earlier connection will not be answered.
   texturesRequested_ = texturesReceived_;
-  std::vector<int32_t> materialTextures;
-  for (const auto& m : sceneInfo_->materials()) materialTextures.push_back(m.texture());
-  mesh_.Reset(materialTextures, sceneInfo_->texture_count());
+  mesh_.Reset(scene_->MaterialTextures(), scene_->textureCount);
 }
 
 void ClientModel::OnDelta(const DeltaReceived& event, SessionRequests& requests) {
@@ -98,9 +94,7 @@ void ClientModel::Abandon(const std::string& reason, SessionRequests& requests) 
   log_->error("connection {}: {}; emptying the mesh and reconnecting", connection_, reason);
   requests.AbandonConnection(connection_, reason);
   online_ = false;
-  std::vector<int32_t> materialTextures;
-  for (const auto& m : sceneInfo_->materials()) materialTextures.push_back(m.texture());
-  mesh_.Reset(materialTextures, sceneInfo_->texture_count());
+  mesh_.Reset(scene_->MaterialTextures(), scene_->textureCount);
 }
 
 void ClientModel::RequestNeededTextures(SessionRequests& requests) {

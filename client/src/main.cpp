@@ -12,6 +12,7 @@
 #include "penumbra/client/path_player.h"
 #include "penumbra/common/auth.h"
 #include "penumbra/common/logging.h"
+#include "penumbra/common/refinement_params.h"
 #include "penumbra/common/tls.h"
 
 namespace {
@@ -57,8 +58,8 @@ int main(int argc, char** argv) {
   std::string tone = "drago";
   std::string logLevel = "info";
   bool untilConverged = false;
-  int connectTimeout = int(options.connectTimeout.count());
-  int convergeTimeout = int(options.convergeTimeout.count());
+  int connectTimeout = int(options.goal.connectTimeout.count());
+  int convergeTimeout = int(options.goal.convergeTimeout.count());
   std::string screenshot, stats, screenshotDir = DefaultScreenshotDir();
   std::string snapshotPrefix;
   std::string authTokenFile, tlsCa;
@@ -92,8 +93,11 @@ int main(int argc, char** argv) {
                  "Connect with TLS, trusting the CA certificate(s) in this PEM file; the SMA's certificate must name "
                  "the --connect host");
 
-  app.add_option("--criterion", criterion, "Refinement criterion for this client: nld_os, nld_is, rnd, nld_os_rnd or none (default: the SMA's)")
-      ->check(CLI::IsMember({"nld_os", "nld_is", "rnd", "nld_os_rnd", "none"}));
+  std::vector<std::string> criterionNames;
+  for (const CriterionEntry& entry : Criteria()) criterionNames.emplace_back(entry.name);
+  app.add_option("--criterion", criterion,
+                 "Refinement criterion for this client: " + CriterionNameList() + " (default: the SMA's)")
+      ->check(CLI::IsMember(criterionNames));
   app.add_option("--s-req", sReq, "Refinement: S_req (default: the SMA's)");
   app.add_option("--noise-z", noiseZ, "Refinement: differences within this many standard errors are noise (0: the paper's S)");
   app.add_option("--min-pixels", minPixels, "Refinement: leaves covering fewer pixels are not split");
@@ -112,9 +116,9 @@ int main(int argc, char** argv) {
   auto* convergedFlag =
       app.add_flag("--until-converged", untilConverged,
                    "Headless: play the path, then stop once the SMA reports the final view converged (default)");
-  auto* framesOption = app.add_option("--frames", options.frames, "Headless: stop after N frames")
+  auto* framesOption = app.add_option("--frames", options.goal.frames, "Headless: stop after N frames")
                            ->check(CLI::PositiveNumber);
-  auto* secondsOption = app.add_option("--seconds", options.seconds, "Headless: stop after S seconds")
+  auto* secondsOption = app.add_option("--seconds", options.goal.seconds, "Headless: stop after S seconds")
                             ->check(CLI::PositiveNumber);
   convergedFlag->excludes(framesOption)->excludes(secondsOption);
   framesOption->excludes(secondsOption);
@@ -173,14 +177,15 @@ int main(int argc, char** argv) {
   options.screenshotDir = screenshotDir;
   options.snapshotPrefix = snapshotPrefix;
   if (!criterion.empty() || sReq || noiseZ || minPixels || pixelFraction || refineBatch) {
-    // The SMA validates the ranges and answers out-of-range values with an error.
-    wire::SessionOptions refinement;
-    refinement.set_criterion(criterion);
-    if (sReq) refinement.set_s_req(*sReq);
-    if (noiseZ) refinement.set_noise_z(*noiseZ);
-    if (minPixels) refinement.set_min_pixels(*minPixels);
-    if (pixelFraction) refinement.set_pixel_fraction(*pixelFraction);
-    if (refineBatch) refinement.set_batch(*refineBatch);
+    // The SMA validates the ranges (with its own limits on top) and answers
+    // out-of-range values with an error.
+    RefinementRequest refinement;
+    if (!criterion.empty()) refinement.criterion = *ParseCriterion(criterion);  // checked by IsMember
+    refinement.sReq = sReq;
+    refinement.noiseZ = noiseZ;
+    refinement.minPixels = minPixels;
+    refinement.pixelFraction = pixelFraction;
+    refinement.batch = refineBatch;
     options.refinement = refinement;
   }
   if (!authTokenFile.empty()) {
@@ -194,10 +199,10 @@ int main(int argc, char** argv) {
     if (!context) return Usage("--tls-ca: " + context.error().message);
     options.tls = std::move(*context);
   }
-  options.connectTimeout = std::chrono::seconds(connectTimeout);
-  options.convergeTimeout = std::chrono::seconds(convergeTimeout);
-  if (framesOption->count() > 0) options.stopWhen = ClientOptions::StopWhen::kFrames;
-  if (secondsOption->count() > 0) options.stopWhen = ClientOptions::StopWhen::kSeconds;
+  options.goal.connectTimeout = std::chrono::seconds(connectTimeout);
+  options.goal.convergeTimeout = std::chrono::seconds(convergeTimeout);
+  if (framesOption->count() > 0) options.goal.stopWhen = StopWhen::kFrames;
+  if (secondsOption->count() > 0) options.goal.stopWhen = StopWhen::kSeconds;
   if (!cameraPath.empty()) {
     auto path = LoadCameraPathSpec(cameraPath);
     if (!path) return Usage("--camera-path: " + path.error().message);

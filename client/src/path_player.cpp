@@ -29,15 +29,13 @@ Expected<CameraPath> LoadCameraPathSpec(std::string_view spec) {
   return path;
 }
 
-CameraPath StillPath(const wire::CameraPreset& preset, int width, int height) {
+CameraPath StillPath(const CameraPreset& preset, int width, int height) {
   CameraPath path;
-  path.name = preset.name();
-  path.fovYDeg = preset.fov_y_deg();
+  path.name = preset.name;
+  path.fovYDeg = preset.fovYDeg;
   path.width = width;
   path.height = height;
-  auto toVec3 = [](const wire::Vec3& v) { return Vec3(v.x(), v.y(), v.z()); };
-  path.keyframes.push_back(
-      CameraKeyframe{0.0, CameraPose{toVec3(preset.eye()), toVec3(preset.target()), toVec3(preset.up())}});
+  path.keyframes.push_back(CameraKeyframe{0.0, preset.pose});
   return path;
 }
 

@@ -11,6 +11,7 @@
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
 #include "penumbra/common/scene.h"
+#include "penumbra/common/wire_convert.h"
 
 namespace penumbra::client {
 
@@ -18,16 +19,6 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 using boost::system::error_code;
-
-bool IsFiniteWire(const wire::Vec3& v) {
-  return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z());
-}
-
-void ToWire(const Vec3& in, wire::Vec3* out) {
-  out->set_x(in.x);
-  out->set_y(in.y);
-  out->set_z(in.z);
-}
 
 /// Rough size of an event, for the read-pause threshold.
 size_t EventBytes(const SessionEvent& event) {
@@ -37,48 +28,6 @@ size_t EventBytes(const SessionEvent& event) {
 }
 
 }  // namespace
-
-Status ValidateSceneInfo(const wire::SceneInfo& info) {
-  if (!IsFiniteWire(info.bounds_min()) || !IsFiniteWire(info.bounds_max()))
-    return Fail("scene_info: bounds are not finite");
-  for (int i = 0; i < info.cameras_size(); ++i) {
-    const auto& c = info.cameras(i);
-    if (!IsFiniteWire(c.eye()) || !IsFiniteWire(c.target()) || !IsFiniteWire(c.up()) || !std::isfinite(c.fov_y_deg()))
-      return Fail(fmt::format("scene_info: camera {} ('{}') is not finite", i, c.name()));
-  }
-  // Every count from the wire bounds what it allocates: the mesh store keeps
-  // a triangle group per texture.
-  if (info.texture_count() > kMaxSceneTextures)
-    return Fail(fmt::format("scene_info: {} textures; at most {} are supported", info.texture_count(),
-                            kMaxSceneTextures));
-  for (int i = 0; i < info.materials_size(); ++i) {
-    const auto& m = info.materials(i);
-    if (m.texture() < -1 || m.texture() >= int64_t(info.texture_count()))
-      return Fail(fmt::format("scene_info: material {} uses texture {} of {}", i, m.texture(), info.texture_count()));
-    if (!IsFiniteWire(m.albedo()) || !IsFiniteWire(m.emission()))
-      return Fail(fmt::format("scene_info: material {} has a colour that is not finite", i));
-  }
-  if (info.has_sky()) {
-    const auto& sky = info.sky();
-    const auto nonNegative = [](const wire::Vec3& c) {
-      return IsFiniteWire(c) && c.x() >= 0.0f && c.y() >= 0.0f && c.z() >= 0.0f;
-    };
-    const float upLength = std::sqrt(sky.up().x() * sky.up().x() + sky.up().y() * sky.up().y() +
-                                     sky.up().z() * sky.up().z());
-    if (!IsFiniteWire(sky.up()) || !(std::abs(upLength - 1.0f) < 1e-3f))
-      return Fail(fmt::format("scene_info: sky up ({}, {}, {}) is not a unit vector", sky.up().x(), sky.up().y(),
-                              sky.up().z()));
-    if (!nonNegative(sky.zenith()) || !nonNegative(sky.horizon()) || !nonNegative(sky.ground()))
-      return Fail("scene_info: sky radiance must be finite and non-negative");
-  }
-  const auto& tm = info.tone_mapping();
-  if (!(tm.bias() > 0.0f && tm.bias() < 1.0f) || !(tm.exposure() > 0.0f) || !std::isfinite(tm.exposure()) ||
-      !(tm.max_display_luminance() > 0.0f) || !std::isfinite(tm.max_display_luminance()))
-    return Fail(fmt::format("scene_info: tone mapping bias {} (must be in (0,1)), exposure {} and display luminance {} "
-                            "(must be positive)",
-                            tm.bias(), tm.exposure(), tm.max_display_luminance()));
-  return Status::Ok();
-}
 
 const char* ToString(ConnectionState state) {
   switch (state) {
@@ -135,7 +84,9 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
     return serial;
   }
 
-  void SetSessionOptions(const wire::SessionOptions& options) {
+  void SetSessionOptions(const RefinementRequest& request) {
+    wire::SessionOptions options;
+    ToWire(request, &options);
     asio::post(io_, [self = shared_from_this(), options] {
       self->sessionOptions_ = options;
       if (self->ready_) self->SendSessionOptions();
@@ -320,9 +271,9 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
       if (!envelope.has_scene_info())
         return Refuse(wire::ERROR_CODE_UNEXPECTED_MESSAGE,
                       fmt::format("expected scene_info after welcome, got {}", BodyName(envelope)));
-      if (auto ok = ValidateSceneInfo(envelope.scene_info()); !ok)
-        return Refuse(wire::ERROR_CODE_INVALID_REQUEST, ok.error().message);
-      return OnReady(std::move(*envelope.mutable_scene_info()));
+      auto scene = ClientSceneFromWire(envelope.scene_info(), welcome_.scene_hash());
+      if (!scene) return Refuse(wire::ERROR_CODE_INVALID_REQUEST, scene.error().message);
+      return OnReady(std::move(*scene));
     }
     switch (envelope.body_case()) {
       case wire::Envelope::kDelta:
@@ -384,7 +335,7 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
     connection_->FailAndClose(MakeError(0, code, reason, true), reason);
   }
 
-  void OnReady(wire::SceneInfo info) {
+  void OnReady(ClientScene scene) {
     ready_ = true;
     ++connectionNumber_;
     nextViewId_ = 1;
@@ -392,8 +343,8 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
     backoff_ = options_.reconnectMin;
     SetState(ConnectionState::kConnected, /*connected=*/true);
     log_->info("connected to SMA {} ('{}'), scene '{}' (connection {})", address_, Printable(welcome_.server_name()),
-               Printable(info.name()), connectionNumber_);
-    Push(Connected{connectionNumber_, welcome_, std::move(info)});
+               Printable(scene.name), connectionNumber_);
+    Push(Connected{connectionNumber_, std::move(scene)});
     if (sessionOptions_) SendSessionOptions();
     if (view_) SendView();
     ArmCountersTimer();
@@ -531,7 +482,7 @@ SmaSession::~SmaSession() { Stop(); }
 void SmaSession::Start() { impl_->Start(); }
 void SmaSession::Stop() { impl_->Stop(); }
 uint64_t SmaSession::SetView(const CameraView& view) { return impl_->SetView(view); }
-void SmaSession::SetSessionOptions(const wire::SessionOptions& options) { impl_->SetSessionOptions(options); }
+void SmaSession::SetSessionOptions(const RefinementRequest& request) { impl_->SetSessionOptions(request); }
 std::vector<SessionEvent> SmaSession::TakeEvents() { return impl_->TakeEvents(); }
 SessionStatus SmaSession::Status() const { return impl_->Status(); }
 void SmaSession::RequestTexture(uint64_t connection, uint32_t texture) { impl_->RequestTexture(connection, texture); }

@@ -29,8 +29,7 @@ struct RecordedRequests : SessionRequests {
 Connected MakeConnected(uint64_t connection, uint64_t sceneHash = 7) {
   Connected c;
   c.connection = connection;
-  c.welcome.set_scene_hash(sceneHash);
-  c.sceneInfo = testing::UnitSquareSceneInfo();
+  c.scene = testing::UnitSquareScene(sceneHash);
   return c;
 }
 

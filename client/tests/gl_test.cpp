@@ -116,16 +116,6 @@ TEST_F(GlTest, SkyShowsSkyLightRadianceAlongEachPixelsRay) {
   sky.zenith = Rgb(0.1f, 0.3f, 1.0f);
   sky.horizon = Rgb(1.0f, 0.9f, 0.8f);
   sky.ground = Rgb(0.05f, 0.04f, 0.02f);
-  wire::Sky wireSky;
-  const auto set = [](wire::Vec3* out, const Vec3& v) {
-    out->set_x(v.x);
-    out->set_y(v.y);
-    out->set_z(v.z);
-  };
-  set(wireSky.mutable_up(), sky.up);
-  set(wireSky.mutable_zenith(), sky.zenith);
-  set(wireSky.mutable_horizon(), sky.horizon);
-  set(wireSky.mutable_ground(), sky.ground);
 
   CameraView view;
   view.pose = CameraPose{Vec3(3.0f, -2.0f, 1.0f), Vec3(0.0f, 0.0f, 1.6f), Vec3(0.0f, 0.0f, 1.0f)};
@@ -140,7 +130,7 @@ TEST_F(GlTest, SkyShowsSkyLightRadianceAlongEachPixelsRay) {
   FrameTargets targets;
   ASSERT_TRUE(targets.Resize({view.width, view.height}).ok());
   targets.BeginRadiance();
-  renderer->Draw(WorldToClip(view, bounds), wireSky);
+  renderer->Draw(WorldToClip(view, bounds), sky);
   const std::vector<float> image = targets.ReadRadiance();
 
   const PinholeCamera camera(view);
@@ -170,8 +160,7 @@ class MeshRendererTest : public GlTest {
     ASSERT_TRUE(targets_.Resize({kSize, kSize}).ok());
     Connected connected;
     connected.connection = 1;
-    connected.welcome.set_scene_hash(1);
-    connected.sceneInfo = testing::UnitSquareSceneInfo();
+    connected.scene = testing::UnitSquareScene(1);
     Apply(std::move(connected));
   }
 

@@ -92,8 +92,8 @@ TEST(PathPlayerTest, AStopHoldsExactlyItsPose) {
 }
 
 TEST(PathPlayerTest, APresetIsAStillPathFinishedAtOnce) {
-  const wire::SceneInfo info = testing::UnitSquareSceneInfo();
-  const PathPlayer player(StillPath(info.cameras(0), 64, 48));
+  const ClientScene scene = testing::UnitSquareScene();
+  const PathPlayer player(StillPath(scene.cameras[0], 64, 48));
   EXPECT_TRUE(player.Finished(0s));
   const CameraView view = player.ViewAt(5s);
   EXPECT_EQ(view.width, 64);

@@ -31,36 +31,6 @@ CameraView FrontView() {
   return view;
 }
 
-void SetWire(wire::Vec3* out, float x, float y, float z) {
-  out->set_x(x);
-  out->set_y(y);
-  out->set_z(z);
-}
-
-TEST(ValidateSceneInfoTest, AcceptsASkyAndRefusesOneThatCannotBeDrawn) {
-  wire::SceneInfo info = testing::UnitSquareSceneInfo();
-  ASSERT_TRUE(ValidateSceneInfo(info).ok()) << ValidateSceneInfo(info).error().message;
-  auto* sky = info.mutable_sky();
-  SetWire(sky->mutable_up(), 0.0f, 0.0f, 1.0f);
-  SetWire(sky->mutable_zenith(), 0.2f, 0.4f, 1.0f);
-  SetWire(sky->mutable_horizon(), 1.0f, 1.0f, 1.0f);
-  SetWire(sky->mutable_ground(), 0.1f, 0.1f, 0.1f);
-  EXPECT_TRUE(ValidateSceneInfo(info).ok());
-
-  wire::SceneInfo notUnit = info;
-  SetWire(notUnit.mutable_sky()->mutable_up(), 0.0f, 0.0f, 2.0f);
-  ASSERT_FALSE(ValidateSceneInfo(notUnit).ok());
-  EXPECT_NE(ValidateSceneInfo(notUnit).error().message.find("sky up"), std::string::npos);
-
-  wire::SceneInfo negative = info;
-  SetWire(negative.mutable_sky()->mutable_ground(), -1.0f, 0.0f, 0.0f);
-  EXPECT_FALSE(ValidateSceneInfo(negative).ok());
-
-  wire::SceneInfo notFinite = info;
-  SetWire(notFinite.mutable_sky()->mutable_zenith(), std::nanf(""), 0.0f, 0.0f);
-  EXPECT_FALSE(ValidateSceneInfo(notFinite).ok());
-}
-
 class SessionTest : public ::testing::Test {
  protected:
   void SetUp() override {
@@ -110,7 +80,8 @@ TEST_F(SessionTest, HandshakesSendsTheViewAndHandsDeltasOver) {
   auto connected = WaitForEvent<Connected>();
   ASSERT_TRUE(connected.has_value());
   EXPECT_EQ(connected->connection, 1u);
-  EXPECT_EQ(connected->sceneInfo.name(), "unit-square");
+  EXPECT_EQ(connected->scene.name, "unit-square");
+  EXPECT_EQ(connected->scene.identity, 1u);  // the Welcome's scene hash
   EXPECT_EQ(session_->Status().state, ConnectionState::kConnected);
 
   auto view = testing::ReceiveView(sma);

@@ -7,12 +7,9 @@
 #include <fmt/format.h>
 
 #include "penumbra/common/math.h"
+#include "penumbra/common/wire_convert.h"
 
 namespace penumbra::sma {
-
-namespace {
-Vec3 FromWire(const wire::Vec3& v) { return Vec3(v.x(), v.y(), v.z()); }
-}  // namespace
 
 Expected<CameraView> ViewFromWire(const wire::View& v, uint64_t maxViewPixels) {
   CameraView view;
@@ -26,27 +23,6 @@ Expected<CameraView> ViewFromWire(const wire::View& v, uint64_t maxViewPixels) {
     return Fail(fmt::format("view {}: {}x{} pixels; this SMA serves at most {} per view", v.view_id(), view.width,
                             view.height, maxViewPixels));
   return view;
-}
-
-Expected<RefinementParams> ApplySessionOptions(const RefinementParams& current, const wire::SessionOptions& o) {
-  RefinementParams p = current;
-  if (!o.criterion().empty()) {
-    auto c = ParseCriterion(o.criterion());
-    if (!c) return c.error();
-    p.criterion = *c;
-  }
-  if (o.has_s_req()) p.sReq = o.s_req();
-  if (o.has_batch()) p.batch = o.batch();
-  if (o.has_min_pixels()) p.minPixels = o.min_pixels();
-  if (o.has_large_fraction()) p.largeFraction = o.large_fraction();
-  if (o.has_aspect_threshold()) p.aspectThreshold = o.aspect_threshold();
-  if (o.has_pixel_fraction()) p.pixelFraction = o.pixel_fraction();
-  if (o.has_noise_z()) p.noiseZ = o.noise_z();
-  if (o.has_max_depth()) p.maxDepth = uint8_t(std::clamp<uint32_t>(o.max_depth(), 0, 255));
-  if (o.has_max_depth() && o.max_depth() > 20)
-    return Fail(fmt::format("session options: max_depth = {} is out of range", o.max_depth()));
-  if (auto ok = p.Validate(); !ok) return Fail("session options: " + ok.error().message);
-  return p;
 }
 
 Status CheckTextureRequest(const wire::TextureRequest& request, size_t textureCount) {

@@ -8,46 +8,12 @@
 
 namespace penumbra::sma {
 
-Expected<Criterion> ParseCriterion(std::string_view name) {
-  if (name == "none") return Criterion::kNone;
-  if (name == "nld_os") return Criterion::kNldOs;
-  if (name == "nld_is") return Criterion::kNldIs;
-  if (name == "rnd") return Criterion::kRnd;
-  if (name == "nld_os_rnd") return Criterion::kNldOsRnd;
-  return Fail(fmt::format("unknown criterion '{}' (nld_os, nld_is, rnd, nld_os_rnd or none)", name));
-}
-
-std::string_view CriterionName(Criterion c) {
-  switch (c) {
-    case Criterion::kNone: return "none";
-    case Criterion::kNldOs: return "nld_os";
-    case Criterion::kNldIs: return "nld_is";
-    case Criterion::kRnd: return "rnd";
-    case Criterion::kNldOsRnd: return "nld_os_rnd";
-  }
-  return "?";
-}
-
-Status RefinementParams::Validate() const {
-  auto bad = [](const char* what, double v) { return Fail(fmt::format("{} = {} is out of range", what, v)); };
-  if (!(sReq >= 0.0f && sReq <= 1.0f)) return bad("s_req", sReq);
-  if (batch < 1 || batch > 1000000) return bad("batch (R)", batch);
-  if (!(minPixels >= 0.0f && std::isfinite(minPixels))) return bad("min_pixels", minPixels);
-  if (!(largeFraction > 0.0f && largeFraction <= 1.0f)) return bad("large_fraction", largeFraction);
-  if (!(aspectThreshold > 0.0f && std::isfinite(aspectThreshold))) return bad("aspect_threshold", aspectThreshold);
-  if (maxDepth < 1 || maxDepth > 20) return bad("max_depth", maxDepth);
-  if (!(pixelFraction > 0.0f && pixelFraction <= 1.0f)) return bad("pixel_fraction", pixelFraction);
-  if (!(noiseZ >= 0.0f && noiseZ <= 10.0f)) return bad("noise_z", noiseZ);
-  if (!(probeFraction > 0.0f && probeFraction <= 1.0f)) return bad("probe_fraction", probeFraction);
-  return Status::Ok();
-}
-
-RefineOptions RefinementParams::ToRefineOptions() const {
+RefineOptions ToRefineOptions(const RefinementParams& params) {
   RefineOptions o;
-  o.aspectThreshold = aspectThreshold;
+  o.aspectThreshold = params.aspectThreshold;
   // Propagation may go one level past the selection limit to keep the mesh
   // conforming.
-  o.maxDepth = uint8_t(std::min(20, maxDepth + 1));
+  o.maxDepth = uint8_t(std::min<int>(int(RefinementParams::kMaxDepthLimit), params.maxDepth + 1));
   return o;
 }
 

@@ -37,7 +37,7 @@ RefinementStep RefinementDriver::RunStep(std::shared_ptr<Refiner> refiner, const
   }
   if (!chosen.empty()) {
     std::unique_lock lock(context.stateMutex);
-    const RefineOptions options = refiner->Params().ToRefineOptions();
+    const RefineOptions options = ToRefineOptions(refiner->Params());
     for (NodeId id : chosen) {
       if (context.stop && context.stop->load(std::memory_order_relaxed)) break;  // a step of 10^5 splits takes long
       if (!context.hierarchy.GetNode(id).IsLeaf()) continue;  // split meanwhile, by another client

@@ -13,6 +13,7 @@
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
 #include "penumbra/common/server_skeleton.h"
+#include "penumbra/common/wire_convert.h"
 #include "penumbra/sma/cache_snapshot.h"
 #include "penumbra/sma/client_requests.h"
 #include "penumbra/sma/delta.h"
@@ -35,10 +36,6 @@ using boost::system::error_code;
 
 double Ms(Clock::duration d) { return std::chrono::duration<double, std::milli>(d).count(); }
 
-void ToWire(const Vec3& v, wire::Vec3* out) {
-  out->set_x(v.x);
-  out->set_y(v.y);
-  out->set_z(v.z);
 }
 
 // Descend into a node's children once every vertex its split added is
@@ -167,7 +164,7 @@ class SmaServer::Impl {
   void WriteMetrics(metrics::ExpositionWriter& out);
   std::string NotReadyReason();
   DragoParams DragoForClients() const {
-    return DragoParams{options_.toneMapping.bias, options_.toneMapping.maxDisplayLuminance, options_.toneMapping.exposure};
+    return options_.toneMapping;
   }
 
   const Scene& scene_;
@@ -411,36 +408,7 @@ void SmaServer::Impl::Session::OnHello(const wire::Hello& hello) {
   connection_->Send(welcome);
 
   wire::Envelope infoEnvelope;
-  auto* info = infoEnvelope.mutable_scene_info();
-  info->set_name(scene.name);
-  ToWire(scene.bounds.min, info->mutable_bounds_min());
-  ToWire(scene.bounds.max, info->mutable_bounds_max());
-  for (const CameraPreset& c : scene.cameras) {
-    auto* p = info->add_cameras();
-    p->set_name(c.name);
-    ToWire(c.pose.eye, p->mutable_eye());
-    ToWire(c.pose.target, p->mutable_target());
-    ToWire(c.pose.up, p->mutable_up());
-    p->set_fov_y_deg(c.fovYDeg);
-  }
-  for (const Material& m : scene.materials) {
-    auto* mi = info->add_materials();
-    ToWire(m.albedo, mi->mutable_albedo());
-    ToWire(m.emission, mi->mutable_emission());
-    mi->set_texture(m.albedoTexture);
-  }
-  const auto& tm = server_.options_.toneMapping;
-  info->mutable_tone_mapping()->set_bias(tm.bias);
-  info->mutable_tone_mapping()->set_exposure(tm.exposure);
-  info->mutable_tone_mapping()->set_max_display_luminance(tm.maxDisplayLuminance);
-  info->set_texture_count(uint32_t(scene.textures.size()));
-  if (scene.sky) {
-    auto* sky = info->mutable_sky();
-    ToWire(scene.sky->up, sky->mutable_up());
-    ToWire(scene.sky->zenith, sky->mutable_zenith());
-    ToWire(scene.sky->horizon, sky->mutable_horizon());
-    ToWire(scene.sky->ground, sky->mutable_ground());
-  }
+  ToWire(MakeClientScene(scene, server_.options_.toneMapping), infoEnvelope.mutable_scene_info());
   connection_->Send(infoEnvelope);
   connection_->MarkHandshakeDone();
   log_->info("{}: client '{}' joined", connection_->Id(), Printable(hello.peer_name()));

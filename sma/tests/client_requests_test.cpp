@@ -47,28 +47,6 @@ TEST(ClientRequestsTest, ViewFromWireKeepsTheViewAndRefusesBadOrTooLargeOnes) {
   EXPECT_EQ(refused.error().message.rfind("view 3: ", 0), 0u) << refused.error().message;
 }
 
-TEST(ClientRequestsTest, SessionOptionsChangeOnlyWhatIsSetAndOutOfRangeIsRefused) {
-  RefinementParams current;
-  wire::SessionOptions o;
-  o.set_s_req(0.1f);
-  o.set_criterion("rnd");
-  auto applied = ApplySessionOptions(current, o);
-  ASSERT_TRUE(applied.ok()) << applied.error().message;
-  EXPECT_FLOAT_EQ(applied->sReq, 0.1f);
-  EXPECT_EQ(applied->criterion, Criterion::kRnd);
-  EXPECT_EQ(applied->batch, current.batch);
-
-  wire::SessionOptions deep;
-  deep.set_max_depth(21);
-  auto refused = ApplySessionOptions(current, deep);
-  ASSERT_FALSE(refused.ok());
-  EXPECT_EQ(refused.error().message, "session options: max_depth = 21 is out of range");
-
-  wire::SessionOptions unknown;
-  unknown.set_criterion("nld_xx");
-  EXPECT_FALSE(ApplySessionOptions(current, unknown).ok());
-}
-
 TEST(ClientRequestsTest, TexturesAreNamedInRangeAndDownscaledToTheBudget) {
   wire::TextureRequest request;
   request.set_texture(2);

@@ -77,7 +77,7 @@ struct Fixture {
   size_t Apply(const std::vector<NodeId>& chosen, const RefinementParams& p, bool uniform = false) {
     size_t created = 0;
     for (NodeId id : chosen)
-      if (hierarchy.GetNode(id).IsLeaf()) created += hierarchy.Refine(id, p.ToRefineOptions()).newVertices.size();
+      if (hierarchy.GetNode(id).IsLeaf()) created += hierarchy.Refine(id, ToRefineOptions(p)).newVertices.size();
     cache.Reserve(hierarchy.VertexCount());
     ShadeHardShadow(hierarchy, cache, uniform);
     Remap();
@@ -276,7 +276,7 @@ void RefineBump(Fixture& f, const RefinementParams& p) {
   Refiner r(p);
   for (int step = 0; step < 500 && !r.Exhausted(); ++step) {
     for (NodeId id : f.Select(r))
-      if (f.hierarchy.GetNode(id).IsLeaf()) f.hierarchy.Refine(id, p.ToRefineOptions());
+      if (f.hierarchy.GetNode(id).IsLeaf()) f.hierarchy.Refine(id, ToRefineOptions(p));
     f.cache.Reserve(f.hierarchy.VertexCount());
     ShadeBump(f.hierarchy, f.cache);
     f.Remap();

@@ -304,7 +304,7 @@ TEST(ViewSessionTest, ArrivingMidpointsAskForARemap) {
   ViewSession s(RefinementParams{}, 1000, false);
   f.ToShading(s);
   f.ToStage2(s);
-  const RefineResult split = f.hierarchy.Refine(0, RefinementParams{}.ToRefineOptions());
+  const RefineResult split = f.hierarchy.Refine(0, ToRefineOptions(RefinementParams{}));
   ASSERT_FALSE(split.newVertices.empty());
   f.cache.Reserve(f.hierarchy.VertexCount());
   f.Shade();

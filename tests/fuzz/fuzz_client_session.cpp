@@ -1,6 +1,6 @@
 // What a client does with the frames an SMA sends, in the order its session
 // (client/src/session.cpp) and model (client_model.cpp) handle them: a
-// Welcome (ValidateWelcome), a SceneInfo (ValidateSceneInfo, then the mesh
+// Welcome (ValidateWelcome), a SceneInfo (ClientSceneFromWire, then the mesh
 // store is reset with its materials and texture count), then deltas
 // (the session's view-id check, then MeshStore::Apply), texture data
 // (ClientModel's size checks) and stats replies. A refused message ends the
@@ -10,6 +10,7 @@
 #include "fuzz_support.h"
 #include "penumbra/client/client_model.h"
 #include "penumbra/client/session.h"
+#include "penumbra/common/wire_convert.h"
 
 namespace {
 
@@ -57,12 +58,15 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
       continue;
     }
     if (!ready) {
-      if (!envelope.has_scene_info() || !client::ValidateSceneInfo(envelope.scene_info())) {
+      auto scene = envelope.has_scene_info() ? ClientSceneFromWire(envelope.scene_info(), welcome->scene_hash())
+                                             : Expected<ClientScene>(Fail("no scene_info"));
+      if (!scene) {
         drop();
         continue;
       }
+      PENUMBRA_CHECK(scene->textureCount <= kMaxSceneTextures, "a texture count over the limit was accepted");
       ready = true;
-      model.Apply({client::Connected{connection, *welcome, std::move(*envelope.mutable_scene_info())}}, requests);
+      model.Apply({client::Connected{connection, std::move(*scene)}}, requests);
       continue;
     }
     std::vector<client::SessionEvent> events;

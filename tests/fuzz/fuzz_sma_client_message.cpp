@@ -1,13 +1,15 @@
 // What an SMA does with one frame from a client: decode the envelope, then
 // check a Hello (ValidateHello), turn a View into a camera view
 // (ViewFromWire: finite, in range, at most --max-view-pixels), apply
-// SessionOptions to the refinement parameters (ApplySessionOptions), answer
+// SessionOptions to the refinement parameters (ApplySessionOptions,
+// common/wire_convert.h), answer
 // a TextureRequest (CheckTextureRequest, then EncodeTextureData of a small
 // texture, with a budget the request's id picks so that the halving loop
 // runs), and read a StatsRequest. Input: one frame payload.
 
 #include "fuzz_support.h"
 #include "penumbra/common/scene.h"
+#include "penumbra/common/wire_convert.h"
 #include "penumbra/sma/client_requests.h"
 #include "penumbra/sma/texture_frames.h"
 
@@ -47,7 +49,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
       break;
     }
     case wire::Envelope::kSessionOptions: {
-      if (auto params = sma::ApplySessionOptions(sma::RefinementParams{}, envelope->session_options()))
+      if (auto params = ApplySessionOptions(RefinementParams{}, envelope->session_options()))
         PENUMBRA_CHECK(params->Validate().ok(), "invalid refinement parameters were accepted");
       break;
     }

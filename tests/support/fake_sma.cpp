@@ -2,7 +2,9 @@
 
 #include <fmt/format.h>
 
+#include "penumbra/common/check.h"
 #include "penumbra/common/messages.h"
+#include "penumbra/common/wire_convert.h"
 
 namespace penumbra::testing {
 
@@ -40,6 +42,12 @@ wire::SceneInfo UnitSquareSceneInfo() {
   info.mutable_tone_mapping()->set_exposure(1.0f);
   info.mutable_tone_mapping()->set_max_display_luminance(100.0f);
   return info;
+}
+
+ClientScene UnitSquareScene(uint64_t identity) {
+  auto scene = ClientSceneFromWire(UnitSquareSceneInfo(), identity);
+  PENUMBRA_CHECK(scene.ok(), "the unit square's SceneInfo is valid");
+  return std::move(*scene);
 }
 
 Status ServeClientHandshake(WireClient& client, const wire::SceneInfo& info, uint64_t sceneHash) {

@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cstdint>
 
+#include "penumbra/common/client_scene.h"
 #include "penumbra/common/expected.h"
 #include "penumbra/wire.pb.h"
 #include "support/wire_client.h"
@@ -16,6 +17,9 @@ namespace penumbra::testing {
 /// grey, material 1 textured (texture 0 of 1), one camera preset "front"
 /// looking at the square from +z, Drago defaults.
 wire::SceneInfo UnitSquareSceneInfo();
+/// The same, as the client receives it (ClientSceneFromWire) from an SMA
+/// whose scene has this identity.
+ClientScene UnitSquareScene(uint64_t identity = 1);
 
 /// Waits for the client's Hello (role CLIENT), answers Welcome (role SMA,
 /// `sceneHash`) and `info`.

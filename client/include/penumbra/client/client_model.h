@@ -1,6 +1,6 @@
 #pragma once
 // Everything the client knows about the scene, built from SessionEvents on
-// the render thread between frames: the SceneInfo, the held mesh
+// the render thread between frames: the scene (ClientScene), the held mesh
 // (MeshStore), the textures received, and the convergence state of the
 // latest view. A delta or texture that breaks the protocol empties the mesh
 // and makes the session drop that connection; the next connection starts
@@ -52,8 +52,8 @@ class ClientModel {
 
   /// True between a Connected event and the end (or abandonment) of that connection.
   bool Online() const { return online_; }
-  /// The latest SceneInfo; null before the first connection.
-  const wire::SceneInfo* SceneInfo() const { return sceneInfo_ ? &*sceneInfo_ : nullptr; }
+  /// The latest connection's scene; null before the first connection.
+  const ClientScene* Scene() const { return scene_ ? &*scene_ : nullptr; }
   /// Changes whenever a connection serves another scene identity (or the
   /// first time): materials may differ and received textures are dropped.
   uint64_t SceneGeneration() const { return sceneGeneration_; }
@@ -83,8 +83,7 @@ class ClientModel {
 
   std::shared_ptr<spdlog::logger> log_;
   MeshStore mesh_;
-  std::optional<wire::SceneInfo> sceneInfo_;
-  uint64_t sceneHash_ = 0;
+  std::optional<ClientScene> scene_;
   uint64_t sceneGeneration_ = 0;
   uint64_t connection_ = 0;
   bool online_ = false;

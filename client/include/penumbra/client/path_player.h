@@ -9,7 +9,6 @@
 
 #include "penumbra/common/camera.h"
 #include "penumbra/common/expected.h"
-#include "penumbra/wire.pb.h"
 
 namespace penumbra::client {
 
@@ -18,8 +17,8 @@ namespace penumbra::client {
 /// scene file (docs/scenes.md), e.g. "scenes/sponza.json#walk".
 Expected<CameraPath> LoadCameraPathSpec(std::string_view spec);
 
-/// A one-keyframe path holding a SceneInfo camera preset at width x height.
-CameraPath StillPath(const wire::CameraPreset& preset, int width, int height);
+/// A one-keyframe path holding a camera preset (ClientScene::cameras) at width x height.
+CameraPath StillPath(const CameraPreset& preset, int width, int height);
 
 /// Plays a path from its first keyframe, in seconds since the start.
 class PathPlayer {

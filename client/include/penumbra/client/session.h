@@ -22,8 +22,10 @@
 #include <vector>
 
 #include "penumbra/common/camera.h"
+#include "penumbra/common/client_scene.h"
 #include "penumbra/common/connection.h"
 #include "penumbra/common/endpoint.h"
+#include "penumbra/common/refinement_params.h"
 #include "penumbra/wire.pb.h"
 
 namespace penumbra::client {
@@ -34,8 +36,9 @@ namespace penumbra::client {
 /// held from earlier connections is stale.
 struct Connected {
   uint64_t connection = 0;
-  wire::Welcome welcome;
-  wire::SceneInfo sceneInfo;  // validated (ValidateSceneInfo)
+  /// The SceneInfo, validated (ClientSceneFromWire), with the Welcome's
+  /// scene hash as its identity.
+  ClientScene scene;
 };
 
 /// The numbered connection ended; a reconnection follows unless stopping.
@@ -66,11 +69,6 @@ struct SmaCountersReceived {
 };
 
 using SessionEvent = std::variant<Connected, Disconnected, DeltaReceived, TextureReceived, SmaCountersReceived>;
-
-/// Checks what the client relies on in a SceneInfo: finite bounds and
-/// presets, texture indices below texture_count, tone-mapping parameters in
-/// range (bias in (0, 1), positive exposure and display luminance).
-Status ValidateSceneInfo(const wire::SceneInfo& info);
 
 /// What the render thread's model asks of the network side. Calls name the
 /// connection they concern and are ignored once it has ended.
@@ -152,7 +150,7 @@ class SmaSession final : public SessionRequests {
   /// Refinement settings for this client's session on the SMA (founding
   /// paper §4). Sent at once when connected, and again after every
   /// reconnection, before the view.
-  void SetSessionOptions(const wire::SessionOptions& options);
+  void SetSessionOptions(const RefinementRequest& request);
 
   /// Every event since the last call, in arrival order. Never blocks.
   std::vector<SessionEvent> TakeEvents();

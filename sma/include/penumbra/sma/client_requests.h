@@ -9,7 +9,6 @@
 #include "penumbra/common/camera.h"
 #include "penumbra/common/expected.h"
 #include "penumbra/common/scene.h"
-#include "penumbra/sma/refinement.h"
 #include "penumbra/wire.pb.h"
 
 namespace penumbra::sma {
@@ -19,10 +18,9 @@ namespace penumbra::sma {
 /// Messages start with "view <id>: ". Any thread.
 Expected<CameraView> ViewFromWire(const wire::View& view, uint64_t maxViewPixels);
 
-/// `current` with the SessionOptions' fields that are set replaced, or why
-/// the options are refused (unknown criterion, a value out of range:
-/// RefinementParams::Validate). Any thread.
-Expected<RefinementParams> ApplySessionOptions(const RefinementParams& current, const wire::SessionOptions& options);
+// SessionOptions are converted and checked by ApplySessionOptions
+// (common/wire_convert.h), shared with the client; the limits this SMA sets
+// on top are CheckClientRefinement (client_limits.h).
 
 /// OK when the TextureRequest names one of the scene's `textureCount` textures.
 Status CheckTextureRequest(const wire::TextureRequest& request, size_t textureCount);

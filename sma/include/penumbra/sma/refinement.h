@@ -57,6 +57,7 @@
 #include <vector>
 
 #include "penumbra/common/expected.h"
+#include "penumbra/common/refinement_params.h"
 #include "penumbra/common/rng.h"
 #include "penumbra/common/tonemap.h"
 #include "penumbra/sma/hierarchy.h"
@@ -65,30 +66,15 @@
 
 namespace penumbra::sma {
 
-enum class Criterion : uint8_t { kNone, kNldOs, kNldIs, kRnd, kNldOsRnd };
+// The criteria's names and the parameters are shared with clients
+// (common/refinement_params.h); the hierarchy's options follow from them.
+using penumbra::Criterion;
+using penumbra::CriterionName;
+using penumbra::ParseCriterion;
+using penumbra::RefinementParams;
 
-Expected<Criterion> ParseCriterion(std::string_view name);
-std::string_view CriterionName(Criterion c);
-
-struct RefinementParams {
-  Criterion criterion = Criterion::kNldOs;
-  float sReq = 0.04f;             // S above which a leaf (or quadrant) is split
-  uint32_t batch = 64;            // R: leaves chosen per step
-  float minPixels = 6.0f;         // leaves covering fewer pixels are never split
-  float largeFraction = 1.0f / 32.0f;  // NLD_OS: leaves covering more of the image are always split
-  float aspectThreshold = 1.2f;   // propagation: slim neighbours split 1 -> 2 (RefineOptions)
-  uint8_t maxDepth = 12;          // leaves this deep are not split
-  float pixelFraction = 0.1f;     // NLD_IS, RND: budget as a fraction of the image's pixels
-  float noiseZ = 2.0f;            // differences within this many standard errors are noise; 0: the paper's S
-  float probeFraction = 1.0f / 1024.0f;  // NLD_OS: interior probes of leaves covering more of the image; 1: none
-  uint64_t seed = 1;              // RND's random stream
-
-  /// Checks ranges: sReq in [0, 1], batch in [1, 1e6], minPixels >= 0,
-  /// largeFraction in (0, 1], aspectThreshold > 0, maxDepth in [1, 20],
-  /// pixelFraction in (0, 1], noiseZ in [0, 10], probeFraction in (0, 1].
-  Status Validate() const;
-  RefineOptions ToRefineOptions() const;
-};
+/// The propagation options of Hierarchy::Refine that `params` imply.
+RefineOptions ToRefineOptions(const RefinementParams& params);
 
 /// The metric S (eq. 1) over tone-mapped luminances `l`, normalised by `lMax`.
 float NormalizedLuminanceDifference(std::span<const float> l, float lMax);

@@ -40,12 +40,6 @@
 
 namespace penumbra::sma {
 
-struct ToneMappingDefaults {
-  float bias = 0.85f;                 // Drago et al. 2003
-  float exposure = 1.0f;
-  float maxDisplayLuminance = 100.0f;
-};
-
 struct SmaOptions {
   HostPort listen{"127.0.0.1", 7200};
   std::string name = "penumbra-sma";
@@ -70,7 +64,7 @@ struct SmaOptions {
   size_t maxConnections = 256;
   std::chrono::milliseconds refreshInterval{100}; // min time between re-mapping a view after new samples
   std::chrono::milliseconds statsInterval{10000};
-  ToneMappingDefaults toneMapping;
+  DragoParams toneMapping;  // what clients are told to apply (SceneInfo), and the criteria's luminance
   /// Improvement (SampleCache::Improve): once a view is shaded, its visible
   /// samples whose irradiance has a relative standard error above
   /// `improveTargetError` get further rounds of `pool.improvePaths` paths,
