@@ -54,6 +54,7 @@ struct Options {
   int threads = int(std::max(1u, std::thread::hardware_concurrency()));
   int cachedRounds = 40;
   double walkFps = 30.0;
+  bool stage1Only = false;
 };
 
 // Milliseconds from sending `viewId` until the first delta for it, until
@@ -67,7 +68,8 @@ struct ViewTiming {
   uint64_t bytes = 0;
 };
 
-Expected<ViewTiming> TimeView(SmaTestClient& client, const CameraView& view, uint64_t viewId) {
+Expected<ViewTiming> TimeView(SmaTestClient& client, const CameraView& view, uint64_t viewId,
+                              bool untilStage1 = false) {
   ViewTiming t;
   const uint64_t bytesBefore = client.Wire().BytesReceived();
   const auto start = Clock::now();
@@ -79,7 +81,7 @@ Expected<ViewTiming> TimeView(SmaTestClient& client, const CameraView& view, uin
     if (!e->has_delta() || e->delta().view_id() != viewId) continue;
     if (t.firstDeltaMs < 0) t.firstDeltaMs = Ms(Clock::now() - start);
     if (t.stage1Ms < 0 && (e->delta().refining() || e->delta().converged())) t.stage1Ms = Ms(Clock::now() - start);
-    if (e->delta().converged()) break;
+    if (e->delta().converged() || (untilStage1 && t.stage1Ms >= 0)) break;
   }
   t.completeMs = Ms(Clock::now() - start);
   t.bytes = client.Wire().BytesReceived() - bytesBefore;
@@ -164,8 +166,19 @@ int Run(const Options& o) {
   uint64_t viewId = 1;
 
   // Stage 1 of a new view.
-  auto stage1 = TimeView(*client, atrium, viewId++);
+  auto stage1 = TimeView(*client, atrium, viewId++, o.stage1Only);
   if (!stage1) return std::fprintf(stderr, "sma_bench: %s\n", stage1.error().message.c_str()), 1;
+  if (o.stage1Only) {
+    // First complete display of a new view: every visible triangle shaded.
+    const double stage1Samples =
+        client->Counter("samples_requested").value() - client->Counter("client_refinement_samples").value();
+    std::printf("new view (%s, '%s', %dx%d): view->first delta %.1f ms (trace %.1f + map %.1f ms); stage 1 "
+                "(complete display) %.1f ms, %.0f samples, %.0f triangles\n",
+                scene->name.c_str(), o.camera.c_str(), o.width, o.height, stage1->firstDeltaMs,
+                client->Counter("client_last_trace_ms").value(), client->Counter("client_last_map_ms").value(),
+                stage1->stage1Ms, stage1Samples, double(client->Mesh().Triangles().size()));
+    return 0;
+  }
   // Stage-1 samples: all asked for, less what refinement asked for after.
   const double samples =
       client->Counter("samples_requested").value() - client->Counter("client_refinement_samples").value();
@@ -281,6 +294,7 @@ int main(int argc, char** argv) {
   app.add_option("--threads", o.threads, "Renderer threads")->capture_default_str();
   app.add_option("--cached-rounds", o.cachedRounds, "Cached views timed")->capture_default_str();
   app.add_option("--walk-fps", o.walkFps, "Views per second on the walk")->capture_default_str();
+  app.add_flag("--stage1-only", o.stage1Only, "Time a new view's first complete display (stage 1) only, then stop");
   CLI11_PARSE(app, argc, argv);
   return penumbra::Run(o);
 }
