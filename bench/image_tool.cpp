@@ -19,6 +19,8 @@
 
 #include <cmath>
 #include <cstdio>
+#include <iostream>
+#include <sstream>
 #include <algorithm>
 #include <string>
 #include <vector>
@@ -62,6 +64,25 @@ int Compare(const std::string& referencePath, const std::string& imagePath, int 
     return 1;
   }
   std::printf("{\"rel_mae\": %.6f, \"ssim\": %.6f, \"mean_ratio\": %.6f}\n", *mae, *ssim, *ratio);
+  return 0;
+}
+
+// compare-list: one "REFERENCE IMAGE BLUR" per line of stdin, one JSON line
+// (Compare's, or {"error": ...}) per line on stdout, in order: a
+// walkthrough judges thousands of frames, and a process each is slow.
+int CompareList() {
+  std::string line;
+  while (std::getline(std::cin, line)) {
+    std::istringstream words(line);
+    std::string reference, image;
+    int blur = 0;
+    if (!(words >> reference >> image >> blur) || blur < 0 || blur > 64) {
+      std::printf("{\"error\": \"expected REFERENCE IMAGE BLUR (0..64)\"}\n");
+      continue;
+    }
+    if (Compare(reference, image, blur) != 0) std::printf("{\"error\": \"see stderr\"}\n");
+    std::fflush(stdout);
+  }
   return 0;
 }
 
@@ -159,6 +180,8 @@ int main(int argc, char** argv) {
   int blur = 0;
   compare->add_option("--blur", blur, "Box-blur both by this radius first (2: a 5x5 window)")
       ->check(CLI::Range(0, 64))->capture_default_str();
+  auto* compareList = app.add_subcommand(
+      "compare-list", "compare for each line 'REFERENCE IMAGE BLUR' of stdin; one JSON line each on stdout");
   auto* tonemap = app.add_subcommand("tonemap", "Drago-map a linear image to PNG");
   tonemap->add_option("in", a, "Linear image")->required();
   tonemap->add_option("out", b, "Output PNG")->required();
@@ -169,6 +192,7 @@ int main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
   penumbra::SetupLogging("warn");
   if (*compare) return penumbra::Compare(a, b, blur);
+  if (*compareList) return penumbra::CompareList();
   if (*cornell) return penumbra::CheckCornellBox(a);
   return penumbra::ToneMap(a, b, like, exposure);
 }

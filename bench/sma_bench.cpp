@@ -21,7 +21,13 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <sstream>
+#include <string>
 #include <thread>
+
+#include <unistd.h>
 
 #include <CLI/CLI.hpp>
 
@@ -54,6 +60,8 @@ struct Options {
   int threads = int(std::max(1u, std::thread::hardware_concurrency()));
   int cachedRounds = 40;
   double walkFps = 30.0;
+  bool stage1Only = false;
+  int firstPaths = 0;  // the SMA's --first-paths; 0: its default
 };
 
 // Milliseconds from sending `viewId` until the first delta for it, until
@@ -67,7 +75,8 @@ struct ViewTiming {
   uint64_t bytes = 0;
 };
 
-Expected<ViewTiming> TimeView(SmaTestClient& client, const CameraView& view, uint64_t viewId) {
+Expected<ViewTiming> TimeView(SmaTestClient& client, const CameraView& view, uint64_t viewId,
+                              bool untilStage1 = false) {
   ViewTiming t;
   const uint64_t bytesBefore = client.Wire().BytesReceived();
   const auto start = Clock::now();
@@ -79,7 +88,7 @@ Expected<ViewTiming> TimeView(SmaTestClient& client, const CameraView& view, uin
     if (!e->has_delta() || e->delta().view_id() != viewId) continue;
     if (t.firstDeltaMs < 0) t.firstDeltaMs = Ms(Clock::now() - start);
     if (t.stage1Ms < 0 && (e->delta().refining() || e->delta().converged())) t.stage1Ms = Ms(Clock::now() - start);
-    if (e->delta().converged()) break;
+    if (e->delta().converged() || (untilStage1 && t.stage1Ms >= 0)) break;
   }
   t.completeMs = Ms(Clock::now() - start);
   t.bytes = client.Wire().BytesReceived() - bytesBefore;
@@ -123,6 +132,22 @@ Expected<double> DirectRendererRate(uint16_t port, const Scene& scene, size_t co
   return double(count) / std::chrono::duration<double>(Clock::now() - start).count();
 }
 
+// User + system CPU seconds process `pid` has used (/proc/PID/stat); 0 when unreadable.
+double CpuSeconds(pid_t pid) {
+  std::ifstream in("/proc/" + std::to_string(pid) + "/stat");
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const size_t paren = text.rfind(')');
+  if (paren == std::string::npos) return 0.0;
+  std::istringstream fields(text.substr(paren + 2));
+  std::string field;
+  double utime = 0.0, stime = 0.0;
+  for (int i = 3; i <= 15 && fields >> field; ++i) {  // fields 14 and 15: utime, stime
+    if (i == 14) utime = std::stod(field);
+    if (i == 15) stime = std::stod(field);
+  }
+  return (utime + stime) / double(sysconf(_SC_CLK_TCK));
+}
+
 int Run(const Options& o) {
   SetupLogging("warn");
   if (!fs::exists(o.scene)) {
@@ -144,9 +169,9 @@ int Run(const Options& o) {
                                 std::to_string(o.spp), "--max-bounces", std::to_string(o.maxBounces), "--log-level", "warn"},
                                "bench-renderer", std::chrono::seconds(120));
   if (!renderer) return std::fprintf(stderr, "sma_bench: %s\n", renderer.error().message.c_str()), 1;
-  auto sma = StartService(PENUMBRA_SMA_EXE,
-                          {"--scene", o.scene.string(), "--renderer", renderer->Address(), "--log-level", "warn"},
-                          "bench-sma", std::chrono::seconds(120));
+  std::vector<std::string> smaArgs = {"--scene", o.scene.string(), "--renderer", renderer->Address(), "--log-level", "warn"};
+  if (o.firstPaths > 0) smaArgs.insert(smaArgs.end(), {"--first-paths", std::to_string(o.firstPaths)});
+  auto sma = StartService(PENUMBRA_SMA_EXE, smaArgs, "bench-sma", std::chrono::seconds(120));
   if (!sma) return std::fprintf(stderr, "sma_bench: %s\n", sma.error().message.c_str()), 1;
   auto client = SmaTestClient::Connect(sma->port, "sma_bench");
   if (!client) return std::fprintf(stderr, "sma_bench: %s\n", client.error().message.c_str()), 1;
@@ -164,8 +189,30 @@ int Run(const Options& o) {
   uint64_t viewId = 1;
 
   // Stage 1 of a new view.
-  auto stage1 = TimeView(*client, atrium, viewId++);
+  const double rendererCpuBefore = CpuSeconds(renderer->process.Pid());
+  const double smaCpuBefore = CpuSeconds(sma->process.Pid());
+  auto stage1 = TimeView(*client, atrium, viewId++, o.stage1Only);
   if (!stage1) return std::fprintf(stderr, "sma_bench: %s\n", stage1.error().message.c_str()), 1;
+  if (o.stage1Only) {
+    // First complete display of a new view: every visible triangle shaded.
+    const double stage1Samples =
+        client->Counter("samples_requested").value() - client->Counter("client_refinement_samples").value();
+    const double traceMs = client->Counter("client_last_trace_ms").value();
+    const double mapMs = client->Counter("client_last_map_ms").value();
+    // CPU seconds the renderer and the SMA spent on it: on a loaded machine
+    // the wall time stretches, the work does not; work / 2 cores bounds the
+    // wall time of an idle 2-core machine from below.
+    const double rendererCpuS = CpuSeconds(renderer->process.Pid()) - rendererCpuBefore;
+    const double smaCpuS = CpuSeconds(sma->process.Pid()) - smaCpuBefore;
+    const double cpuS = rendererCpuS + smaCpuS;
+    std::printf("new view (%s, '%s', %dx%d): view->first delta %.1f ms (trace %.1f + map %.1f ms); stage 1 "
+                "(complete display) %.1f ms, %.0f samples, %.0f triangles; CPU: renderer %.2f s + SMA %.2f s "
+                "(/ %d cores: %.0f ms)\n",
+                scene->name.c_str(), o.camera.c_str(), o.width, o.height, stage1->firstDeltaMs, traceMs, mapMs,
+                stage1->stage1Ms, stage1Samples, double(client->Mesh().Triangles().size()), rendererCpuS, smaCpuS, o.threads,
+                cpuS / o.threads * 1000.0);
+    return 0;
+  }
   // Stage-1 samples: all asked for, less what refinement asked for after.
   const double samples =
       client->Counter("samples_requested").value() - client->Counter("client_refinement_samples").value();
@@ -281,6 +328,9 @@ int main(int argc, char** argv) {
   app.add_option("--threads", o.threads, "Renderer threads")->capture_default_str();
   app.add_option("--cached-rounds", o.cachedRounds, "Cached views timed")->capture_default_str();
   app.add_option("--walk-fps", o.walkFps, "Views per second on the walk")->capture_default_str();
+  app.add_option("--first-paths", o.firstPaths, "The SMA's --first-paths (stage-1 paths per sample; 0: its default)")
+      ->check(CLI::Range(0, 1 << 20));
+  app.add_flag("--stage1-only", o.stage1Only, "Time a new view's first complete display (stage 1) only, then stop");
   CLI11_PARSE(app, argc, argv);
   return penumbra::Run(o);
 }
