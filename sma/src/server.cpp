@@ -36,8 +36,6 @@ using boost::system::error_code;
 
 double Ms(Clock::duration d) { return std::chrono::duration<double, std::milli>(d).count(); }
 
-}
-
 // Descend into a node's children once every vertex its split added is
 // shaded: a parent is replaced by its children only when they can be drawn.
 bool ChildrenShaded(const Node& node, const void* context) {
