@@ -243,6 +243,7 @@ Expected<CountResult> RunCount(const Options& o, const CameraPath& path, int n) 
   StatsProber prober(std::move(*idle), o.statsInterval, errors);
 
   std::vector<Client> clients;
+  clients.reserve(size_t(n));  // references to clients[0] (the probe) stay valid as the others connect
   auto connect = [&](int c) -> Status {
     auto conn = SmaTestClient::Connect(port, "client-" + std::to_string(c));
     if (!conn) return conn.error();
