@@ -32,7 +32,7 @@
 // its view direction turned about the vertical by c * 137.5 + k * 20 degrees.
 // Client 0's pose 0 is the path's first frame.
 //
-//   sma_clients_bench [--clients 1,8,32] [--width 320 --height 240] [--poses 2] [--results out.tsv]
+//   sma_clients_bench [--clients 1,8,32] [--width 320 --height 240] [--poses 3] [--results out.tsv]
 //                     [--sma-exe PATH --renderer-exe PATH]   (time another build's servers)
 
 #include <algorithm>
@@ -71,10 +71,10 @@ struct Options {
   int spp = 16;
   int maxBounces = 4;
   int threads = int(std::max(1u, std::thread::hardware_concurrency()));
-  int poses = 2;
+  int poses = 3;
   double poseStep = 0.7;        // seconds along the path between a client's poses
   double period = 1.0;          // seconds between a client's views in phase E (and D's stagger)
-  double probePeriod = 0.25;    // seconds between the probe's views in C and D
+  double probePeriod = 0.1;     // seconds between the probe's views in C and D
   int probeViews = 32;          // the probe's views alone (C)
   int cachedViews = 96;         // views in E over all clients (at least --min-rounds each)
   int minRounds = 6;            // views per client in E at least
