@@ -50,6 +50,7 @@
 #include <CLI/CLI.hpp>
 
 #include "order_statistics.h"
+#include "sma_stack.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/scene.h"
 #include "support/service.h"
@@ -117,14 +118,6 @@ Expected<std::pair<double, double>> SocketBytes(const std::vector<uint16_t>& por
     }
   }
   return std::make_pair(received, sent);
-}
-
-// The 1-minute load average: how busy the machine was besides this run.
-std::string LoadAverage() {
-  std::ifstream in("/proc/loadavg");
-  std::string oneMinute;
-  in >> oneMinute;
-  return oneMinute.empty() ? "?" : oneMinute;
 }
 
 // Cores that `k` busy threads get on this machine now: their CPU time over
@@ -223,6 +216,7 @@ Expected<Round> RunRound(const Options& o, const CameraView& view, int renderers
   return round;
 }
 
+using bench::LoadAverage;
 using bench::Median;
 
 int Run(Options o) {

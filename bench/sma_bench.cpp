@@ -35,19 +35,14 @@
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
 #include "penumbra/common/scene.h"
-#include "support/service.h"
-#include "support/sma_client.h"
+#include "sma_stack.h"
 
 namespace penumbra {
 namespace {
 
 namespace fs = std::filesystem;
 using namespace penumbra::testing;
-using Clock = std::chrono::steady_clock;
-
-double Ms(Clock::duration d) { return std::chrono::duration<double, std::milli>(d).count(); }
-
-using bench::Percentile;
+using namespace penumbra::bench;
 
 struct Options {
   fs::path scene = fs::path(PENUMBRA_SOURCE_DIR) / "scenes" / "sponza.json";
@@ -63,37 +58,6 @@ struct Options {
   bool stage1Only = false;
   int firstPaths = 0;  // the SMA's --first-paths; 0: its default
 };
-
-// Milliseconds from sending `viewId` until the first delta for it, until
-// stage 1 ends (every initially visible triangle shaded: the first delta
-// saying the view is refining or converged) and until it is converged;
-// applies every delta on the way.
-struct ViewTiming {
-  double firstDeltaMs = -1.0;
-  double stage1Ms = -1.0;
-  double completeMs = -1.0;
-  uint64_t bytes = 0;
-};
-
-Expected<ViewTiming> TimeView(SmaTestClient& client, const CameraView& view, uint64_t viewId,
-                              bool untilStage1 = false) {
-  ViewTiming t;
-  const uint64_t bytesBefore = client.Wire().BytesReceived();
-  const auto start = Clock::now();
-  if (!client.SendView(view, viewId)) return Fail("send failed");
-  while (true) {
-    auto e = client.Wire().Receive(std::chrono::seconds(600));
-    if (!e) return e.error();
-    if (auto ok = client.Apply(*e); !ok) return ok.error();
-    if (!e->has_delta() || e->delta().view_id() != viewId) continue;
-    if (t.firstDeltaMs < 0) t.firstDeltaMs = Ms(Clock::now() - start);
-    if (t.stage1Ms < 0 && (e->delta().refining() || e->delta().converged())) t.stage1Ms = Ms(Clock::now() - start);
-    if (e->delta().converged() || (untilStage1 && t.stage1Ms >= 0)) break;
-  }
-  t.completeMs = Ms(Clock::now() - start);
-  t.bytes = client.Wire().BytesReceived() - bytesBefore;
-  return t;
-}
 
 // The renderer's own throughput on `count` of the scene's vertices, asked
 // directly over the wire in batches like the SMA's.
@@ -164,22 +128,12 @@ int Run(const Options& o) {
     std::fprintf(stderr, "sma_bench: no camera '%s'\n", o.camera.c_str());
     return 1;
   }
-  auto renderer = StartService(PENUMBRA_RENDERER_EXE,
-                               {"--scene", o.scene.string(), "--threads", std::to_string(o.threads), "--spp",
-                                std::to_string(o.spp), "--max-bounces", std::to_string(o.maxBounces), "--log-level", "warn"},
-                               "bench-renderer", std::chrono::seconds(120));
-  if (!renderer) return std::fprintf(stderr, "sma_bench: %s\n", renderer.error().message.c_str()), 1;
-  std::vector<std::string> smaArgs = {"--scene", o.scene.string(), "--renderer", renderer->Address(), "--log-level", "warn"};
-  if (o.firstPaths > 0) smaArgs.insert(smaArgs.end(), {"--first-paths", std::to_string(o.firstPaths)});
-  auto sma = StartService(PENUMBRA_SMA_EXE, smaArgs, "bench-sma", std::chrono::seconds(120));
-  if (!sma) return std::fprintf(stderr, "sma_bench: %s\n", sma.error().message.c_str()), 1;
-  auto client = SmaTestClient::Connect(sma->port, "sma_bench");
+  std::vector<std::string> smaArgs;
+  if (o.firstPaths > 0) smaArgs = {"--first-paths", std::to_string(o.firstPaths)};
+  auto stack = StartSmaStack({o.scene, PENUMBRA_RENDERER_EXE, PENUMBRA_SMA_EXE, o.threads, o.spp, o.maxBounces, smaArgs});
+  if (!stack) return std::fprintf(stderr, "sma_bench: %s\n", stack.error().message.c_str()), 1;
+  auto client = SmaTestClient::Connect(stack->sma.port, "sma_bench");
   if (!client) return std::fprintf(stderr, "sma_bench: %s\n", client.error().message.c_str()), 1;
-  for (int i = 0; i < 600; ++i) {  // wait for the renderer link
-    auto n = client->Counter("renderers_connected");
-    if (n && *n >= 1.0) break;
-    std::this_thread::sleep_for(std::chrono::milliseconds(50));
-  }
 
   CameraView atrium;
   atrium.pose = preset->pose;
@@ -189,9 +143,9 @@ int Run(const Options& o) {
   uint64_t viewId = 1;
 
   // Stage 1 of a new view.
-  const double rendererCpuBefore = CpuSeconds(renderer->process.Pid());
-  const double smaCpuBefore = CpuSeconds(sma->process.Pid());
-  auto stage1 = TimeView(*client, atrium, viewId++, o.stage1Only);
+  const double rendererCpuBefore = CpuSeconds(stack->renderer.process.Pid());
+  const double smaCpuBefore = CpuSeconds(stack->sma.process.Pid());
+  auto stage1 = TimeView(*client, atrium, viewId++, std::chrono::minutes(10), o.stage1Only);
   if (!stage1) return std::fprintf(stderr, "sma_bench: %s\n", stage1.error().message.c_str()), 1;
   if (o.stage1Only) {
     // First complete display of a new view: every visible triangle shaded.
@@ -202,8 +156,8 @@ int Run(const Options& o) {
     // CPU seconds the renderer and the SMA spent on it: on a loaded machine
     // the wall time stretches, the work does not; work / 2 cores bounds the
     // wall time of an idle 2-core machine from below.
-    const double rendererCpuS = CpuSeconds(renderer->process.Pid()) - rendererCpuBefore;
-    const double smaCpuS = CpuSeconds(sma->process.Pid()) - smaCpuBefore;
+    const double rendererCpuS = CpuSeconds(stack->renderer.process.Pid()) - rendererCpuBefore;
+    const double smaCpuS = CpuSeconds(stack->sma.process.Pid()) - smaCpuBefore;
     const double cpuS = rendererCpuS + smaCpuS;
     std::printf("new view (%s, '%s', %dx%d): view->first delta %.1f ms (trace %.1f + map %.1f ms); stage 1 "
                 "(complete display) %.1f ms, %.0f samples, %.0f triangles; CPU: renderer %.2f s + SMA %.2f s "
@@ -225,7 +179,7 @@ int Run(const Options& o) {
   const double stage1Rate = samples / (stage1->stage1Ms / 1000.0);
 
   // Baselines: the renderer alone on as many samples; a bare round trip.
-  auto direct = DirectRendererRate(renderer->port, *scene, size_t(samples), 1ull << 40);
+  auto direct = DirectRendererRate(stack->renderer.port, *scene, size_t(samples), 1ull << 40);
   if (!direct) return std::fprintf(stderr, "sma_bench: %s\n", direct.error().message.c_str()), 1;
   std::vector<double> rtt;
   for (int i = 0; i < 20; ++i) {
@@ -256,7 +210,7 @@ int Run(const Options& o) {
   std::vector<double> walkBytes;
   const CameraPath* path = scene->FindPath(o.path);
   if (path) {
-    auto walker = SmaTestClient::Connect(sma->port, "sma_bench-walk");
+    auto walker = SmaTestClient::Connect(stack->sma.port, "sma_bench-walk");
     if (!walker) return 1;
     const double duration = path->DurationSeconds();
     const int frames = std::max(2, int(duration * o.walkFps));
