@@ -81,8 +81,9 @@ class SmaServer::Impl {
     options_.pool.sceneHash = scene.identity;
     options_.pool.name = options_.name;
     options_.pool.radianceBounds = RadianceBounds::ForScene(scene);
-    pool_ = RendererPool::Create(io_, options_.pool,
-                                 [this](std::vector<ShadedSample>&& samples) { OnResults(std::move(samples)); });
+    pool_ = RendererPool::Create(
+        io_, options_.pool, [this](std::vector<ShadedSample>&& samples) { OnResults(std::move(samples)); },
+        [this](VertexId v) { return cache_.IsShaded(v); });
     if (restored) {
       std::vector<SampleRequest> requests;
       for (VertexId v : UnshadedMidpoints(hierarchy_, cache_)) requests.push_back(MakeSampleRequest(hierarchy_, v));
