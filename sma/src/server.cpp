@@ -143,12 +143,12 @@ class SmaServer::Impl {
       improvements.push_back(*it);
       it = samples.erase(it);
     }
+    // No state lock: the cache is safe to write while views read it
+    // (sample_cache.h), so this I/O thread never waits on a view's mapping.
+    // Stored before Complete: a vertex is always in the cache or in the pool.
     std::vector<VertexId> changed;
-    {
-      std::unique_lock lock(stateMutex_);
-      if (!samples.empty()) cache_.Store(samples);
-      if (!improvements.empty()) changed = cache_.Improve(improvements);
-    }
+    if (!samples.empty()) cache_.Store(samples);
+    if (!improvements.empty()) changed = cache_.Improve(improvements);
     pool_->Complete(samples);
     pool_->Complete(improvements);
     samplesImproved_ += changed.size();
