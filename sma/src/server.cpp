@@ -707,9 +707,17 @@ void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
   pending_.clear();
   waiting_.clear();
   for (NodeId id : plan.pending) {
-    pending_.insert(id);
-    for (VertexId v : server.hierarchy_.GetNode(id).v)
-      if (!server.cache_.IsShaded(v)) waiting_[v].push_back(id);
+    bool waits = false;
+    for (VertexId v : server.hierarchy_.GetNode(id).v) {
+      if (server.cache_.IsShaded(v)) continue;
+      waiting_[v].push_back(id);
+      waits = true;
+    }
+    // Samples are stored without the state lock: its corners may have
+    // arrived since PlanView, their notice already queued behind us and
+    // looking for waiters it will not find. Sent now instead.
+    if (waits) pending_.insert(id);
+    else plan.addCached.push_back(id);
   }
   if (newView) stage1Done_ = 0;
   stage1Total_ = stage1Done_ + waiting_.size();
