@@ -133,13 +133,15 @@ CacheSnapshotData CaptureCacheSnapshot(std::shared_mutex& stateMutex, const Hier
     std::shared_lock lock(stateMutex);
     const VertexId stop = VertexId(std::min<size_t>(data.vertexCount, size_t(v) + chunk));
     for (; v < stop; ++v) {
-      if (!cache.IsShaded(v)) continue;
+      // One consistent copy: samples are improved while the snapshot reads.
+      const auto sample = cache.Read(v);
+      if (!sample) continue;
       data.samples.push_back(ShadedSample{.vertex = v,
-                                          .radiance = cache.Radiance(v),
-                                          .irradiance = cache.Irradiance(v),
-                                          .irradianceStdErr = cache.IrradianceStdErr(v),
-                                          .paths = cache.Paths(v),
-                                          .round = cache.Rounds(v)});
+                                          .radiance = sample->radiance,
+                                          .irradiance = sample->irradiance,
+                                          .irradianceStdErr = sample->irradianceStdErr,
+                                          .paths = sample->paths,
+                                          .round = sample->rounds});
     }
   }
   return data;

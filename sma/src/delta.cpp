@@ -38,8 +38,9 @@ size_t ClientMirror::AppendChanges(std::span<const NodeId> removals, std::span<c
       if (vertexRefs_[v]++ > 0) continue;
       delta.add_vertex_ids(v);
       AddVec3(delta.mutable_vertex_positions(), hierarchy.GetVertex(v).position);
-      AddVec3(delta.mutable_vertex_radiance(), cache.Radiance(v));
-      AddVec3(delta.mutable_vertex_irradiance(), cache.Irradiance(v));
+      const CachedSample sample = cache.Read(v).value_or(CachedSample{});  // one version of both
+      AddVec3(delta.mutable_vertex_radiance(), sample.radiance);
+      AddVec3(delta.mutable_vertex_irradiance(), sample.irradiance);
     }
     delta.add_triangle_ids(id);
     for (VertexId v : node.v) delta.add_triangle_vertices(v);
@@ -62,8 +63,9 @@ size_t ClientMirror::AppendUpdates(std::span<const VertexId> vertices, const Sam
   for (VertexId v : vertices) {
     if (!HoldsVertex(v)) continue;
     delta.add_updated_vertex_ids(v);
-    AddVec3(delta.mutable_updated_vertex_radiance(), cache.Radiance(v));
-    AddVec3(delta.mutable_updated_vertex_irradiance(), cache.Irradiance(v));
+    const CachedSample sample = cache.Read(v).value_or(CachedSample{});
+    AddVec3(delta.mutable_updated_vertex_radiance(), sample.radiance);
+    AddVec3(delta.mutable_updated_vertex_irradiance(), sample.irradiance);
     ++n;
   }
   return n;

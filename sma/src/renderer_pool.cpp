@@ -1,87 +1,51 @@
 #include "penumbra/sma/renderer_pool.h"
 
 #include <algorithm>
-#include <cmath>
 #include <map>
-#include <set>
 
 #include <fmt/format.h>
 
-#include "penumbra/common/check.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
+#include "renderer_link.h"
 
 namespace penumbra::sma {
 
 namespace {
-using Clock = std::chrono::steady_clock;
 using boost::system::error_code;
 
-std::string EndpointLabel(const tcp::endpoint& e) {
-  return e.address().is_v6() ? fmt::format("[{}]:{}", e.address().to_string(), e.port())
-                             : fmt::format("{}:{}", e.address().to_string(), e.port());
+SampleSchedulerOptions SchedulerOptionsOf(const RendererPoolOptions& o) {
+  SampleSchedulerOptions s;
+  s.pathsPerSample = o.pathsPerSample;
+  s.firstPaths = o.firstPaths;
+  s.improvePaths = o.improvePaths;
+  s.creditsPerRenderer = o.creditsPerRenderer;
+  s.minBatchSamples = o.minBatchSamples;
+  s.maxBatchSamples = o.maxBatchSamples;
+  s.targetBatchTime = o.targetBatchTime;
+  s.batchTimeout = o.batchTimeout;
+  s.quarantine = o.quarantine;
+  s.radianceBounds = o.radianceBounds;
+  return s;
 }
 }  // namespace
-
-SampleRequest MakeSampleRequest(const Hierarchy& hierarchy, VertexId v) {
-  const SampleVertex& sv = hierarchy.GetVertex(v);
-  return SampleRequest{v, sv.position, sv.normal, sv.baseTriangle, sv.bary};
-}
-
-struct RendererPool::Batch {
-  uint64_t id = 0;
-  std::vector<VertexId> vertices;
-  size_t answered = 0;
-  uint32_t paths = 0;  // paths per sample asked for (the renderer's default when the request said 0)
-  Clock::time_point sentAt;
-};
-
-namespace {
-// Wire sample ids: the vertex in the low 32 bits, the improvement round above.
-uint64_t WireSampleId(VertexId v, uint16_t round) { return uint64_t(v) | (uint64_t(round) << 32); }
-}  // namespace
-
-struct RendererPool::Link {
-  Link(asio::io_context& io, tcp::endpoint e, std::string host)
-      : endpoint(std::move(e)), host(std::move(host)), label(EndpointLabel(endpoint)), timer(io) {}
-
-  enum class State { kWaiting, kConnecting, kHandshaking, kReady, kRemoved };
-
-  tcp::endpoint endpoint;
-  std::string host;  // the configured name it came from: TLS checks the certificate against it
-  std::string label;
-  uint32_t index = 0;  // RendererStatus::index
-  std::shared_ptr<net::Connection> connection;
-  State state = State::kWaiting;
-  std::chrono::milliseconds backoff{0};
-  asio::steady_timer timer;
-  std::string peerName;
-  uint32_t credits = 0;   // batches in flight allowed
-  uint32_t maxBatch = 0;  // samples per batch allowed
-  uint32_t defaultPaths = 0;  // its --spp, from its Welcome
-  bool draining = false;  // the renderer is shutting down: no new batches
-  std::unordered_map<uint64_t, Batch> batches;
-  uint64_t samplesInFlight = 0;
-  double rate = 0.0;  // samples per second, moving average
-  Clock::time_point lastCompletion;
-  uint64_t shaded = 0;
-  uint32_t failures = 0;
-  uint32_t badReplies = 0;
-  uint32_t connectFailures = 0;  // in a row; 0 once connected
-};
 
 std::shared_ptr<RendererPool> RendererPool::Create(asio::io_context& io, RendererPoolOptions options,
-                                                   ResultHandler onResults) {
-  return std::shared_ptr<RendererPool>(new RendererPool(io, std::move(options), std::move(onResults)));
+                                                   ResultHandler onResults, StoredCheck isStored) {
+  return std::shared_ptr<RendererPool>(
+      new RendererPool(io, std::move(options), std::move(onResults), std::move(isStored)));
 }
 
-RendererPool::RendererPool(asio::io_context& io, RendererPoolOptions options, ResultHandler onResults)
+RendererPool::RendererPool(asio::io_context& io, RendererPoolOptions options, ResultHandler onResults,
+                           StoredCheck isStored)
     : io_(io),
       options_(std::move(options)),
       onResults_(std::move(onResults)),
+      isStored_(std::move(isStored)),
       resolveTimer_(io),
       timeoutTimer_(io),
       resolver_(io),
+      scheduler_(SchedulerOptionsOf(options_)),
       resolved_(options_.renderers.size()) {}
 
 RendererPool::~RendererPool() = default;
@@ -94,26 +58,27 @@ void RendererPool::Start() {
 }
 
 void RendererPool::Stop() {
-  std::vector<std::shared_ptr<net::Connection>> connections;
+  std::vector<std::shared_ptr<RendererLink>> links;
   {
     std::lock_guard lock(mutex_);
     stopped_ = true;
-    for (auto& link : links_) {
-      link->state = Link::State::kRemoved;
-      if (link->connection) connections.push_back(link->connection);
-    }
+    links = links_;
   }
-  for (auto& c : connections) c->Close("SMA stopping");
+  for (auto& link : links) link->Remove("SMA stopping");
   asio::post(io_, [self = shared_from_this()] {
     self->resolveTimer_.cancel();
     self->timeoutTimer_.cancel();
     self->resolver_.cancel();
-    std::lock_guard lock(self->mutex_);
-    for (auto& link : self->links_) link->timer.cancel();
   });
 }
 
-// --- Resolution and connections ---------------------------------------------
+std::shared_ptr<RendererLink> RendererPool::FindLinkLocked(uint32_t index) const {
+  for (const auto& link : links_)
+    if (link->Index() == index) return link;
+  return nullptr;
+}
+
+// --- Resolution -----------------------------------------------------------------
 
 void RendererPool::Resolve() {
   {
@@ -136,264 +101,103 @@ void RendererPool::Resolve() {
 }
 
 void RendererPool::OnResolved(size_t configured, const error_code& ec, const std::vector<tcp::endpoint>& endpoints) {
-  std::lock_guard lock(mutex_);
-  if (stopped_) return;
   auto log = Logger("sma.renderers");
-  if (ec || endpoints.empty()) {
-    // Keep what we have: a DNS hiccup must not drop working renderers.
-    log->warn("cannot resolve renderer {}: {}", options_.renderers[configured].ToString(),
-              ec ? ec.message() : std::string("no address"));
-    return;
-  }
-  resolved_[configured] = endpoints;
-  std::map<tcp::endpoint, std::string> wanted;  // address -> the configured name it came from
-  for (size_t i = 0; i < resolved_.size(); ++i)
-    for (const auto& endpoint : resolved_[i]) wanted.emplace(endpoint, options_.renderers[i].host);
-
-  // Renderers that left the name are closed; their work goes to the others.
-  for (auto& link : links_) {
-    if (wanted.contains(link->endpoint) || link->state == Link::State::kRemoved) continue;
-    log->info("renderer {} no longer resolves from the configured names; closing", link->label);
-    link->state = Link::State::kRemoved;
-    link->timer.cancel();
-    RequeueLocked(*link);
-    if (link->connection) link->connection->Close("renderer removed from DNS");
-  }
-  std::erase_if(links_, [](const auto& l) { return l->state == Link::State::kRemoved; });
-  for (const auto& entry : wanted) {
-    // Not a structured binding: clang 14 (the fuzz build) cannot capture one in a lambda.
-    const tcp::endpoint& endpoint = entry.first;
-    const std::string& host = entry.second;
-    const bool known = std::any_of(links_.begin(), links_.end(), [&](const auto& l) { return l->endpoint == endpoint; });
-    if (known) continue;
-    auto link = std::make_shared<Link>(io_, endpoint, host);
-    link->index = nextLinkIndex_++;
-    link->backoff = options_.reconnectMin;
-    links_.push_back(link);
-    log->info("renderer endpoint {} added as renderer.{}", link->label, link->index);
-    asio::post(io_, [self = shared_from_this(), link] { self->Connect(link); });
-  }
-  DispatchLocked();
-}
-
-void RendererPool::Connect(const std::shared_ptr<Link>& link) {
-  {
-    std::lock_guard lock(mutex_);
-    if (stopped_ || link->state == Link::State::kRemoved) return;
-    link->state = Link::State::kConnecting;
-  }
-  net::AsyncConnectStream(io_, link->endpoint, net::TlsClientTarget{options_.tls, link->host}, options_.connectTimeout,
-                    [self = shared_from_this(), link](Expected<net::Stream> stream) {
-                      if (!stream) {
-                        std::lock_guard lock(self->mutex_);
-                        // Said at warning level the first time and then about every reconnectMax, so that an
-                        // operator (and the log) hears of a renderer that cannot be reached without a flood.
-                        const bool say = link->connectFailures++ == 0 || link->backoff >= self->options_.reconnectMax;
-                        Logger("sma.renderers")
-                            ->log(say ? spdlog::level::warn : spdlog::level::debug,
-                                  "renderer {}: cannot connect ({}); {} sample(s) waiting", link->label, stream.error().message,
-                                  self->queuedTotal_);
-                        self->ScheduleReconnect(link);
-                        return;
-                      }
-                      self->OnConnected(link, std::move(*stream));
-                    });
-}
-
-void RendererPool::OnConnected(const std::shared_ptr<Link>& link, net::Stream stream) {
-  auto connection = net::Connection::Create(std::move(stream), options_.connection, "renderer " + link->label);
-  {
-    std::lock_guard lock(mutex_);
-    if (stopped_ || link->state == Link::State::kRemoved) {
-      connection->Close("SMA stopping");
-      return;
-    }
-    link->connection = connection;
-    link->state = Link::State::kHandshaking;
-    link->draining = false;
-  }
-  auto self = shared_from_this();
-  connection->Start([self, link](wire::Envelope&& e) { self->OnMessage(link, std::move(e)); },
-                    [self, link](const std::string& reason) { self->OnClosed(link, reason); });
-  connection->Send(MakeHello(wire::ROLE_SMA, options_.name, options_.sceneHash, options_.authToken));
-}
-
-void RendererPool::ScheduleReconnect(const std::shared_ptr<Link>& link) {
-  if (stopped_ || link->state == Link::State::kRemoved) return;
-  link->state = Link::State::kWaiting;
-  link->timer.expires_after(link->backoff);
-  link->backoff = std::min(options_.reconnectMax, std::max(options_.reconnectMin, link->backoff * 2));
-  link->timer.async_wait([self = shared_from_this(), link](const error_code& ec) {
-    if (!ec) self->Connect(link);
-  });
-}
-
-void RendererPool::OnClosed(const std::shared_ptr<Link>& link, const std::string& reason) {
-  std::lock_guard lock(mutex_);
-  const bool wasReady = link->state == Link::State::kReady;
-  if (!link->batches.empty() || wasReady) {
-    ++link->failures;
-    Logger("sma.renderers")->warn("renderer {} lost ({}); {} sample(s) go to the others", link->label, reason,
-                                  link->samplesInFlight);
-  }
-  RequeueLocked(*link);
-  link->connection.reset();
-  if (link->state != Link::State::kRemoved) ScheduleReconnect(link);
-  DispatchLocked();
-}
-
-void RendererPool::FailLinkLocked(Link& link, const std::string& reason) {
-  Logger("sma.renderers")->warn("renderer {}: {}; dropping it", link.label, reason);
-  RequeueLocked(link);
-  if (link.connection) link.connection->Close(reason);
-}
-
-void RendererPool::RequeueLocked(Link& link) {
-  for (auto& [id, batch] : link.batches) {
-    // Back to the front of the queue: these have waited longest.
-    for (auto it = batch.vertices.rbegin(); it != batch.vertices.rend(); ++it) {
-      auto e = entries_.find(*it);
-      if (e == entries_.end() || e->second.state != EntryState::kInFlight || e->second.batch != id) continue;
-      RequeueEntryLocked(*it, e->second);
-    }
-  }
-  link.batches.clear();
-  link.samplesInFlight = 0;
-}
-
-void RendererPool::RequeueEntryLocked(VertexId v, Entry& entry) {
-  // Back to the front of its queue: it has waited longest.
-  entry.state = EntryState::kQueued;
-  ++requeued_;
-  --inFlight_;
-  ++queuedTotal_;
-  if (entry.improve) {
-    ++queuedImprove_;
-    improveQueue_.push_front(v);
-  } else if (entry.interest > 0) {
-    entry.inVisibleQueue = true;
-    ++queuedVisible_;
-    visibleQueue_.push_front(v);
-  } else {
-    backgroundQueue_.push_front(v);
-  }
-}
-
-void RendererPool::CheckTimeouts() {
+  std::vector<std::shared_ptr<RendererLink>> removed, added;
   {
     std::lock_guard lock(mutex_);
     if (stopped_) return;
-    const auto now = Clock::now();
-    for (auto& link : links_) {
-      for (const auto& [id, batch] : link->batches) {
-        if (now - batch.sentAt > options_.batchTimeout) {
-          ++link->failures;
-          FailLinkLocked(*link, fmt::format("batch {} unanswered for {} ms", id,
-                                            std::chrono::duration_cast<std::chrono::milliseconds>(now - batch.sentAt).count()));
-          break;
-        }
-      }
-    }
-    DispatchLocked();
-  }
-  timeoutTimer_.expires_after(std::chrono::milliseconds(500));
-  timeoutTimer_.async_wait([self = shared_from_this()](const error_code& ec) {
-    if (!ec) self->CheckTimeouts();
-  });
-}
-
-// --- Messages from renderers ------------------------------------------------
-
-Status CheckShadeReplyArrays(const wire::ShadeReply& reply) {
-  const int n = reply.sample_ids_size();
-  if (reply.radiance_size() != 3 * n || reply.irradiance_size() != 3 * n || reply.irradiance_stderr_size() != n ||
-      (reply.sample_paths_size() != 0 && reply.sample_paths_size() != n))
-    return Fail(fmt::format("inconsistent arrays ({} ids, {} radiance, {} irradiance, {} stderr, {} path values)", n,
-                            reply.radiance_size(), reply.irradiance_size(), reply.irradiance_stderr_size(),
-                            reply.sample_paths_size()));
-  return Status::Ok();
-}
-
-Expected<ShadedSample> ShadedSampleFromReply(const wire::ShadeReply& reply, int i, uint32_t batchPaths) {
-  const uint64_t id = reply.sample_ids(i);
-  const uint32_t paths = reply.sample_paths_size() == reply.sample_ids_size() ? reply.sample_paths(i) : batchPaths;
-  if (paths == 0 || paths > (1u << 24)) return Fail(fmt::format("sample {} averages {} paths", id, paths));
-  return ShadedSample{VertexId(id & 0xffffffffu),
-                      Rgb(reply.radiance(3 * i), reply.radiance(3 * i + 1), reply.radiance(3 * i + 2)),
-                      Rgb(reply.irradiance(3 * i), reply.irradiance(3 * i + 1), reply.irradiance(3 * i + 2)),
-                      reply.irradiance_stderr(i), paths, uint16_t(id >> 32)};
-}
-
-void RendererPool::OnMessage(const std::shared_ptr<Link>& link, wire::Envelope&& envelope) {
-  auto log = Logger("sma.renderers");
-  switch (envelope.body_case()) {
-    case wire::Envelope::kWelcome: {
-      std::lock_guard lock(mutex_);
-      const auto& w = envelope.welcome();
-      wire::ErrorCode code = wire::ERROR_CODE_UNSPECIFIED;
-      if (auto ok = ValidateWelcome(w, wire::ROLE_RENDERER, options_.sceneHash, &code); !ok) {
-        log->error("renderer {} refused: {}", link->label, ok.error().message);
-        link->backoff = options_.reconnectMax;  // a misconfigured renderer: retry slowly
-        if (link->connection) link->connection->Close(ok.error().message);
-        return;
-      }
-      link->state = Link::State::kReady;
-      link->connectFailures = 0;
-      link->peerName = Printable(w.server_name());
-      link->credits = std::max(1u, std::min(options_.creditsPerRenderer, w.max_batches_in_flight()));
-      link->maxBatch = std::max(1u, std::min(options_.maxBatchSamples, w.max_batch_samples()));
-      link->defaultPaths = std::max(1u, w.paths_per_sample());
-      link->lastCompletion = Clock::now();
-      log->info("renderer {} ('{}', {} threads) ready", link->label, link->peerName, w.worker_threads());
-      DispatchLocked();
+    if (ec || endpoints.empty()) {
+      // Keep what we have: a DNS hiccup must not drop working renderers.
+      log->warn("cannot resolve renderer {}: {}", options_.renderers[configured].ToString(),
+                ec ? ec.message() : std::string("no address"));
       return;
     }
+    resolved_[configured] = endpoints;
+    std::map<tcp::endpoint, std::string> wanted;  // address -> the configured name it came from
+    for (size_t i = 0; i < resolved_.size(); ++i)
+      for (const auto& endpoint : resolved_[i]) wanted.emplace(endpoint, options_.renderers[i].host);
+
+    // Renderers that left the name are closed; their work goes to the others.
+    for (const auto& link : links_) {
+      if (wanted.contains(link->Endpoint())) continue;
+      log->info("renderer {} no longer resolves from the configured names; closing", link->Label());
+      scheduler_.RemoveRenderer(link->Index());
+      removed.push_back(link);
+    }
+    std::erase_if(links_, [&](const auto& l) { return !wanted.contains(l->Endpoint()); });
+    for (const auto& entry : wanted) {
+      // Not a structured binding: clang 14 (the fuzz build) cannot capture one in a lambda.
+      const tcp::endpoint& endpoint = entry.first;
+      const bool known =
+          std::any_of(links_.begin(), links_.end(), [&](const auto& l) { return l->Endpoint() == endpoint; });
+      if (known) continue;
+      std::weak_ptr<RendererPool> weak = shared_from_this();
+      RendererLink::Events events{
+          [weak](RendererLink& link, const wire::Welcome& w) {
+            if (auto self = weak.lock()) self->OnLinkReady(link, w);
+          },
+          [weak](RendererLink& link, wire::Envelope&& e) {
+            if (auto self = weak.lock()) self->OnLinkMessage(link, std::move(e));
+          },
+          [weak](RendererLink& link, const std::string& reason, bool wasReady) {
+            if (auto self = weak.lock()) self->OnLinkClosed(link, reason, wasReady);
+          }};
+      auto link = RendererLink::Create(io_, options_, endpoint, entry.second, nextLinkIndex_++, std::move(events));
+      links_.push_back(link);
+      added.push_back(link);
+      log->info("renderer endpoint {} added as renderer.{}", link->Label(), link->Index());
+    }
+  }
+  for (auto& link : removed) link->Remove("renderer removed from DNS");
+  for (auto& link : added) link->Start();
+  Dispatch();
+}
+
+// --- Link events ----------------------------------------------------------------
+
+void RendererPool::OnLinkReady(RendererLink& link, const wire::Welcome& w) {
+  {
+    std::lock_guard lock(mutex_);
+    if (stopped_ || !FindLinkLocked(link.Index())) return;
+    scheduler_.RendererReady(link.Index(), RendererCapacity{w.max_batches_in_flight(), w.max_batch_samples(),
+                                                            w.paths_per_sample()});
+  }
+  Dispatch();
+}
+
+void RendererPool::OnLinkClosed(RendererLink& link, const std::string& reason, bool wasReady) {
+  size_t requeued = 0;
+  {
+    std::lock_guard lock(mutex_);
+    requeued = scheduler_.RendererLost(link.Index());
+  }
+  if (wasReady || requeued > 0)
+    Logger("sma.renderers")->warn("renderer {} lost ({}); {} sample(s) go to the others", link.Label(), reason, requeued);
+  Dispatch();
+}
+
+void RendererPool::OnLinkMessage(RendererLink& link, wire::Envelope&& envelope) {
+  auto log = Logger("sma.renderers");
+  switch (envelope.body_case()) {
     case wire::Envelope::kShadeReply:
       return OnReply(link, envelope.shade_reply());
     case wire::Envelope::kError: {
       const auto& error = envelope.error();
-      std::vector<ShadedSample> failedSamples;
+      const bool invalid = error.code() == wire::ERROR_CODE_INVALID_REQUEST;
+      std::optional<std::vector<ShadedSample>> givenUp;
       {
         std::lock_guard lock(mutex_);
-        auto it = link->batches.find(error.request_id());
-        if (error.code() == wire::ERROR_CODE_SHUTTING_DOWN) link->draining = true;
-        if (error.code() == wire::ERROR_CODE_AUTH_FAILED) {
-          // Permanent until an operator changes a token or TLS flag: said
-          // at error level, retried only every reconnectMax.
-          log->error("renderer {} refused this SMA (AUTH_FAILED): {} (check --renderer-auth-token-file and the renderer's "
-                     "--auth-token-file); retrying every {} ms",
-                     link->label, Printable(error.message(), 256), options_.reconnectMax.count());
-          link->backoff = options_.reconnectMax;
-          return;
-        }
-        if (it == link->batches.end()) {
-          log->warn("renderer {}: {}: {}", link->label, wire::ErrorCode_Name(error.code()), error.message());
-          return;
-        }
-        // The batch was refused: its samples go back to the queue, except
-        // those refused as invalid three times, which are given up on.
-        Batch batch = std::move(it->second);
-        link->batches.erase(it);
-        link->samplesInFlight -= batch.vertices.size() - batch.answered;
-        const bool invalid = error.code() == wire::ERROR_CODE_INVALID_REQUEST;
-        if (invalid) log->error("renderer {} refused batch {}: {}", link->label, batch.id, error.message());
-        for (VertexId v : batch.vertices) {
-          auto e = entries_.find(v);
-          if (e == entries_.end() || e->second.state != EntryState::kInFlight || e->second.batch != batch.id) continue;
-          Entry& entry = e->second;
-          if (invalid && ++entry.invalidReplies >= 3) {
-            entry.state = EntryState::kAnswered;
-            --inFlight_;
-            ++failed_;
-            // Paths 0: no estimate (an improvement of it changes nothing).
-            failedSamples.push_back(ShadedSample{v, Rgb(0.0f), Rgb(0.0f), 0.0f, 0, entry.request.round});
-          } else {
-            RequeueEntryLocked(v, entry);
-          }
-        }
-        DispatchLocked();
+        if (error.code() == wire::ERROR_CODE_SHUTTING_DOWN) scheduler_.RendererDraining(link.Index());
+        // A refused batch: its samples go back to the queue, except those
+        // refused as invalid three times, which are given up on.
+        givenUp = scheduler_.OnBatchRefused(link.Index(), error.request_id(), invalid);
       }
-      if (!failedSamples.empty()) onResults_(std::move(failedSamples));
+      if (givenUp && invalid)
+        log->error("renderer {} refused batch {}: {}", link.Label(), error.request_id(), error.message());
+      else if (!givenUp)
+        log->warn("renderer {}: {}: {}", link.Label(), wire::ErrorCode_Name(error.code()), error.message());
+      if (givenUp && !givenUp->empty()) onResults_(std::move(*givenUp));
+      Dispatch();
       return;
     }
     default:
@@ -401,292 +205,142 @@ void RendererPool::OnMessage(const std::shared_ptr<Link>& link, wire::Envelope&&
   }
 }
 
-void RendererPool::OnReply(const std::shared_ptr<Link>& link, const wire::ShadeReply& reply) {
-  std::vector<ShadedSample> results;
+void RendererPool::OnReply(RendererLink& link, const wire::ShadeReply& reply) {
+  ReplyOutcome outcome;
   {
     std::lock_guard lock(mutex_);
-    auto it = link->batches.find(reply.batch_id());
-    if (it == link->batches.end())
-      return RejectReplyLocked(*link, fmt::format("reply for unknown batch {}", reply.batch_id()));
-    Batch& batch = it->second;
-    const int n = reply.sample_ids_size();
-    if (auto ok = CheckShadeReplyArrays(reply); !ok)
-      return RejectReplyLocked(*link, fmt::format("reply for batch {}: {}", batch.id, ok.error().message));
-    // The whole part is checked before any of it is taken: a bad sample after
-    // good ones drops the link, and every sample of the batch (the good ones
-    // too) must then still be in flight so that it is requeued, not lost.
-    results.reserve(size_t(n));
-    std::set<uint64_t> seen;
-    for (int i = 0; i < n; ++i) {
-      const uint64_t id = reply.sample_ids(i);
-      const VertexId vertex = VertexId(id & 0xffffffffu);
-      const uint64_t round = id >> 32;
-      auto e = vertex != kNoVertex ? entries_.find(vertex) : entries_.end();
-      if (e == entries_.end() || e->second.state != EntryState::kInFlight || e->second.batch != batch.id ||
-          e->second.request.round != round || !seen.insert(id).second)
-        return RejectReplyLocked(*link, fmt::format("reply for batch {} names sample {}, which it was not asked for",
-                                                    batch.id, id));
-      auto decoded = ShadedSampleFromReply(reply, i, batch.paths);
-      if (!decoded)
-        return RejectReplyLocked(*link, fmt::format("reply for batch {}: {}", batch.id, decoded.error().message));
-      const ShadedSample sample = *decoded;
-      if (auto ok = options_.radianceBounds.Check(sample); !ok) {
-        ++rejectedSamples_;
-        return RejectReplyLocked(*link, fmt::format("reply for batch {}: sample {}: {}", batch.id, id,
-                                                    ok.error().message));
-      }
-      results.push_back(sample);
-    }
-    if (reply.remaining() == 0 && batch.answered + size_t(n) != batch.vertices.size())
-      return RejectReplyLocked(*link, fmt::format("batch {} ended with {} of {} samples", batch.id,
-                                                  batch.answered + size_t(n), batch.vertices.size()));
-    for (const ShadedSample& sample : results) entries_[sample.vertex].state = EntryState::kAnswered;
-    batch.answered += size_t(n);
-    link->samplesInFlight -= size_t(n);
-    link->shaded += size_t(n);
-    inFlight_ -= size_t(n);
-    shaded_ += size_t(n);
-    if (reply.remaining() == 0) {
-      // Service rate: pipelined batches overlap, so time a batch from the
-      // later of its sending and the previous completion.
-      const auto now = Clock::now();
-      const double seconds = std::chrono::duration<double>(now - std::max(batch.sentAt, link->lastCompletion)).count();
-      if (seconds > 0.0) {
-        const double rate = double(batch.vertices.size()) / seconds;
-        link->rate = link->rate > 0.0 ? 0.7 * link->rate + 0.3 * rate : rate;
-      }
-      link->lastCompletion = now;
-      // Only a whole batch answered well earns a quick reconnection next time.
-      link->backoff = options_.reconnectMin;
-      link->batches.erase(it);
-    }
-    DispatchLocked();
+    outcome = scheduler_.OnReply(link.Index(), reply);
   }
-  if (!results.empty()) onResults_(std::move(results));
+  if (outcome.badReply) {
+    // Quarantine: a renderer that answered nonsense is not retried at once,
+    // and its Welcome does not shorten the wait (only a good batch does).
+    link.BackOffAtLeast(options_.quarantine);
+    Logger("sma.renderers")
+        ->warn("renderer {}: bad reply ({}); quarantined for at least {} ms; dropping it", link.Label(),
+               *outcome.badReply, link.BackOff().count());
+    link.Drop(*outcome.badReply);
+  } else if (outcome.batchDone) {
+    link.ResetBackOff();  // only a whole batch answered well earns a quick reconnection next time
+  }
+  Dispatch();
+  if (!outcome.results.empty()) onResults_(std::move(outcome.results));
 }
 
-void RendererPool::RejectReplyLocked(Link& link, const std::string& reason) {
-  ++link.failures;
-  ++link.badReplies;
-  // Quarantine: a renderer that answered nonsense is not retried at once,
-  // and its Welcome does not shorten the wait (only a good batch does).
-  link.backoff = std::max(link.backoff, options_.quarantine);
-  Logger("sma.renderers")
-      ->warn("renderer {}: bad reply ({}); quarantined for at least {} ms", link.label, reason,
-             link.backoff.count());
-  FailLinkLocked(link, reason);
+void RendererPool::CheckTimeouts() {
+  std::vector<std::pair<std::shared_ptr<RendererLink>, std::string>> expired;
+  {
+    std::lock_guard lock(mutex_);
+    if (stopped_) return;
+    for (auto& [index, reason] : scheduler_.ExpireTimedOut())
+      if (auto link = FindLinkLocked(index)) expired.emplace_back(std::move(link), std::move(reason));
+  }
+  for (auto& [link, reason] : expired) {
+    Logger("sma.renderers")->warn("renderer {}: {}; dropping it", link->Label(), reason);
+    link->Drop(reason);
+  }
+  Dispatch();
+  timeoutTimer_.expires_after(std::chrono::milliseconds(500));
+  timeoutTimer_.async_wait([self = shared_from_this()](const error_code& ec) {
+    if (!ec) self->CheckTimeouts();
+  });
 }
 
-// --- Requests and scheduling ------------------------------------------------
+// --- Requests and dispatch --------------------------------------------------------
 
 size_t RendererPool::Request(std::span<const SampleRequest> samples, Priority priority) {
-  std::lock_guard lock(mutex_);
   size_t added = 0;
-  const bool visible = priority == Priority::kVisible;
-  if (priority == Priority::kImprove) {
-    for (const SampleRequest& s : samples) {
-      auto [it, inserted] = entries_.try_emplace(s.vertex);
-      if (!inserted) continue;  // alive already (being shaded or improved): one request at a time
-      Entry& e = it->second;
-      e.request = s;
-      e.improve = true;
-      ++queuedTotal_;
-      ++queuedImprove_;
-      ++added;
-      improveQueue_.push_back(s.vertex);
-    }
-    DispatchLocked();
-    return added;
-  }
-  for (const SampleRequest& s : samples) {
-    auto [it, inserted] = entries_.try_emplace(s.vertex);
-    Entry& e = it->second;
-    if (e.improve) continue;  // its improvement is on the way; a shaded vertex is not asked for again
-    if (visible) ++e.interest;
-    if (inserted) {
-      e.request = s;
-      ++requested_;
-      ++queuedTotal_;
-      ++added;
-      if (visible) {
-        e.inVisibleQueue = true;
-        ++queuedVisible_;
-        visibleQueue_.push_back(s.vertex);
-      } else {
-        backgroundQueue_.push_back(s.vertex);
-      }
-    } else if (visible && e.state == EntryState::kQueued && !e.inVisibleQueue) {
-      // Queued for refinement or a past view, now wanted by a view: promote.
-      e.inVisibleQueue = true;
-      ++queuedVisible_;
-      visibleQueue_.push_back(s.vertex);
+  {
+    std::lock_guard lock(mutex_);
+    if (isStored_ && priority != Priority::kImprove) {
+      // Under the lock: a result is stored before it is completed (the
+      // pool's lock), so a vertex is here either still alive or seen stored.
+      std::vector<SampleRequest> unstored;
+      unstored.reserve(samples.size());
+      for (const SampleRequest& r : samples)
+        if (!isStored_(r.vertex)) unstored.push_back(r);
+      added = scheduler_.Request(unstored, priority);
+    } else {
+      added = scheduler_.Request(samples, priority);
     }
   }
-  DispatchLocked();
+  PostDispatch();
   return added;
+}
+
+void RendererPool::PostDispatch() {
+  if (dispatchPosted_.exchange(true)) return;
+  asio::post(io_, [self = shared_from_this()] {
+    self->dispatchPosted_.store(false);
+    self->Dispatch();
+  });
 }
 
 void RendererPool::ReleaseInterest(std::span<const VertexId> vertices) {
   std::lock_guard lock(mutex_);
-  for (VertexId v : vertices) {
-    auto it = entries_.find(v);
-    if (it != entries_.end() && it->second.interest > 0) --it->second.interest;
-  }
+  scheduler_.ReleaseInterest(vertices);
 }
 
 void RendererPool::Complete(std::span<const ShadedSample> samples) {
   std::lock_guard lock(mutex_);
-  for (const ShadedSample& s : samples) {
-    auto it = entries_.find(s.vertex);
-    if (it != entries_.end() && it->second.state == EntryState::kAnswered) entries_.erase(it);
+  scheduler_.Complete(samples);
+}
+
+void RendererPool::Dispatch() {
+  std::vector<std::pair<std::shared_ptr<RendererLink>, AssignedBatch>> batches;
+  {
+    std::lock_guard lock(mutex_);
+    if (stopped_ || scheduler_.Queued() == 0) return;
+    for (AssignedBatch& batch : scheduler_.Assemble()) batches.emplace_back(FindLinkLocked(batch.renderer), std::move(batch));
+  }
+  // Encoded and sent without the pool's lock: a large batch's encoding must
+  // not hold up replies, requests and statistics.
+  for (auto& [link, batch] : batches) {
+    if (!link) continue;  // cannot happen: a renderer leaves the scheduler when its link goes
+    if (!link->Send(EncodeShadeRequestFrame(batch.id, batch.pathsPerSample, batch.samples)))
+      link->Drop("cannot queue a batch");  // closing requeues it (OnLinkClosed)
   }
 }
 
-bool RendererPool::TakeNextLocked(Priority priority, VertexId& out) {
-  if (priority == Priority::kImprove) {
-    while (!improveQueue_.empty()) {
-      const VertexId v = improveQueue_.front();
-      improveQueue_.pop_front();
-      auto it = entries_.find(v);
-      if (it == entries_.end() || it->second.state != EntryState::kQueued || !it->second.improve) continue;
-      --queuedImprove_;
-      out = v;
-      return true;
-    }
-    return false;
-  }
-  while (priority == Priority::kVisible && !visibleQueue_.empty()) {
-    const VertexId v = visibleQueue_.front();
-    visibleQueue_.pop_front();
-    auto it = entries_.find(v);
-    if (it == entries_.end() || it->second.state != EntryState::kQueued || !it->second.inVisibleQueue) continue;
-    it->second.inVisibleQueue = false;
-    --queuedVisible_;
-    if (it->second.interest == 0) {  // every view that wanted it has moved on
-      backgroundQueue_.push_back(v);
-      continue;
-    }
-    out = v;
-    return true;
-  }
-  while (priority == Priority::kBackground && !backgroundQueue_.empty()) {
-    const VertexId v = backgroundQueue_.front();
-    backgroundQueue_.pop_front();
-    auto it = entries_.find(v);
-    // A copy also in the visible queue is taken from there.
-    if (it == entries_.end() || it->second.state != EntryState::kQueued || it->second.inVisibleQueue) continue;
-    out = v;
-    return true;
-  }
-  return false;
-}
-
-void RendererPool::DispatchLocked() {
-  if (stopped_) return;
-  while (queuedTotal_ > 0) {
-    uint32_t freeCredits = 0;
-    for (const auto& link : links_)
-      if (link->state == Link::State::kReady && !link->draining) freeCredits += link->credits - uint32_t(std::min<size_t>(link->credits, link->batches.size()));
-    if (freeCredits == 0) return;
-    bool sent = false;
-    for (auto& link : links_) {
-      if (link->state != Link::State::kReady || link->draining || link->batches.size() >= link->credits) continue;
-      // Size by the renderer's measured rate, but when little is queued share
-      // it among every free credit so that all renderers work on it.
-      const double byRate = link->rate > 0.0 ? link->rate * std::chrono::duration<double>(options_.targetBatchTime).count()
-                                              : double(options_.minBatchSamples * 4);
-      const size_t fairShare = size_t((queuedTotal_ + freeCredits - 1) / freeCredits);
-      const size_t size = std::clamp<size_t>(std::min<size_t>(size_t(byRate), fairShare), options_.minBatchSamples,
-                                             std::max(options_.minBatchSamples, link->maxBatch));
-      // One priority per batch, the most urgent one queued.
-      VertexId v = kNoVertex;
-      Priority priority = Priority::kVisible;
-      for (Priority p : {Priority::kVisible, Priority::kBackground, Priority::kImprove}) {
-        if (TakeNextLocked(p, v)) {
-          priority = p;
-          break;
-        }
-      }
-      // Every queued entry sits in one of the queues.
-      PENUMBRA_CHECK(v != kNoVertex, fmt::format("{} samples counted as queued but none found", queuedTotal_));
-      const uint32_t paths = priority == Priority::kImprove ? options_.improvePaths
-                             : priority == Priority::kVisible && options_.firstPaths > 0 ? options_.firstPaths
-                                                                                       : options_.pathsPerSample;
-      Batch batch;
-      batch.id = nextBatchId_++;
-      batch.paths = paths > 0 ? paths : link->defaultPaths;
-      wire::Envelope envelope;
-      auto* request = envelope.mutable_shade_request();
-      request->set_batch_id(batch.id);
-      request->set_paths_per_sample(paths);
-      for (bool first = true; first || (batch.vertices.size() < size && TakeNextLocked(priority, v)); first = false) {
-        Entry& e = entries_.at(v);
-        e.state = EntryState::kInFlight;
-        e.batch = batch.id;
-        --queuedTotal_;
-        ++inFlight_;
-        batch.vertices.push_back(v);
-        const SampleRequest& r = e.request;
-        request->add_sample_ids(WireSampleId(v, r.round));
-        for (int k = 0; k < 3; ++k) request->add_positions(r.position[k]);
-        for (int k = 0; k < 3; ++k) request->add_normals(r.normal[k]);
-        request->add_triangle_ids(r.triangle);
-        request->add_barycentrics(r.bary.x);
-        request->add_barycentrics(r.bary.y);
-      }
-      batch.sentAt = Clock::now();
-      link->samplesInFlight += batch.vertices.size();
-      const uint64_t id = batch.id;
-      link->batches.emplace(id, std::move(batch));
-      link->connection->Send(envelope);
-      sent = true;
-      if (queuedTotal_ == 0) return;
-    }
-    if (!sent) return;
-  }
-}
-
-// --- Observation ------------------------------------------------------------
+// --- Observation ----------------------------------------------------------------
 
 size_t RendererPool::Outstanding() const {
   std::lock_guard lock(mutex_);
-  return size_t(queuedTotal_ + inFlight_);
+  return scheduler_.Outstanding();
 }
 
-bool RendererPool::AnyRendererReady() const {
-  std::lock_guard lock(mutex_);
-  return std::any_of(links_.begin(), links_.end(), [](const auto& l) { return l->state == Link::State::kReady; });
-}
+bool RendererPool::AnyRendererReady() const { return ReadyRenderers() > 0; }
 
 size_t RendererPool::ReadyRenderers() const {
   std::lock_guard lock(mutex_);
-  return size_t(std::count_if(links_.begin(), links_.end(), [](const auto& l) { return l->state == Link::State::kReady; }));
+  return size_t(std::count_if(links_.begin(), links_.end(), [](const auto& l) { return l->Ready(); }));
 }
 
 RendererPoolStats RendererPool::Stats() const {
   std::lock_guard lock(mutex_);
   RendererPoolStats s;
-  s.queuedVisible = queuedVisible_;
-  s.queuedImprove = queuedImprove_;
-  s.queuedBackground = queuedTotal_ >= queuedVisible_ + queuedImprove_ ? queuedTotal_ - queuedVisible_ - queuedImprove_ : 0;
-  s.inFlight = inFlight_;
-  s.requested = requested_;
-  s.shaded = shaded_;
-  s.requeued = requeued_;
-  s.failed = failed_;
-  s.rejected = rejectedSamples_;
+  const SchedulerCounters c = scheduler_.Counters();
+  s.queuedVisible = c.queuedVisible;
+  s.queuedBackground = c.queuedBackground;
+  s.queuedImprove = c.queuedImprove;
+  s.inFlight = c.inFlight;
+  s.requested = c.requested;
+  s.shaded = c.shaded;
+  s.requeued = c.requeued;
+  s.failed = c.failed;
+  s.rejected = c.rejected;
   for (const auto& link : links_) {
+    const RendererLoad load = scheduler_.Load(link->Index());
     RendererStatus r;
-    r.index = link->index;
-    r.endpoint = link->label;
-    r.name = link->peerName;
-    r.connected = link->state == Link::State::kReady;
-    r.batchesInFlight = uint32_t(link->batches.size());
-    r.samplesInFlight = link->samplesInFlight;
-    r.samplesShaded = link->shaded;
-    r.samplesPerSecond = link->rate;
-    r.failures = link->failures;
-    r.badReplies = link->badReplies;
+    r.index = link->Index();
+    r.endpoint = link->Label();
+    r.name = link->PeerName();
+    r.connected = link->Ready();
+    r.batchesInFlight = load.batchesInFlight;
+    r.samplesInFlight = load.samplesInFlight;
+    r.samplesShaded = load.samplesShaded;
+    r.samplesPerSecond = load.samplesPerSecond;
+    r.failures = load.failures;
+    r.badReplies = load.badReplies;
     s.renderers.push_back(std::move(r));
   }
   return s;

@@ -2,8 +2,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <thread>
 
 #include <fmt/format.h>
+
+#include "penumbra/common/check.h"
 
 namespace penumbra::sma {
 
@@ -32,20 +35,111 @@ Status RadianceBounds::Check(const ShadedSample& sample) const {
   return Status::Ok();
 }
 
+namespace {
+constexpr auto kRelaxed = std::memory_order_relaxed;
+Rgb LoadRgb(const std::atomic<float> (&c)[3]) { return Rgb(c[0].load(kRelaxed), c[1].load(kRelaxed), c[2].load(kRelaxed)); }
+void StoreRgb(std::atomic<float> (&c)[3], const Rgb& value) {
+  for (int i = 0; i < 3; ++i) c[i].store(value[i], kRelaxed);
+}
+}  // namespace
+
+SampleCache::SampleCache() : directory_(new std::atomic<Slot*>[kMaxChunks]()) {}
+SampleCache::~SampleCache() = default;
+
 void SampleCache::Reserve(size_t vertexCount) {
-  if (vertexCount <= shaded_.size()) return;
-  shaded_.resize(vertexCount, 0);
-  radiance_.resize(vertexCount, Rgb(0.0f));
-  irradiance_.resize(vertexCount, Rgb(0.0f));
-  irradianceStdErr_.resize(vertexCount, 0.0f);
-  paths_.resize(vertexCount, 0);
-  rounds_.resize(vertexCount, 0);
+  if (vertexCount <= Size()) return;
+  std::lock_guard lock(growthMutex_);
+  if (vertexCount <= size_.load(kRelaxed)) return;
+  const size_t chunksNeeded = (vertexCount + kChunkSlots - 1) >> kChunkBits;
+  PENUMBRA_CHECK(chunksNeeded <= kMaxChunks, fmt::format("sample cache of {} vertices", vertexCount));
+  while (chunks_.size() < chunksNeeded) {
+    chunks_.push_back(std::make_unique<Slot[]>(kChunkSlots));
+    directory_[chunks_.size() - 1].store(chunks_.back().get(), std::memory_order_release);
+  }
+  // Published after the chunks: a reader that sees the size finds them.
+  size_.store(vertexCount, std::memory_order_release);
+}
+
+SampleCache::Slot& SampleCache::SlotFor(VertexId v) {
+  if (v >= Size()) Reserve(size_t(v) + 1);
+  return const_cast<Slot&>(*Find(v));
+}
+
+uint32_t SampleCache::BeginWrite(Slot& s) {
+  uint32_t sequence = s.sequence.load(kRelaxed);
+  for (;;) {
+    if (sequence & 1u) {  // another writer of this very slot: brief (a few stores)
+      std::this_thread::yield();
+      sequence = s.sequence.load(kRelaxed);
+      continue;
+    }
+    if (s.sequence.compare_exchange_weak(sequence, sequence + 1, std::memory_order_acquire, kRelaxed)) break;
+  }
+  // The odd sequence must be visible before any value changes.
+  std::atomic_thread_fence(std::memory_order_release);
+  return sequence;
+}
+
+void SampleCache::WriteValues(Slot& s, const ShadedSample& sample, uint16_t rounds) {
+  StoreRgb(s.radiance, sample.radiance);
+  StoreRgb(s.irradiance, sample.irradiance);
+  s.irradianceStdErr.store(sample.irradianceStdErr, kRelaxed);
+  s.paths.store(sample.paths, kRelaxed);
+  s.rounds.store(rounds, kRelaxed);
+}
+
+template <typename F>
+auto SampleCache::ReadConsistent(VertexId v, F&& read) const -> decltype(read(std::declval<const Slot&>())) {
+  const Slot* s = Find(v);
+  if (!s) return read(Slot{});  // an all-zero, unshaded slot
+  for (;;) {
+    const uint32_t before = s->sequence.load(std::memory_order_acquire);
+    if (before & 1u) {
+      std::this_thread::yield();
+      continue;
+    }
+    auto value = read(*s);
+    std::atomic_thread_fence(std::memory_order_acquire);
+    if (s->sequence.load(kRelaxed) == before) return value;
+  }
+}
+
+std::optional<CachedSample> SampleCache::Read(VertexId v) const {
+  return ReadConsistent(v, [](const Slot& s) -> std::optional<CachedSample> {
+    if (!s.shaded.load(kRelaxed)) return std::nullopt;
+    return CachedSample{LoadRgb(s.radiance), LoadRgb(s.irradiance), s.irradianceStdErr.load(kRelaxed),
+                        s.paths.load(kRelaxed), s.rounds.load(kRelaxed), s.generation.load(kRelaxed)};
+  });
+}
+
+Rgb SampleCache::Radiance(VertexId v) const {
+  return ReadConsistent(v, [](const Slot& s) { return LoadRgb(s.radiance); });
+}
+Rgb SampleCache::Irradiance(VertexId v) const {
+  return ReadConsistent(v, [](const Slot& s) { return LoadRgb(s.irradiance); });
+}
+float SampleCache::IrradianceStdErr(VertexId v) const {
+  const Slot* s = Find(v);
+  return s ? s->irradianceStdErr.load(kRelaxed) : 0.0f;
+}
+uint32_t SampleCache::Paths(VertexId v) const {
+  const Slot* s = Find(v);
+  return s ? s->paths.load(kRelaxed) : 0;
+}
+uint16_t SampleCache::Rounds(VertexId v) const {
+  const Slot* s = Find(v);
+  return s ? s->rounds.load(kRelaxed) : 0;
+}
+uint32_t SampleCache::Generation(VertexId v) const {
+  const Slot* s = Find(v);
+  return s ? s->generation.load(std::memory_order_acquire) : 0;
 }
 
 float SampleCache::RelativeError(VertexId v) const {
-  if (!IsShaded(v)) return 0.0f;
-  const float e = penumbra::Luminance(irradiance_[v]);
-  const float err = irradianceStdErr_[v];
+  const auto sample = Read(v);
+  if (!sample) return 0.0f;
+  const float e = penumbra::Luminance(sample->irradiance);
+  const float err = sample->irradianceStdErr;
   if (!(err > 0.0f)) return 0.0f;
   return e > 0.0f ? err / e : std::numeric_limits<float>::infinity();
 }
@@ -53,60 +147,71 @@ float SampleCache::RelativeError(VertexId v) const {
 std::vector<VertexId> SampleCache::Improve(std::span<const ShadedSample> samples) {
   std::vector<VertexId> changed;
   changed.reserve(samples.size());
-  for (const ShadedSample& s : samples) {
-    if (s.vertex >= shaded_.size() || !shaded_[s.vertex] || s.round != rounds_[s.vertex] + 1 || s.paths == 0)
-      continue;
-    const VertexId v = s.vertex;
-    const double n1 = std::max<uint32_t>(1, paths_[v]), n2 = std::max<uint32_t>(1, s.paths), n = n1 + n2;
-    const float w1 = float(n1 / n), w2 = float(n2 / n);
-    radiance_[v] = w1 * radiance_[v] + w2 * s.radiance;
-    irradiance_[v] = w1 * irradiance_[v] + w2 * s.irradiance;
-    // Var(w1 X1 + w2 X2) = w1^2 Var1 + w2^2 Var2 for independent estimates.
-    irradianceStdErr_[v] = std::sqrt(w1 * w1 * irradianceStdErr_[v] * irradianceStdErr_[v] +
-                                     w2 * w2 * s.irradianceStdErr * s.irradianceStdErr);
-    paths_[v] = uint32_t(std::min<double>(n, std::numeric_limits<uint32_t>::max()));
-    rounds_[v] = s.round;
-    changed.push_back(v);
+  for (const ShadedSample& sample : samples) {
+    if (sample.vertex >= Size() || sample.paths == 0) continue;
+    Slot& s = SlotFor(sample.vertex);
+    const uint32_t sequence = BeginWrite(s);
+    const uint16_t rounds = s.rounds.load(kRelaxed);
+    if (s.shaded.load(kRelaxed) && sample.round == rounds + 1) {
+      const uint32_t paths = s.paths.load(kRelaxed);
+      const double n1 = std::max<uint32_t>(1, paths), n2 = std::max<uint32_t>(1, sample.paths), n = n1 + n2;
+      const float w1 = float(n1 / n), w2 = float(n2 / n);
+      const float err = s.irradianceStdErr.load(kRelaxed);
+      ShadedSample mixed = sample;
+      mixed.radiance = w1 * LoadRgb(s.radiance) + w2 * sample.radiance;
+      mixed.irradiance = w1 * LoadRgb(s.irradiance) + w2 * sample.irradiance;
+      // Var(w1 X1 + w2 X2) = w1^2 Var1 + w2^2 Var2 for independent estimates.
+      mixed.irradianceStdErr =
+          std::sqrt(w1 * w1 * err * err + w2 * w2 * sample.irradianceStdErr * sample.irradianceStdErr);
+      mixed.paths = uint32_t(std::min<double>(n, std::numeric_limits<uint32_t>::max()));
+      WriteValues(s, mixed, sample.round);
+      changed.push_back(sample.vertex);
+    }
+    EndWrite(s, sequence);
   }
   changes_ += changed.size();
   return changed;
 }
 
-size_t SampleCache::Store(std::span<const ShadedSample> samples) {
+size_t SampleCache::Put(std::span<const ShadedSample> samples, bool keepRounds) {
   size_t added = 0;
-  for (const ShadedSample& s : samples) {
-    if (s.vertex == kNoVertex) continue;
-    if (s.vertex >= shaded_.size()) Reserve(size_t(s.vertex) + 1);
-    if (shaded_[s.vertex]) continue;
-    shaded_[s.vertex] = 1;
-    radiance_[s.vertex] = s.radiance;
-    irradiance_[s.vertex] = s.irradiance;
-    irradianceStdErr_[s.vertex] = s.irradianceStdErr;
-    paths_[s.vertex] = s.paths;
-    ++added;
+  for (const ShadedSample& sample : samples) {
+    if (sample.vertex == kNoVertex) continue;
+    Slot& s = SlotFor(sample.vertex);
+    const uint32_t sequence = BeginWrite(s);
+    if (!s.shaded.load(kRelaxed)) {
+      WriteValues(s, sample, keepRounds ? sample.round : 0);
+      // Release: IsShaded()'s acquire load then sees the values (and
+      // EndWrite publishes them to Read()).
+      s.shaded.store(1, std::memory_order_release);
+      ++added;
+    }
+    EndWrite(s, sequence);
   }
   shadedCount_ += added;
   changes_ += added;
   return added;
 }
 
-size_t SampleCache::Restore(std::span<const ShadedSample> samples) {
-  size_t added = 0;
-  for (const ShadedSample& s : samples) {
-    if (s.vertex == kNoVertex) continue;
-    if (s.vertex >= shaded_.size()) Reserve(size_t(s.vertex) + 1);
-    if (shaded_[s.vertex]) continue;
-    shaded_[s.vertex] = 1;
-    radiance_[s.vertex] = s.radiance;
-    irradiance_[s.vertex] = s.irradiance;
-    irradianceStdErr_[s.vertex] = s.irradianceStdErr;
-    paths_[s.vertex] = s.paths;
-    rounds_[s.vertex] = s.round;
-    ++added;
+size_t SampleCache::Store(std::span<const ShadedSample> samples) { return Put(samples, false); }
+size_t SampleCache::Restore(std::span<const ShadedSample> samples) { return Put(samples, true); }
+
+bool SampleCache::Evict(VertexId v) {
+  if (v >= Size()) return false;
+  Slot& s = SlotFor(v);
+  const uint32_t sequence = BeginWrite(s);
+  const bool wasShaded = s.shaded.load(kRelaxed) != 0;
+  if (wasShaded) {
+    s.shaded.store(0, std::memory_order_release);
+    WriteValues(s, ShadedSample{v, Rgb(0.0f), Rgb(0.0f), 0.0f, 0, 0}, 0);
+    s.generation.fetch_add(1, std::memory_order_release);
   }
-  shadedCount_ += added;
-  changes_ += added;
-  return added;
+  EndWrite(s, sequence);
+  if (wasShaded) {
+    --shadedCount_;
+    ++changes_;
+  }
+  return wasShaded;
 }
 
 }  // namespace penumbra::sma

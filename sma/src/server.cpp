@@ -81,8 +81,9 @@ class SmaServer::Impl {
     options_.pool.sceneHash = scene.identity;
     options_.pool.name = options_.name;
     options_.pool.radianceBounds = RadianceBounds::ForScene(scene);
-    pool_ = RendererPool::Create(io_, options_.pool,
-                                 [this](std::vector<ShadedSample>&& samples) { OnResults(std::move(samples)); });
+    pool_ = RendererPool::Create(
+        io_, options_.pool, [this](std::vector<ShadedSample>&& samples) { OnResults(std::move(samples)); },
+        [this](VertexId v) { return cache_.IsShaded(v); });
     if (restored) {
       std::vector<SampleRequest> requests;
       for (VertexId v : UnshadedMidpoints(hierarchy_, cache_)) requests.push_back(MakeSampleRequest(hierarchy_, v));
@@ -117,12 +118,12 @@ class SmaServer::Impl {
       improvements.push_back(*it);
       it = samples.erase(it);
     }
+    // No state lock: the cache is safe to write while views read it
+    // (sample_cache.h), so this I/O thread never waits on a view's mapping.
+    // Stored before Complete: a vertex is always in the cache or in the pool.
     std::vector<VertexId> changed;
-    {
-      std::unique_lock lock(stateMutex_);
-      if (!samples.empty()) cache_.Store(samples);
-      if (!improvements.empty()) changed = cache_.Improve(improvements);
-    }
+    if (!samples.empty()) cache_.Store(samples);
+    if (!improvements.empty()) changed = cache_.Improve(improvements);
     pool_->Complete(samples);
     pool_->Complete(improvements);
     samplesImproved_ += changed.size();
@@ -547,7 +548,8 @@ void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
   server.pool_->Request(requests, Priority::kVisible);
   server.pool_->ReleaseInterest(interest_);
   interest_ = plan.missing;
-  state_.BeginShading(plan.pending, server.hierarchy_, server.cache_, newView);
+  for (NodeId id : state_.BeginShading(plan.pending, server.hierarchy_, server.cache_, newView))
+    plan.addCached.push_back(id);
 
   if (Blocked()) {
     // The client is behind: send nothing now; once its queue drains, one

@@ -77,18 +77,28 @@ ViewSession::JobDone ViewSession::OnJobDone(uint64_t viewId, bool newView) {
   return {stale ? JobOutcome::kApplyStale : JobOutcome::kApply, first};
 }
 
-void ViewSession::BeginShading(std::span<const NodeId> pending, const Hierarchy& hierarchy, const SampleCache& cache,
-                               bool newView) {
+std::vector<NodeId> ViewSession::BeginShading(std::span<const NodeId> pending, const Hierarchy& hierarchy,
+                                              const SampleCache& cache, bool newView) {
   improvementDone_ = false;  // what is displayed changed: look again
   pending_.clear();
   waiting_.clear();
+  std::vector<NodeId> complete;
   for (NodeId id : pending) {
-    pending_.insert(id);
-    for (VertexId v : hierarchy.GetNode(id).v)
-      if (!cache.IsShaded(v)) waiting_[v].push_back(id);
+    bool waits = false;
+    for (VertexId v : hierarchy.GetNode(id).v) {
+      if (cache.IsShaded(v)) continue;
+      waiting_[v].push_back(id);
+      waits = true;
+    }
+    // Samples are stored without the state lock: a node's corners may have
+    // arrived since PlanView, their notice already queued behind us and
+    // looking for waiters it will not find. The caller sends it now instead.
+    if (waits) pending_.insert(id);
+    else complete.push_back(id);
   }
   if (newView) stage1Done_ = 0;
   stage1Total_ = stage1Done_ + waiting_.size();
+  return complete;
 }
 
 ViewSession::Arrived ViewSession::OnSamplesArrived(std::span<const VertexId> vertices, size_t baseVertices) {

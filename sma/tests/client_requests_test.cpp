@@ -72,11 +72,11 @@ TEST(ShadeReplyChecksTest, ArraysMustAgreeAndPathCountsBeInRange) {
   reply.add_sample_ids((uint64_t(2) << 32) | 7);  // vertex 7, improvement round 2
   for (float v : {0.1f, 0.2f, 0.3f}) reply.add_radiance(v);
   for (float v : {1.0f, 2.0f, 3.0f}) reply.add_irradiance(v);
-  EXPECT_FALSE(CheckShadeReplyArrays(reply).ok());  // no standard error yet
+  EXPECT_FALSE(CheckShadeReplyShape(reply).ok());  // no standard error yet
   reply.add_irradiance_stderr(0.01f);
-  ASSERT_TRUE(CheckShadeReplyArrays(reply).ok());
+  ASSERT_TRUE(CheckShadeReplyShape(reply).ok());
 
-  auto sample = ShadedSampleFromReply(reply, 0, 64);
+  auto sample = DecodeReplySample(reply, 0, 64);
   ASSERT_TRUE(sample.ok()) << sample.error().message;
   EXPECT_EQ(sample->vertex, VertexId(7));
   EXPECT_EQ(sample->round, 2);
@@ -84,12 +84,12 @@ TEST(ShadeReplyChecksTest, ArraysMustAgreeAndPathCountsBeInRange) {
   EXPECT_FLOAT_EQ(sample->irradiance.b, 3.0f);
 
   reply.add_sample_paths(0);
-  ASSERT_TRUE(CheckShadeReplyArrays(reply).ok());
-  auto none = ShadedSampleFromReply(reply, 0, 64);
+  ASSERT_TRUE(CheckShadeReplyShape(reply).ok());
+  auto none = DecodeReplySample(reply, 0, 64);
   ASSERT_FALSE(none.ok());
   EXPECT_EQ(none.error().message, "sample 8589934599 averages 0 paths");
   reply.add_sample_paths(5);  // two path counts for one sample
-  EXPECT_FALSE(CheckShadeReplyArrays(reply).ok());
+  EXPECT_FALSE(CheckShadeReplyShape(reply).ok());
 }
 
 }  // namespace

@@ -1,15 +1,16 @@
 // What an SMA's renderer pool does with one frame from a renderer: decode
 // the envelope, then check a Welcome (ValidateWelcome), or check a
-// ShadeReply part's arrays (CheckShadeReplyArrays), decode each sample
-// (ShadedSampleFromReply) and check its values against what the Cornell box
-// can produce (RadianceBounds::Check), as RendererPool::OnReply does before
-// it looks the samples up among those in flight. Input: one frame payload.
+// ShadeReply part's arrays (CheckShadeReplyShape), decode each sample
+// (DecodeReplySample), decode the whole part (DecodeShadeReply) and check
+// its values against what the Cornell box can produce
+// (RadianceBounds::Check), as the SampleScheduler does before it looks the
+// samples up among those in flight. Input: one frame payload.
 
 #include <memory>
 
 #include "fuzz_support.h"
 #include "penumbra/common/scene.h"
-#include "penumbra/sma/renderer_pool.h"
+#include "penumbra/sma/shade_codec.h"
 
 namespace {
 const penumbra::sma::RadianceBounds& Bounds() {
@@ -34,13 +35,17 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     (void)Printable(envelope->welcome().server_name());
   } else if (envelope->has_shade_reply()) {
     const auto& reply = envelope->shade_reply();
-    if (!sma::CheckShadeReplyArrays(reply)) return 0;
+    if (!sma::CheckShadeReplyShape(reply)) return 0;
     for (int i = 0; i < reply.sample_ids_size(); ++i) {
-      auto sample = sma::ShadedSampleFromReply(reply, i, 64);
+      auto sample = sma::DecodeReplySample(reply, i, 64);
       if (!sample) break;
       if (bounds.Check(*sample)) {
         PENUMBRA_CHECK(sample->paths >= 1, "a sample of no path was accepted");
       }
+    }
+    if (auto samples = sma::DecodeShadeReply(reply, 64)) {
+      PENUMBRA_CHECK(samples->size() == size_t(reply.sample_ids_size()), "a decoded part lost samples");
+      for (const auto& sample : *samples) PENUMBRA_CHECK(sample.paths >= 1, "a sample of no path was decoded");
     }
   }
   return 0;

@@ -1,38 +1,27 @@
 #pragma once
-// The SMA's side of the renderer tier: one connection per renderer endpoint
-// (a name that resolves to several addresses gives one connection each,
-// re-resolved periodically so renderers can come and go), and a scheduler
-// that turns sample requests into ShadeRequest batches.
+// The SMA's side of the renderer tier: one RendererLink per renderer address
+// (a name that resolves to several addresses gives one link each,
+// re-resolved periodically so renderers can come and go), a SampleScheduler
+// that decides which samples go where (sample_scheduler.h: at most one
+// request per vertex alive, priorities, interest, credits, one requeue path,
+// timeouts, quarantine), and the shade codec (shade_codec.h) that turns its
+// batches into frames. The pool glues them: link events go to the scheduler,
+// the scheduler's batches are encoded and handed to links.
 //
-// Scheduling:
-//  * Every vertex is requested at most once while its request is alive:
-//    queued, in flight, or answered but not yet stored. Asking again for such
-//    a vertex only raises its interest.
-//  * Three priorities. Visible requests (a client's view needs the vertex)
-//    go before background ones (refinement, or views since superseded), and
-//    both before improvements (a further estimate of a shaded vertex, to be
-//    averaged into it; SampleCache::Improve). A batch holds one priority
-//    only, and asks for that priority's paths per sample: few for visible
-//    samples (a first complete image soon), the default for refinement,
-//    `improvePaths` for an improvement. An improvement round k of vertex v
-//    is the wire sample id v + k * 2^32: its own random stream. A
-//    visible request carries one unit of *interest* per asking view; when
-//    every view that asked has moved on (ReleaseInterest), it is demoted to
-//    background the next time the scheduler meets it.
-//  * Credits: each renderer has a bounded number of batches in flight. A
-//    renderer that answers faster gets its credits back sooner and so gets
-//    more work; batch sizes follow each renderer's measured rate so a batch
-//    takes about `targetBatchTime`.
-//  * Failure: when a renderer disconnects, times out, or answers nonsense,
-//    its unanswered samples go back to the front of the queue for the
-//    others, and it is reconnected with exponential back-off.
+// Failure: when a renderer disconnects, times out, or answers nonsense, its
+// unanswered samples go back to the front of the queue for the others, and
+// it is reconnected with exponential back-off (after a quarantine when it
+// answered nonsense).
 //
-// Threads: every public function is thread-safe. The ResultHandler runs on
-// an I/O thread without the pool's lock held; the receiver stores the
-// results in the sample cache and *then* calls Complete() with them, so that
-// at every moment a vertex is in the cache or in the pool (never neither),
-// which is what makes the "requested once" rule race-free.
+// Threads: every public function is thread-safe. The pool's mutex guards the
+// scheduler and the list of links; frames are encoded and sent after it is
+// released. The ResultHandler runs on an I/O thread without the pool's lock
+// held; the receiver stores the results in the sample cache and *then* calls
+// Complete() with them, so that at every moment a vertex is in the cache or
+// in the pool (never neither), which is what makes the "requested once" rule
+// race-free.
 
+#include <atomic>
 #include <chrono>
 #include <cstdint>
 #include <deque>
@@ -49,34 +38,12 @@
 #include "penumbra/common/expected.h"
 #include "penumbra/sma/hierarchy.h"
 #include "penumbra/sma/sample_cache.h"
+#include "penumbra/sma/sample_scheduler.h"
+#include "penumbra/sma/shade_codec.h"
 
 namespace penumbra::sma {
 
-/// The checks on a renderer's ShadeReply part that need no pool state, as
-/// plain functions so that they are fuzzed with bytes (tests/fuzz).
-/// OK when the part's arrays agree: per sample one id, three radiance, three
-/// irradiance and one standard-error value, and no path counts or one each.
-Status CheckShadeReplyArrays(const wire::ShadeReply& reply);
-/// Sample `i` of a part that passed CheckShadeReplyArrays: vertex (the id's
-/// low 32 bits) and round (the rest) from its id, its path count, else
-/// `batchPaths`. An error when that count is 0 or above 2^24. Values are not
-/// checked here (RadianceBounds::Check).
-Expected<ShadedSample> ShadedSampleFromReply(const wire::ShadeReply& reply, int i, uint32_t batchPaths);
-
-/// Everything a renderer needs to shade one vertex.
-struct SampleRequest {
-  VertexId vertex = kNoVertex;
-  Vec3 position;
-  Vec3 normal;
-  uint32_t triangle = 0;
-  Vec2 bary{0.0f};
-  uint16_t round = 0;  // 0: first shading; k > 0: the k-th improvement (Priority::kImprove)
-};
-
-/// Builds the request for vertex `v` of `hierarchy`.
-SampleRequest MakeSampleRequest(const Hierarchy& hierarchy, VertexId v);
-
-enum class Priority : uint8_t { kVisible, kBackground, kImprove };
+class RendererLink;
 
 struct RendererPoolOptions {
   std::vector<HostPort> renderers;
@@ -139,9 +106,15 @@ struct RendererPoolStats {
 class RendererPool : public std::enable_shared_from_this<RendererPool> {
  public:
   using ResultHandler = std::function<void(std::vector<ShadedSample>&& samples)>;
+  /// Whether a vertex's first estimate is stored (SampleCache::IsShaded).
+  using StoredCheck = std::function<bool(VertexId)>;
 
+  /// `isStored`: asked under the pool's lock for each first-estimate request,
+  /// so that a vertex stored and completed between a caller's look at the
+  /// cache and its Request is not asked for again (the cache is written
+  /// without the state lock, so that lock no longer orders the two).
   static std::shared_ptr<RendererPool> Create(asio::io_context& io, RendererPoolOptions options,
-                                              ResultHandler onResults);
+                                              ResultHandler onResults, StoredCheck isStored = {});
   ~RendererPool();
 
   /// Resolves the renderer names and connects; returns at once.
@@ -149,9 +122,11 @@ class RendererPool : public std::enable_shared_from_this<RendererPool> {
   /// Closes every connection; queued work stays queued.
   void Stop();
 
-  /// Queues the samples that are not already alive in the pool. Visible
-  /// requests add one unit of interest to every listed vertex, queued now
-  /// or before. Returns the number newly queued.
+  /// Queues the samples that are neither alive in the pool nor stored.
+  /// Visible requests add one unit of interest to every listed vertex,
+  /// queued now or before. Returns the number newly queued. Batches are
+  /// assembled and sent on an I/O thread, not the caller's (which may hold
+  /// the state lock).
   size_t Request(std::span<const SampleRequest> samples, Priority priority);
   /// Removes one unit of interest from each vertex (a view moved on).
   void ReleaseInterest(std::span<const VertexId> vertices);
@@ -165,66 +140,36 @@ class RendererPool : public std::enable_shared_from_this<RendererPool> {
   size_t ReadyRenderers() const;
   RendererPoolStats Stats() const;
 
-  struct Link;
-  struct Batch;
-
  private:
-  RendererPool(asio::io_context& io, RendererPoolOptions options, ResultHandler onResults);
+  RendererPool(asio::io_context& io, RendererPoolOptions options, ResultHandler onResults, StoredCheck isStored);
 
   void Resolve();
   void OnResolved(size_t configured, const boost::system::error_code& ec, const std::vector<tcp::endpoint>& endpoints);
-  void Connect(const std::shared_ptr<Link>& link);
-  void OnConnected(const std::shared_ptr<Link>& link, net::Stream stream);
-  void OnMessage(const std::shared_ptr<Link>& link, wire::Envelope&& envelope);
-  void OnReply(const std::shared_ptr<Link>& link, const wire::ShadeReply& reply);
-  void OnClosed(const std::shared_ptr<Link>& link, const std::string& reason);
-  void ScheduleReconnect(const std::shared_ptr<Link>& link);
+  void OnLinkReady(RendererLink& link, const wire::Welcome& welcome);
+  void OnLinkMessage(RendererLink& link, wire::Envelope&& envelope);
+  void OnLinkClosed(RendererLink& link, const std::string& reason, bool wasReady);
+  void OnReply(RendererLink& link, const wire::ShadeReply& reply);
   void CheckTimeouts();
-  void FailLinkLocked(Link& link, const std::string& reason);
-  void RequeueLocked(Link& link);
-  void RejectReplyLocked(Link& link, const std::string& reason);
-  void DispatchLocked();
-  bool TakeNextLocked(Priority priority, VertexId& out);
-  struct Entry;
-  void RequeueEntryLocked(VertexId v, Entry& entry);
-
-  enum class EntryState : uint8_t { kQueued, kInFlight, kAnswered };
-  struct Entry {
-    SampleRequest request;
-    uint32_t interest = 0;
-    EntryState state = EntryState::kQueued;
-    bool inVisibleQueue = false;
-    bool improve = false;  // an improvement (request.round > 0), in the improvement queue
-    uint8_t invalidReplies = 0;
-    uint64_t batch = 0;  // while in flight: the batch carrying it
-  };
+  // Assembles batches under the lock, then encodes and sends them without it.
+  void Dispatch();
+  void PostDispatch();  // Dispatch on an I/O thread, once however often asked before it runs
+  std::shared_ptr<RendererLink> FindLinkLocked(uint32_t index) const;
 
   asio::io_context& io_;
-  RendererPoolOptions options_;
+  const RendererPoolOptions options_;
   ResultHandler onResults_;
+  StoredCheck isStored_;
+  std::atomic<bool> dispatchPosted_{false};
   asio::steady_timer resolveTimer_;
   asio::steady_timer timeoutTimer_;
   tcp::resolver resolver_;
 
   mutable std::mutex mutex_;
   bool stopped_ = false;
-  std::unordered_map<VertexId, Entry> entries_;
-  std::deque<VertexId> visibleQueue_;
-  std::deque<VertexId> backgroundQueue_;
-  std::deque<VertexId> improveQueue_;
-  std::vector<std::shared_ptr<Link>> links_;
-  uint32_t nextLinkIndex_ = 1;  // RendererStatus::index
+  SampleScheduler scheduler_;
+  std::vector<std::shared_ptr<RendererLink>> links_;
+  uint32_t nextLinkIndex_ = 1;  // RendererStatus::index, and the scheduler's RendererId
   std::vector<std::vector<tcp::endpoint>> resolved_;  // per configured renderer
-  uint64_t nextBatchId_ = 1;
-  uint64_t queuedVisible_ = 0;  // entries queued and in the visible deque
-  uint64_t queuedImprove_ = 0;  // entries queued in the improvement deque
-  uint64_t queuedTotal_ = 0;
-  uint64_t inFlight_ = 0;
-  uint64_t requested_ = 0;
-  uint64_t shaded_ = 0;
-  uint64_t requeued_ = 0;
-  uint64_t failed_ = 0;
-  uint64_t rejectedSamples_ = 0;
 };
 
 }  // namespace penumbra::sma

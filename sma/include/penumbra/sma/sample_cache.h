@@ -4,22 +4,40 @@
 // radiance and irradiance, or not yet. A shaded sample can be improved in
 // place: a further, independent estimate (an improvement round, with a random
 // stream of its own) is averaged in, weighted by the paths of each, so that
-// the noise of what clients see falls as a view rests; who asked for it and whether it is on
-// its way is the renderer pool's business, not the cache's.
+// the noise of what clients see falls as a view rests; who asked for it and
+// whether it is on its way is the renderer pool's business, not the cache's.
 //
-// Threads: not synchronised; the SMA guards it with its state lock (readers
-// shared, Store() exclusive).
+// Threads: every function may be called from any thread, with no outside
+// lock: samples are stored and improved (I/O threads) while views read them
+// (job threads). The state lock guards the hierarchy, not the cache.
+//  * Storage never moves: slots live in fixed-size chunks found through a
+//    directory allocated once, so a reader's slot stays where it is while
+//    the hierarchy's growth grows the cache (only growth takes a mutex, and
+//    readers never take it).
+//  * Each slot is a sequence lock: a writer makes its sequence odd, writes,
+//    and makes it even again (release); Read() retries until it saw one even
+//    sequence before and after, so it returns a whole sample, never half of
+//    an improvement. IsShaded() is one acquire load.
+//  * Replacement and removal (coming: moving objects invalidate samples,
+//    eviction bounds memory) are writes like any other: Evict() clears a
+//    slot under its sequence and bumps its generation. A reader holds
+//    values it copied, never a reference into a slot, so it is never left
+//    with a torn or freed sample; one that must know whether what it copied
+//    is still current compares CachedSample::generation with Generation().
+//    Chunks are freed only with the cache.
 
 #include <atomic>
 #include <cstdint>
 #include <limits>
+#include <memory>
+#include <mutex>
+#include <optional>
 #include <span>
 #include <vector>
 
 #include "penumbra/common/expected.h"
 #include "penumbra/common/math.h"
 #include "penumbra/sma/hierarchy.h"
-
 namespace penumbra::sma {
 
 struct ShadedSample {
@@ -48,24 +66,50 @@ struct RadianceBounds {
   Status Check(const ShadedSample& sample) const;
 };
 
+/// One shaded sample as a reader copied it (SampleCache::Read).
+struct CachedSample {
+  Rgb radiance{0.0f};
+  Rgb irradiance{0.0f};
+  float irradianceStdErr = 0.0f;
+  uint32_t paths = 0;
+  uint16_t rounds = 0;
+  uint32_t generation = 0;  // the slot's generation when read (Evict bumps it)
+};
+
 class SampleCache {
  public:
-  /// Grows to cover `vertexCount` vertices (new ones unshaded).
-  void Reserve(size_t vertexCount);
-  size_t Size() const { return shaded_.size(); }
+  SampleCache();
+  ~SampleCache();
+  SampleCache(const SampleCache&) = delete;
+  SampleCache& operator=(const SampleCache&) = delete;
 
-  bool IsShaded(VertexId v) const { return v < shaded_.size() && shaded_[v] != 0; }
-  const Rgb& Radiance(VertexId v) const { return radiance_[v]; }
-  const Rgb& Irradiance(VertexId v) const { return irradiance_[v]; }
-  float IrradianceStdErr(VertexId v) const { return irradianceStdErr_[v]; }
+  /// Grows to cover `vertexCount` vertices (new ones unshaded). Takes the
+  /// growth mutex; existing slots do not move.
+  void Reserve(size_t vertexCount);
+  size_t Size() const { return size_.load(std::memory_order_acquire); }
+
+  bool IsShaded(VertexId v) const {
+    const Slot* s = Find(v);
+    return s && s->shaded.load(std::memory_order_acquire) != 0;
+  }
+  /// The whole sample of a shaded vertex, as one consistent copy; nothing
+  /// for an unshaded one.
+  std::optional<CachedSample> Read(VertexId v) const;
+  /// Single fields (each a consistent read of its own; use Read() for
+  /// several fields of one version). Zero for an unshaded vertex.
+  Rgb Radiance(VertexId v) const;
+  Rgb Irradiance(VertexId v) const;
+  float IrradianceStdErr(VertexId v) const;
   /// Paths averaged into a shaded sample, and the improvement rounds so far.
-  uint32_t Paths(VertexId v) const { return paths_[v]; }
-  uint16_t Rounds(VertexId v) const { return rounds_[v]; }
+  uint32_t Paths(VertexId v) const;
+  uint16_t Rounds(VertexId v) const;
+  /// Generation of a vertex's slot: bumped by every Evict().
+  uint32_t Generation(VertexId v) const;
   /// Relative standard error of a shaded sample's irradiance luminance (0
   /// for a sample that reads black with no spread: nothing to improve).
   float RelativeError(VertexId v) const;
   /// Luminance of the shaded radiance (0 when unshaded).
-  float Luminance(VertexId v) const { return IsShaded(v) ? penumbra::Luminance(radiance_[v]) : 0.0f; }
+  float Luminance(VertexId v) const { return penumbra::Luminance(Radiance(v)); }
 
   /// Stores first estimates (round 0); a vertex beyond Size() grows the
   /// cache. Storing a vertex twice keeps the first value (samples are
@@ -77,19 +121,23 @@ class SampleCache {
   /// unshaded vertex, or whose round is not the vertex's next, is ignored.
   /// Returns the vertices that changed.
   std::vector<VertexId> Improve(std::span<const ShadedSample> samples);
-
   /// Puts back samples as a snapshot saved them (CacheSnapshot), with their
   /// paths and improvement rounds, into vertices not yet shaded; a vertex
   /// beyond Size() grows the cache. Returns how many were put back.
   size_t Restore(std::span<const ShadedSample> samples);
+  /// Forgets a vertex's sample (it becomes unshaded) and bumps its slot's
+  /// generation, so that a reader holding an older copy can tell. For
+  /// invalidation and eviction; whoever calls it keeps the pool's rule (a
+  /// vertex is in the cache or alive in the pool) by requesting it again if
+  /// it is still needed. Returns whether it was shaded.
+  bool Evict(VertexId v);
 
-  size_t ShadedCount() const { return shadedCount_; }
-  /// Counts every sample stored, improved or restored: a snapshot is due when
-  /// it moved since the last one.
-  uint64_t Changes() const { return changes_; }
+  size_t ShadedCount() const { return shadedCount_.load(std::memory_order_relaxed); }
+  /// Counts every sample stored, improved, restored or evicted: a snapshot
+  /// is due when it moved since the last one.
+  uint64_t Changes() const { return changes_.load(std::memory_order_relaxed); }
 
   /// Lookup statistics for the hit rate: a lookup of a vertex a view needed.
-  /// Thread-safe (counted by readers holding the state lock shared).
   void CountLookups(uint64_t hits, uint64_t misses) const {
     hits_ += hits;
     misses_ += misses;
@@ -98,14 +146,41 @@ class SampleCache {
   uint64_t Misses() const { return misses_; }
 
  private:
-  std::vector<uint8_t> shaded_;
-  std::vector<Rgb> radiance_;
-  std::vector<Rgb> irradiance_;
-  std::vector<float> irradianceStdErr_;
-  std::vector<uint32_t> paths_;
-  std::vector<uint16_t> rounds_;
-  size_t shadedCount_ = 0;
-  uint64_t changes_ = 0;
+  // Every field is an atomic so that a reader racing a writer is defined
+  // behaviour (and quiet under ThreadSanitizer); the sequence orders them.
+  struct Slot {
+    std::atomic<uint32_t> sequence{0};  // odd while a writer is in the slot
+    std::atomic<uint32_t> generation{0};
+    std::atomic<uint8_t> shaded{0};
+    std::atomic<float> radiance[3];
+    std::atomic<float> irradiance[3];
+    std::atomic<float> irradianceStdErr{0.0f};
+    std::atomic<uint32_t> paths{0};
+    std::atomic<uint16_t> rounds{0};
+  };
+  static constexpr unsigned kChunkBits = 14;  // 16 Ki slots per chunk
+  static constexpr size_t kChunkSlots = size_t(1) << kChunkBits;
+  static constexpr size_t kMaxChunks = (size_t(std::numeric_limits<VertexId>::max()) >> kChunkBits) + 1;
+
+  const Slot* Find(VertexId v) const {
+    if (v >= Size()) return nullptr;
+    return &directory_[v >> kChunkBits].load(std::memory_order_acquire)[v & (kChunkSlots - 1)];
+  }
+  Slot& SlotFor(VertexId v);  // grows the cache when needed
+  // Writer side of a slot's sequence lock (writers of one slot serialize on it).
+  static uint32_t BeginWrite(Slot& s);
+  static void EndWrite(Slot& s, uint32_t sequence) { s.sequence.store(sequence + 2, std::memory_order_release); }
+  static void WriteValues(Slot& s, const ShadedSample& sample, uint16_t rounds);
+  size_t Put(std::span<const ShadedSample> samples, bool keepRounds);  // Store, Restore
+  template <typename F>
+  auto ReadConsistent(VertexId v, F&& read) const -> decltype(read(std::declval<const Slot&>()));
+
+  std::unique_ptr<std::atomic<Slot*>[]> directory_;
+  std::mutex growthMutex_;  // Reserve only
+  std::vector<std::unique_ptr<Slot[]>> chunks_;  // owned; under growthMutex_
+  std::atomic<size_t> size_{0};
+  std::atomic<size_t> shadedCount_{0};
+  std::atomic<uint64_t> changes_{0};
   mutable std::atomic<uint64_t> hits_{0};
   mutable std::atomic<uint64_t> misses_{0};
 };

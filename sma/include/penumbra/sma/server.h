@@ -17,11 +17,12 @@
 //    so that neither delays ordinary views nor runs on an I/O thread.
 //  * State lock (shared_mutex): the hierarchy and the cache. Visibility
 //    mapping, delta planning and refinement choices hold it shared (a
-//    mapping on a refined scene for tens of milliseconds); storing samples
-//    and splitting hold it exclusively. Samples are stored on the I/O thread
-//    that received them, which waits meanwhile for a running mapping to let
-//    go. Frames are encoded after the lock is released. Lock order: state
-//    lock before the renderer pool's lock; never the other way round.
+//    mapping on a refined scene for tens of milliseconds); splitting holds
+//    it exclusively. Samples are stored and improved without it (the
+//    SampleCache synchronises itself), so the I/O thread that receives a
+//    renderer's reply never waits for a mapping. Frames are encoded after
+//    the lock is released. Lock order: state lock before the renderer
+//    pool's lock; never the other way round.
 
 #include <chrono>
 #include <cstdint>

@@ -103,9 +103,11 @@ class ViewSession {
 
   // --- Stage 1: the view's own samples --------------------------------------
   /// The applied visibility's plan: `pending` nodes wait for their unshaded
-  /// corners. Caller holds the state lock (shared).
-  void BeginShading(std::span<const NodeId> pending, const Hierarchy& hierarchy, const SampleCache& cache,
-                    bool newView);
+  /// corners. Caller holds the state lock (shared). Returns the pending
+  /// nodes whose corners were all stored since the plan was made (samples
+  /// are stored without the state lock): the caller sends them as cached.
+  std::vector<NodeId> BeginShading(std::span<const NodeId> pending, const Hierarchy& hierarchy,
+                                   const SampleCache& cache, bool newView);
   struct Arrived {
     std::vector<NodeId> candidates;  // pending nodes one of whose corners arrived
     bool remapWanted = false;        // a midpoint arrived that may complete shown nodes' children

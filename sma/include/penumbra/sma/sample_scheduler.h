@@ -1,0 +1,231 @@
+#pragma once
+// Which samples go to which renderer, and when: the renderer pool's
+// scheduling without its sockets (renderer_pool.h moves the bytes). Tested
+// with a fake clock (sma/tests/sample_scheduler_test.cpp).
+//
+//  * Every vertex is requested at most once while its request is alive:
+//    queued, in flight, or answered but not yet stored (Complete). Asking
+//    again for such a vertex only raises its interest.
+//  * Three priorities. Visible requests (a client's view needs the vertex)
+//    go before background ones (refinement, or views since superseded), and
+//    both before improvements (a further estimate of a shaded vertex;
+//    SampleCache::Improve). A batch holds one priority only, and asks for
+//    that priority's paths per sample. A visible request carries one unit of
+//    *interest* per asking view; when every view that asked has moved on
+//    (ReleaseInterest), it is demoted to background the next time the
+//    scheduler meets it.
+//  * Credits: each renderer has a bounded number of batches in flight, so a
+//    faster renderer gets its credits back sooner and gets more work; batch
+//    sizes follow each renderer's measured rate so a batch takes about
+//    `targetBatchTime`, shared among free credits when little is queued.
+//  * One requeue path (Requeue): whatever takes samples back from a renderer
+//    -- loss, timeout, bad reply, a refused batch -- puts them back at the
+//    front of their queue.
+//  * Quarantine: a renderer that answered nonsense gets no work until
+//    `quarantine` has passed on the scheduler's clock.
+//
+// Threads: not synchronised; the pool calls it under its own mutex.
+
+#include <chrono>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <map>
+#include <optional>
+#include <span>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "penumbra/sma/sample_cache.h"
+#include "penumbra/sma/shade_codec.h"
+#include "penumbra/wire.pb.h"
+
+namespace penumbra::sma {
+
+enum class Priority : uint8_t { kVisible, kBackground, kImprove };
+
+struct SampleSchedulerOptions {
+  uint32_t pathsPerSample = 0;      // background samples (refinement); 0: each renderer's default
+  uint32_t firstPaths = 16;         // visible samples (stage 1); 0: as pathsPerSample
+  uint32_t improvePaths = 64;       // each improvement round
+  uint32_t creditsPerRenderer = 4;  // batches in flight per renderer (and at most its own limit)
+  uint32_t minBatchSamples = 8;
+  uint32_t maxBatchSamples = 2048;  // and at most the renderer's own limit
+  std::chrono::milliseconds targetBatchTime{150};
+  std::chrono::milliseconds batchTimeout{60000};  // a batch unanswered this long drops its renderer
+  std::chrono::milliseconds quarantine{30000};    // no work for a renderer after a bad reply
+  /// What a sample's radiance may physically be in this scene.
+  RadianceBounds radianceBounds;
+};
+
+/// A renderer's limits, from its Welcome.
+struct RendererCapacity {
+  uint32_t maxBatchesInFlight = 1;
+  uint32_t maxBatchSamples = 1;
+  uint32_t defaultPaths = 1;  // its --spp: what a request for 0 paths gets
+};
+
+/// Identifies a renderer to the scheduler (the pool uses RendererStatus::index).
+using RendererId = uint32_t;
+
+/// A batch assigned to a renderer, for its link to encode and send.
+struct AssignedBatch {
+  RendererId renderer = 0;
+  uint64_t id = 0;
+  uint32_t pathsPerSample = 0;  // as sent (0: the renderer's default)
+  std::vector<SampleRequest> samples;
+};
+
+/// What a reply part came to.
+struct ReplyOutcome {
+  std::vector<ShadedSample> results;  // to store, then Complete()
+  /// Set when the reply was nonsense: the renderer's batches were requeued
+  /// and it is quarantined; its link should be dropped.
+  std::optional<std::string> badReply;
+  bool batchDone = false;  // the part ended a batch answered well
+};
+
+/// One renderer as the scheduler sees it (for statistics).
+struct RendererLoad {
+  bool ready = false;
+  uint32_t batchesInFlight = 0;
+  uint64_t samplesInFlight = 0;
+  uint64_t samplesShaded = 0;
+  double samplesPerSecond = 0.0;  // moving average
+  uint32_t failures = 0;          // losses, timeouts and bad replies
+  uint32_t badReplies = 0;
+};
+
+struct SchedulerCounters {
+  uint64_t queuedVisible = 0;
+  uint64_t queuedBackground = 0;
+  uint64_t queuedImprove = 0;
+  uint64_t inFlight = 0;
+  uint64_t requested = 0;  // distinct samples queued since start
+  uint64_t shaded = 0;     // samples answered since start
+  uint64_t requeued = 0;   // samples sent again after a renderer failed
+  uint64_t failed = 0;     // samples a renderer refused as invalid three times (stored black)
+  uint64_t rejected = 0;   // samples whose radiance was impossible (their renderer was quarantined)
+};
+
+class SampleScheduler {
+ public:
+  using Clock = std::chrono::steady_clock;
+  /// The clock every time is read from; tests give a fake one.
+  using Now = std::function<Clock::time_point()>;
+
+  explicit SampleScheduler(SampleSchedulerOptions options, Now now = &Clock::now);
+
+  // --- Requests (any client's work) ---
+  /// Queues the samples that are not already alive. Visible requests add one
+  /// unit of interest to every listed vertex, queued now or before. Returns
+  /// the number newly queued.
+  size_t Request(std::span<const SampleRequest> samples, Priority priority);
+  /// Removes one unit of interest from each vertex (a view moved on).
+  void ReleaseInterest(std::span<const VertexId> vertices);
+  /// The results have been stored: forget these vertices.
+  void Complete(std::span<const ShadedSample> samples);
+
+  // --- Renderers (events from their links) ---
+  /// Connected and past its handshake: it may get work (unless quarantined).
+  void RendererReady(RendererId renderer, const RendererCapacity& capacity);
+  /// It is shutting down: no new batches, its batches in flight may still end.
+  void RendererDraining(RendererId renderer);
+  /// It is gone (closed, removed from DNS, dropped): its unanswered samples
+  /// go back to the front of their queues. A renderer that was ready or had
+  /// work counts a failure. Returns the samples requeued.
+  size_t RendererLost(RendererId renderer);
+  /// Forgets a renderer that will not come back (after RendererLost).
+  void RemoveRenderer(RendererId renderer);
+
+  /// A reply part: checked against what the batch asked for (ids, rounds,
+  /// counts, RadianceBounds) as a whole before any sample is taken, so a bad
+  /// part requeues every sample of the renderer. A renderer that is not
+  /// ready (lost, timed out: its work already requeued) is not listened to.
+  ReplyOutcome OnReply(RendererId renderer, const wire::ShadeReply& reply);
+  /// The renderer refused a batch (an Error naming it). Its samples are
+  /// requeued, except those refused as invalid three times: they are given
+  /// up on and returned as black samples of no path, to be stored so that
+  /// nobody waits for them. Nothing for a batch it does not have in flight.
+  std::optional<std::vector<ShadedSample>> OnBatchRefused(RendererId renderer, uint64_t batchId, bool invalid);
+
+  /// Renderers with a batch unanswered for longer than `batchTimeout`, each
+  /// with the reason; their work is already requeued (RendererLost), the
+  /// caller drops their links.
+  std::vector<std::pair<RendererId, std::string>> ExpireTimedOut();
+
+  /// Assigns queued samples to renderers with free credits, most urgent
+  /// priority first. Encoding and sending is the caller's (outside its lock).
+  std::vector<AssignedBatch> Assemble();
+
+  // --- Observation ---
+  size_t Outstanding() const { return size_t(queuedTotal_ + inFlight_); }
+  size_t Queued() const { return size_t(queuedTotal_); }
+  bool Quarantined(RendererId renderer) const;
+  /// How long a renderer must still wait before it may be reconnected.
+  std::chrono::milliseconds QuarantineLeft(RendererId renderer) const;
+  SchedulerCounters Counters() const;
+  RendererLoad Load(RendererId renderer) const;
+
+ private:
+  enum class EntryState : uint8_t { kQueued, kInFlight, kAnswered };
+  struct Entry {
+    SampleRequest request;
+    uint32_t interest = 0;
+    EntryState state = EntryState::kQueued;
+    bool inVisibleQueue = false;
+    bool improve = false;  // an improvement (request.round > 0), in the improvement queue
+    uint8_t invalidReplies = 0;
+    uint64_t batch = 0;  // while in flight: the batch carrying it
+  };
+  struct Batch {
+    std::vector<VertexId> vertices;
+    size_t answered = 0;
+    uint32_t paths = 0;  // paths per sample asked for (the renderer's default when the request said 0)
+    Clock::time_point sentAt;
+  };
+  struct Renderer {
+    bool ready = false;
+    bool draining = false;
+    RendererCapacity capacity;
+    std::map<uint64_t, Batch> batches;  // by id: oldest first
+    uint64_t samplesInFlight = 0;
+    double rate = 0.0;
+    Clock::time_point lastCompletion;
+    Clock::time_point quarantinedUntil;
+    uint64_t shaded = 0;
+    uint32_t failures = 0;
+    uint32_t badReplies = 0;
+  };
+
+  bool Accepts(const Renderer& r, Clock::time_point now) const;
+  bool TakeNext(Priority priority, VertexId& out);
+  // The one requeue path: a batch's unanswered samples back to the front of
+  // their queues, oldest first.
+  // `givenUpIfInvalid`: the batch was refused as invalid; entries refused
+  // so three times are given up on (appended there) instead.
+  void Requeue(uint64_t batchId, const Batch& batch, std::vector<ShadedSample>* givenUpIfInvalid);
+  void RequeueAll(Renderer& renderer);
+  ReplyOutcome Reject(Renderer& renderer, RendererId id, std::string reason);
+
+  SampleSchedulerOptions options_;
+  Now now_;
+  std::unordered_map<VertexId, Entry> entries_;
+  std::deque<VertexId> visibleQueue_;
+  std::deque<VertexId> backgroundQueue_;
+  std::deque<VertexId> improveQueue_;
+  std::map<RendererId, Renderer> renderers_;  // by id: dispatch order is stable
+  uint64_t nextBatchId_ = 1;
+  uint64_t queuedVisible_ = 0;
+  uint64_t queuedImprove_ = 0;
+  uint64_t queuedTotal_ = 0;
+  uint64_t inFlight_ = 0;
+  uint64_t requested_ = 0;
+  uint64_t shaded_ = 0;
+  uint64_t requeued_ = 0;
+  uint64_t failed_ = 0;
+  uint64_t rejected_ = 0;
+};
+
+}  // namespace penumbra::sma

@@ -1,0 +1,65 @@
+#pragma once
+// The SMA's half of the shade protocol, the mirror of the renderer's
+// renderer/src/shade_batch.cpp: ShadeRequest batches built from sample
+// requests, and ShadeReply parts checked and decoded into shaded samples.
+// Plain functions of messages and bytes: no socket, no pool state, so they
+// are tested with bytes against the renderer's own codec
+// (tests/shade_codec_test.cpp) and fuzzed (tests/fuzz/fuzz_sma_shade_reply.cpp).
+//
+// Threads: none of their own; any thread may call them.
+
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "penumbra/common/expected.h"
+#include "penumbra/sma/hierarchy.h"
+#include "penumbra/sma/sample_cache.h"
+#include "penumbra/wire.pb.h"
+
+namespace penumbra::sma {
+
+/// Everything a renderer needs to shade one vertex.
+struct SampleRequest {
+  VertexId vertex = kNoVertex;
+  Vec3 position;
+  Vec3 normal;
+  uint32_t triangle = 0;
+  Vec2 bary{0.0f};
+  uint16_t round = 0;  // 0: first shading; k > 0: the k-th improvement (Priority::kImprove)
+};
+
+/// Builds the request for vertex `v` of `hierarchy`.
+SampleRequest MakeSampleRequest(const Hierarchy& hierarchy, VertexId v);
+
+/// Wire sample ids: the vertex in the low 32 bits, the improvement round
+/// above, so that each round has a random stream of its own.
+constexpr uint64_t WireSampleId(VertexId v, uint16_t round) { return uint64_t(v) | (uint64_t(round) << 32); }
+constexpr VertexId VertexOfWireId(uint64_t id) { return VertexId(id & 0xffffffffu); }
+constexpr uint64_t RoundOfWireId(uint64_t id) { return id >> 32; }
+
+/// Fills `request` with one batch: `pathsPerSample` 0 leaves the count to
+/// the renderer's default.
+void FillShadeRequest(uint64_t batchId, uint32_t pathsPerSample, std::span<const SampleRequest> samples,
+                      wire::ShadeRequest* request);
+/// The same batch as a whole frame, ready for net::Connection::SendFrame:
+/// built by the caller outside any lock.
+std::shared_ptr<const std::string> EncodeShadeRequestFrame(uint64_t batchId, uint32_t pathsPerSample,
+                                                           std::span<const SampleRequest> samples);
+
+/// OK when a reply part's arrays agree: per sample one id, three radiance,
+/// three irradiance and one standard-error value, and no path counts or one
+/// each.
+Status CheckShadeReplyShape(const wire::ShadeReply& reply);
+/// Sample `i` of a part that passed CheckShadeReplyShape: vertex and round
+/// from its id, its path count, else `batchPaths`. An error when that count
+/// is 0 or above 2^24. Values are not checked here (RadianceBounds::Check).
+Expected<ShadedSample> DecodeReplySample(const wire::ShadeReply& reply, int i, uint32_t batchPaths);
+/// A whole part: its shape, every sample (DecodeReplySample), and no sample
+/// id twice in it. Whether the batch asked for these ids, and whether their
+/// values are possible, is the scheduler's to check.
+Expected<std::vector<ShadedSample>> DecodeShadeReply(const wire::ShadeReply& reply, uint32_t batchPaths);
+
+}  // namespace penumbra::sma

@@ -1,0 +1,383 @@
+#include "penumbra/sma/sample_scheduler.h"
+
+#include <algorithm>
+
+#include <fmt/format.h>
+
+#include "penumbra/common/check.h"
+
+namespace penumbra::sma {
+
+SampleScheduler::SampleScheduler(SampleSchedulerOptions options, Now now)
+    : options_(std::move(options)), now_(std::move(now)) {}
+
+// --- Requests -----------------------------------------------------------------
+
+size_t SampleScheduler::Request(std::span<const SampleRequest> samples, Priority priority) {
+  size_t added = 0;
+  const bool visible = priority == Priority::kVisible;
+  if (priority == Priority::kImprove) {
+    for (const SampleRequest& s : samples) {
+      auto [it, inserted] = entries_.try_emplace(s.vertex);
+      if (!inserted) continue;  // alive already (being shaded or improved): one request at a time
+      Entry& e = it->second;
+      e.request = s;
+      e.improve = true;
+      ++queuedTotal_;
+      ++queuedImprove_;
+      ++added;
+      improveQueue_.push_back(s.vertex);
+    }
+    return added;
+  }
+  for (const SampleRequest& s : samples) {
+    auto [it, inserted] = entries_.try_emplace(s.vertex);
+    Entry& e = it->second;
+    if (e.improve) continue;  // its improvement is on the way; a shaded vertex is not asked for again
+    if (visible) ++e.interest;
+    if (inserted) {
+      e.request = s;
+      ++requested_;
+      ++queuedTotal_;
+      ++added;
+      if (visible) {
+        e.inVisibleQueue = true;
+        ++queuedVisible_;
+        visibleQueue_.push_back(s.vertex);
+      } else {
+        backgroundQueue_.push_back(s.vertex);
+      }
+    } else if (visible && e.state == EntryState::kQueued && !e.inVisibleQueue) {
+      // Queued for refinement or a past view, now wanted by a view: promote.
+      // Its copy in the background queue is skipped when met.
+      e.inVisibleQueue = true;
+      ++queuedVisible_;
+      visibleQueue_.push_back(s.vertex);
+    }
+  }
+  return added;
+}
+
+void SampleScheduler::ReleaseInterest(std::span<const VertexId> vertices) {
+  for (VertexId v : vertices) {
+    auto it = entries_.find(v);
+    if (it != entries_.end() && it->second.interest > 0) --it->second.interest;
+  }
+}
+
+void SampleScheduler::Complete(std::span<const ShadedSample> samples) {
+  for (const ShadedSample& s : samples) {
+    auto it = entries_.find(s.vertex);
+    if (it != entries_.end() && it->second.state == EntryState::kAnswered) entries_.erase(it);
+  }
+}
+
+// --- Renderers ------------------------------------------------------------------
+
+void SampleScheduler::RendererReady(RendererId renderer, const RendererCapacity& capacity) {
+  Renderer& r = renderers_[renderer];
+  r.ready = true;
+  r.draining = false;
+  r.capacity.maxBatchesInFlight = std::max(1u, std::min(options_.creditsPerRenderer, capacity.maxBatchesInFlight));
+  r.capacity.maxBatchSamples = std::max(1u, std::min(options_.maxBatchSamples, capacity.maxBatchSamples));
+  r.capacity.defaultPaths = std::max(1u, capacity.defaultPaths);
+  r.lastCompletion = now_();
+}
+
+void SampleScheduler::RendererDraining(RendererId renderer) {
+  if (auto it = renderers_.find(renderer); it != renderers_.end()) it->second.draining = true;
+}
+
+size_t SampleScheduler::RendererLost(RendererId renderer) {
+  auto it = renderers_.find(renderer);
+  if (it == renderers_.end()) return 0;
+  Renderer& r = it->second;
+  if (r.ready || !r.batches.empty()) ++r.failures;
+  r.ready = false;
+  r.draining = false;
+  const uint64_t before = requeued_;
+  RequeueAll(r);
+  return size_t(requeued_ - before);
+}
+
+void SampleScheduler::RemoveRenderer(RendererId renderer) {
+  RendererLost(renderer);
+  renderers_.erase(renderer);
+}
+
+void SampleScheduler::RequeueAll(Renderer& renderer) {
+  // Newest batch first, each to the front: the oldest ends up first in line.
+  for (auto it = renderer.batches.rbegin(); it != renderer.batches.rend(); ++it) Requeue(it->first, it->second, nullptr);
+  renderer.batches.clear();
+  renderer.samplesInFlight = 0;
+}
+
+void SampleScheduler::Requeue(uint64_t batchId, const Batch& batch, std::vector<ShadedSample>* givenUpIfInvalid) {
+  // Back to the front of their queues, in their order: they have waited longest.
+  for (auto v = batch.vertices.rbegin(); v != batch.vertices.rend(); ++v) {
+    auto e = entries_.find(*v);
+    if (e == entries_.end() || e->second.state != EntryState::kInFlight || e->second.batch != batchId) continue;
+    Entry& entry = e->second;
+    --inFlight_;
+    if (givenUpIfInvalid && ++entry.invalidReplies >= 3) {
+      // Refused as invalid three times: given up on, stored black with no
+      // path (so an improvement of it changes nothing) and nobody waits.
+      entry.state = EntryState::kAnswered;
+      ++failed_;
+      givenUpIfInvalid->push_back(ShadedSample{*v, Rgb(0.0f), Rgb(0.0f), 0.0f, 0, entry.request.round});
+      continue;
+    }
+    entry.state = EntryState::kQueued;
+    ++requeued_;
+    ++queuedTotal_;
+    if (entry.improve) {
+      ++queuedImprove_;
+      improveQueue_.push_front(*v);
+    } else if (entry.interest > 0) {
+      entry.inVisibleQueue = true;
+      ++queuedVisible_;
+      visibleQueue_.push_front(*v);
+    } else {
+      backgroundQueue_.push_front(*v);
+    }
+  }
+}
+
+ReplyOutcome SampleScheduler::Reject(Renderer& renderer, RendererId id, std::string reason) {
+  ++renderer.badReplies;
+  renderer.quarantinedUntil = now_() + options_.quarantine;
+  RendererLost(id);
+  ReplyOutcome outcome;
+  outcome.badReply = std::move(reason);
+  return outcome;
+}
+
+ReplyOutcome SampleScheduler::OnReply(RendererId id, const wire::ShadeReply& reply) {
+  auto found = renderers_.find(id);
+  // A renderer forgotten or lost (its connection closing after a timeout):
+  // its work went elsewhere, and a late reply is not its fault.
+  if (found == renderers_.end() || !found->second.ready) return {};
+  Renderer& renderer = found->second;
+  auto it = renderer.batches.find(reply.batch_id());
+  if (it == renderer.batches.end())
+    return Reject(renderer, id, fmt::format("reply for unknown batch {}", reply.batch_id()));
+  const uint64_t batchId = it->first;
+  Batch& batch = it->second;
+  // The whole part is checked before any of it is taken: a bad sample after
+  // good ones drops the renderer, and every sample of the batch (the good
+  // ones too) must then still be in flight so that it is requeued, not lost.
+  auto decoded = DecodeShadeReply(reply, batch.paths);
+  if (!decoded) return Reject(renderer, id, fmt::format("reply for batch {}: {}", batchId, decoded.error().message));
+  for (const ShadedSample& sample : *decoded) {
+    auto e = entries_.find(sample.vertex);
+    if (e == entries_.end() || e->second.state != EntryState::kInFlight || e->second.batch != batchId ||
+        e->second.request.round != sample.round)
+      return Reject(renderer, id,
+                    fmt::format("reply for batch {} names sample {}, which it was not asked for", batchId,
+                                WireSampleId(sample.vertex, sample.round)));
+    if (auto ok = options_.radianceBounds.Check(sample); !ok) {
+      ++rejected_;
+      return Reject(renderer, id,
+                    fmt::format("reply for batch {}: sample {}: {}", batchId, WireSampleId(sample.vertex, sample.round),
+                                ok.error().message));
+    }
+  }
+  const size_t n = decoded->size();
+  if (reply.remaining() == 0 && batch.answered + n != batch.vertices.size())
+    return Reject(renderer, id,
+                  fmt::format("batch {} ended with {} of {} samples", batchId, batch.answered + n, batch.vertices.size()));
+  for (const ShadedSample& sample : *decoded) entries_[sample.vertex].state = EntryState::kAnswered;
+  batch.answered += n;
+  renderer.samplesInFlight -= n;
+  renderer.shaded += n;
+  inFlight_ -= n;
+  shaded_ += n;
+  ReplyOutcome outcome;
+  if (reply.remaining() == 0) {
+    // Service rate: pipelined batches overlap, so time a batch from the
+    // later of its sending and the previous completion.
+    const auto now = now_();
+    const double seconds = std::chrono::duration<double>(now - std::max(batch.sentAt, renderer.lastCompletion)).count();
+    if (seconds > 0.0) {
+      const double rate = double(batch.vertices.size()) / seconds;
+      renderer.rate = renderer.rate > 0.0 ? 0.7 * renderer.rate + 0.3 * rate : rate;
+    }
+    renderer.lastCompletion = now;
+    renderer.batches.erase(it);
+    outcome.batchDone = true;
+  }
+  outcome.results = std::move(*decoded);
+  return outcome;
+}
+
+std::optional<std::vector<ShadedSample>> SampleScheduler::OnBatchRefused(RendererId id, uint64_t batchId,
+                                                                         bool invalid) {
+  auto found = renderers_.find(id);
+  if (found == renderers_.end()) return std::nullopt;
+  Renderer& renderer = found->second;
+  auto it = renderer.batches.find(batchId);
+  if (it == renderer.batches.end()) return std::nullopt;
+  std::vector<ShadedSample> givenUp;
+  const Batch batch = std::move(it->second);
+  renderer.batches.erase(it);
+  renderer.samplesInFlight -= batch.vertices.size() - batch.answered;
+  Requeue(batchId, batch, invalid ? &givenUp : nullptr);
+  return givenUp;
+}
+
+std::vector<std::pair<RendererId, std::string>> SampleScheduler::ExpireTimedOut() {
+  std::vector<std::pair<RendererId, std::string>> expired;
+  const auto now = now_();
+  for (auto& [id, renderer] : renderers_) {
+    for (const auto& [batchId, batch] : renderer.batches) {
+      if (now - batch.sentAt <= options_.batchTimeout) continue;
+      expired.emplace_back(id, fmt::format("batch {} unanswered for {} ms", batchId,
+                                           std::chrono::duration_cast<std::chrono::milliseconds>(now - batch.sentAt).count()));
+      break;
+    }
+  }
+  for (const auto& e : expired) RendererLost(e.first);
+  return expired;
+}
+
+// --- Assembly -------------------------------------------------------------------
+
+bool SampleScheduler::Accepts(const Renderer& r, Clock::time_point now) const {
+  return r.ready && !r.draining && r.batches.size() < r.capacity.maxBatchesInFlight && now >= r.quarantinedUntil;
+}
+
+bool SampleScheduler::TakeNext(Priority priority, VertexId& out) {
+  if (priority == Priority::kImprove) {
+    while (!improveQueue_.empty()) {
+      const VertexId v = improveQueue_.front();
+      improveQueue_.pop_front();
+      auto it = entries_.find(v);
+      if (it == entries_.end() || it->second.state != EntryState::kQueued || !it->second.improve) continue;
+      --queuedImprove_;
+      out = v;
+      return true;
+    }
+    return false;
+  }
+  while (priority == Priority::kVisible && !visibleQueue_.empty()) {
+    const VertexId v = visibleQueue_.front();
+    visibleQueue_.pop_front();
+    auto it = entries_.find(v);
+    if (it == entries_.end() || it->second.state != EntryState::kQueued || !it->second.inVisibleQueue) continue;
+    it->second.inVisibleQueue = false;
+    --queuedVisible_;
+    if (it->second.interest == 0) {  // every view that wanted it has moved on
+      backgroundQueue_.push_back(v);
+      continue;
+    }
+    out = v;
+    return true;
+  }
+  while (priority == Priority::kBackground && !backgroundQueue_.empty()) {
+    const VertexId v = backgroundQueue_.front();
+    backgroundQueue_.pop_front();
+    auto it = entries_.find(v);
+    // A copy also in the visible queue is taken from there.
+    if (it == entries_.end() || it->second.state != EntryState::kQueued || it->second.inVisibleQueue ||
+        it->second.improve)
+      continue;
+    out = v;
+    return true;
+  }
+  return false;
+}
+
+std::vector<AssignedBatch> SampleScheduler::Assemble() {
+  std::vector<AssignedBatch> out;
+  const auto now = now_();
+  while (queuedTotal_ > 0) {
+    uint32_t freeCredits = 0;
+    for (const auto& [id, r] : renderers_)
+      if (Accepts(r, now)) freeCredits += r.capacity.maxBatchesInFlight - uint32_t(r.batches.size());
+    if (freeCredits == 0) return out;
+    for (auto& [id, r] : renderers_) {
+      if (!Accepts(r, now)) continue;
+      // Size by the renderer's measured rate, but when little is queued share
+      // it among every free credit so that all renderers work on it.
+      const double byRate = r.rate > 0.0 ? r.rate * std::chrono::duration<double>(options_.targetBatchTime).count()
+                                         : double(options_.minBatchSamples * 4);
+      const size_t fairShare = size_t((queuedTotal_ + freeCredits - 1) / freeCredits);
+      const size_t size = std::clamp<size_t>(std::min<size_t>(size_t(byRate), fairShare), options_.minBatchSamples,
+                                             std::max(options_.minBatchSamples, r.capacity.maxBatchSamples));
+      // One priority per batch, the most urgent one queued.
+      VertexId v = kNoVertex;
+      Priority priority = Priority::kVisible;
+      for (Priority p : {Priority::kVisible, Priority::kBackground, Priority::kImprove}) {
+        if (TakeNext(p, v)) {
+          priority = p;
+          break;
+        }
+      }
+      // Every queued entry sits in one of the queues.
+      PENUMBRA_CHECK(v != kNoVertex, fmt::format("{} samples counted as queued but none found", queuedTotal_));
+      const uint32_t paths = priority == Priority::kImprove                               ? options_.improvePaths
+                             : priority == Priority::kVisible && options_.firstPaths > 0 ? options_.firstPaths
+                                                                                          : options_.pathsPerSample;
+      AssignedBatch assigned{id, nextBatchId_++, paths, {}};
+      Batch batch;
+      batch.paths = paths > 0 ? paths : r.capacity.defaultPaths;
+      batch.sentAt = now;
+      for (bool first = true; first || (batch.vertices.size() < size && TakeNext(priority, v)); first = false) {
+        Entry& e = entries_.at(v);
+        e.state = EntryState::kInFlight;
+        e.batch = assigned.id;
+        --queuedTotal_;
+        ++inFlight_;
+        batch.vertices.push_back(v);
+        assigned.samples.push_back(e.request);
+      }
+      r.samplesInFlight += batch.vertices.size();
+      r.batches.emplace(assigned.id, std::move(batch));
+      out.push_back(std::move(assigned));
+      if (queuedTotal_ == 0) return out;
+    }
+  }
+  return out;
+}
+
+// --- Observation ----------------------------------------------------------------
+
+bool SampleScheduler::Quarantined(RendererId renderer) const { return QuarantineLeft(renderer).count() > 0; }
+
+std::chrono::milliseconds SampleScheduler::QuarantineLeft(RendererId renderer) const {
+  auto it = renderers_.find(renderer);
+  if (it == renderers_.end()) return std::chrono::milliseconds(0);
+  const auto left = it->second.quarantinedUntil - now_();
+  return left.count() > 0 ? std::chrono::ceil<std::chrono::milliseconds>(left) : std::chrono::milliseconds(0);
+}
+
+SchedulerCounters SampleScheduler::Counters() const {
+  SchedulerCounters c;
+  c.queuedVisible = queuedVisible_;
+  c.queuedImprove = queuedImprove_;
+  c.queuedBackground = queuedTotal_ >= queuedVisible_ + queuedImprove_ ? queuedTotal_ - queuedVisible_ - queuedImprove_ : 0;
+  c.inFlight = inFlight_;
+  c.requested = requested_;
+  c.shaded = shaded_;
+  c.requeued = requeued_;
+  c.failed = failed_;
+  c.rejected = rejected_;
+  return c;
+}
+
+RendererLoad SampleScheduler::Load(RendererId renderer) const {
+  RendererLoad load;
+  auto it = renderers_.find(renderer);
+  if (it == renderers_.end()) return load;
+  const Renderer& r = it->second;
+  load.ready = r.ready;
+  load.batchesInFlight = uint32_t(r.batches.size());
+  load.samplesInFlight = r.samplesInFlight;
+  load.samplesShaded = r.shaded;
+  load.samplesPerSecond = r.rate;
+  load.failures = r.failures;
+  load.badReplies = r.badReplies;
+  return load;
+}
+
+}  // namespace penumbra::sma

@@ -1,0 +1,81 @@
+#include "penumbra/sma/shade_codec.h"
+
+#include <unordered_set>
+
+#include <fmt/format.h>
+
+#include "penumbra/common/messages.h"
+
+namespace penumbra::sma {
+
+SampleRequest MakeSampleRequest(const Hierarchy& hierarchy, VertexId v) {
+  const SampleVertex& sv = hierarchy.GetVertex(v);
+  return SampleRequest{v, sv.position, sv.normal, sv.baseTriangle, sv.bary};
+}
+
+void FillShadeRequest(uint64_t batchId, uint32_t pathsPerSample, std::span<const SampleRequest> samples,
+                      wire::ShadeRequest* request) {
+  request->set_batch_id(batchId);
+  request->set_paths_per_sample(pathsPerSample);
+  const int n = int(samples.size());
+  request->mutable_sample_ids()->Reserve(n);
+  request->mutable_positions()->Reserve(3 * n);
+  request->mutable_normals()->Reserve(3 * n);
+  request->mutable_triangle_ids()->Reserve(n);
+  request->mutable_barycentrics()->Reserve(2 * n);
+  for (const SampleRequest& r : samples) {
+    request->add_sample_ids(WireSampleId(r.vertex, r.round));
+    for (int k = 0; k < 3; ++k) request->add_positions(r.position[k]);
+    for (int k = 0; k < 3; ++k) request->add_normals(r.normal[k]);
+    request->add_triangle_ids(r.triangle);
+    request->add_barycentrics(r.bary.x);
+    request->add_barycentrics(r.bary.y);
+  }
+}
+
+std::shared_ptr<const std::string> EncodeShadeRequestFrame(uint64_t batchId, uint32_t pathsPerSample,
+                                                           std::span<const SampleRequest> samples) {
+  wire::Envelope envelope;
+  FillShadeRequest(batchId, pathsPerSample, samples, envelope.mutable_shade_request());
+  return std::make_shared<const std::string>(EncodeEnvelopeFrame(envelope));
+}
+
+Status CheckShadeReplyShape(const wire::ShadeReply& reply) {
+  const int n = reply.sample_ids_size();
+  if (reply.radiance_size() != 3 * n || reply.irradiance_size() != 3 * n || reply.irradiance_stderr_size() != n ||
+      (reply.sample_paths_size() != 0 && reply.sample_paths_size() != n))
+    return Fail(fmt::format("inconsistent arrays ({} ids, {} radiance, {} irradiance, {} stderr, {} path values)", n,
+                            reply.radiance_size(), reply.irradiance_size(), reply.irradiance_stderr_size(),
+                            reply.sample_paths_size()));
+  return Status::Ok();
+}
+
+Expected<ShadedSample> DecodeReplySample(const wire::ShadeReply& reply, int i, uint32_t batchPaths) {
+  const uint64_t id = reply.sample_ids(i);
+  const uint32_t paths = reply.sample_paths_size() == reply.sample_ids_size() ? reply.sample_paths(i) : batchPaths;
+  if (paths == 0 || paths > (1u << 24)) return Fail(fmt::format("sample {} averages {} paths", id, paths));
+  if (RoundOfWireId(id) > 0xffffu) return Fail(fmt::format("sample id {} names no round this SMA asks for", id));
+  return ShadedSample{VertexOfWireId(id),
+                      Rgb(reply.radiance(3 * i), reply.radiance(3 * i + 1), reply.radiance(3 * i + 2)),
+                      Rgb(reply.irradiance(3 * i), reply.irradiance(3 * i + 1), reply.irradiance(3 * i + 2)),
+                      reply.irradiance_stderr(i), paths, uint16_t(RoundOfWireId(id))};
+}
+
+Expected<std::vector<ShadedSample>> DecodeShadeReply(const wire::ShadeReply& reply, uint32_t batchPaths) {
+  if (auto ok = CheckShadeReplyShape(reply); !ok) return ok.error();
+  const int n = reply.sample_ids_size();
+  std::vector<ShadedSample> samples;
+  samples.reserve(size_t(n));  // bounded by the frame the part came in
+  std::unordered_set<uint64_t> seen;
+  seen.reserve(size_t(n));
+  for (int i = 0; i < n; ++i) {
+    if (!seen.insert(reply.sample_ids(i)).second)
+      return Fail(fmt::format("sample {} is answered twice", reply.sample_ids(i)));
+    auto sample = DecodeReplySample(reply, i, batchPaths);
+    if (!sample) return sample.error();
+    samples.push_back(*sample);
+  }
+  return samples;
+}
+
+}  // namespace penumbra::sma

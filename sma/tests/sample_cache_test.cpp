@@ -1,0 +1,183 @@
+// The sample cache written while it is read: whole samples, never torn,
+// never lost to growth, eviction seen through generations. The concurrent
+// cases are meant for ThreadSanitizer too (scripts/test.sh --tsan).
+
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <cmath>
+#include <thread>
+#include <vector>
+
+#include "penumbra/sma/sample_cache.h"
+
+namespace penumbra::sma {
+namespace {
+
+// A sample whose three channels are equal and whose irradiance is twice its
+// radiance: any mix of two such samples keeps both properties, a torn read
+// of two different versions does not.
+ShadedSample Sample(VertexId v, float value, uint16_t round = 0, uint32_t paths = 16) {
+  return ShadedSample{v, Rgb(value), Rgb(2.0f * value), 0.1f * value, paths, round};
+}
+
+::testing::AssertionResult Whole(const CachedSample& s) {
+  const Rgb& r = s.radiance;
+  const Rgb& e = s.irradiance;
+  if (r.r != r.g || r.g != r.b || e.r != e.g || e.g != e.b)
+    return ::testing::AssertionFailure() << "channels differ: radiance (" << r.r << ", " << r.g << ", " << r.b
+                                         << "), irradiance (" << e.r << ", " << e.g << ", " << e.b << ")";
+  if (std::abs(e.r - 2.0f * r.r) > 1e-4f * std::max(1.0f, r.r))
+    return ::testing::AssertionFailure() << "irradiance " << e.r << " is not twice radiance " << r.r;
+  return ::testing::AssertionSuccess();
+}
+
+TEST(SampleCache, StoresOnceImprovesInOrderAndEvicts) {
+  SampleCache cache;
+  cache.Reserve(4);
+  EXPECT_FALSE(cache.IsShaded(2));
+  EXPECT_FALSE(cache.Read(2).has_value());
+  EXPECT_EQ(cache.Store(std::vector{Sample(2, 1.0f)}), 1u);
+  EXPECT_EQ(cache.Store(std::vector{Sample(2, 5.0f)}), 0u);  // a duplicate keeps the first
+  ASSERT_TRUE(cache.Read(2).has_value());
+  EXPECT_EQ(cache.Radiance(2).r, 1.0f);
+
+  // Round 2 before round 1 is ignored; round 1 averages by paths (16 + 48).
+  EXPECT_TRUE(cache.Improve(std::vector{Sample(2, 3.0f, 2)}).empty());
+  EXPECT_EQ(cache.Improve(std::vector{Sample(2, 3.0f, 1, 48)}), std::vector<VertexId>{2});
+  const CachedSample improved = *cache.Read(2);
+  EXPECT_FLOAT_EQ(improved.radiance.r, 0.25f * 1.0f + 0.75f * 3.0f);
+  EXPECT_EQ(improved.paths, 64u);
+  EXPECT_EQ(improved.rounds, 1u);
+  EXPECT_TRUE(Whole(improved));
+
+  const uint32_t generation = cache.Generation(2);
+  EXPECT_EQ(cache.ShadedCount(), 1u);
+  EXPECT_TRUE(cache.Evict(2));
+  EXPECT_FALSE(cache.Evict(2));
+  EXPECT_FALSE(cache.IsShaded(2));
+  EXPECT_EQ(cache.ShadedCount(), 0u);
+  EXPECT_EQ(cache.Generation(2), generation + 1);
+  EXPECT_EQ(cache.Radiance(2).r, 0.0f);
+  // Shaded again after eviction, as a fresh first estimate.
+  EXPECT_EQ(cache.Store(std::vector{Sample(2, 7.0f)}), 1u);
+  EXPECT_EQ(cache.Read(2)->rounds, 0u);
+  EXPECT_EQ(cache.Read(2)->generation, generation + 1);
+}
+
+TEST(SampleCache, GrowsPastChunksWithoutLosingSamples) {
+  SampleCache cache;
+  // Far beyond one chunk, grown by Store itself, out of order.
+  constexpr VertexId kCount = 100000;
+  for (VertexId v = kCount; v-- > 0;)
+    if (v % 3 == 0) cache.Store(std::vector{Sample(v, float(v))});
+  EXPECT_EQ(cache.Size(), size_t(kCount));
+  EXPECT_EQ(cache.ShadedCount(), size_t((kCount + 2) / 3));
+  for (VertexId v = 0; v < kCount; ++v) {
+    ASSERT_EQ(cache.IsShaded(v), v % 3 == 0) << v;
+    if (v % 3 == 0) {
+      ASSERT_EQ(cache.Radiance(v).r, float(v));
+    }
+  }
+  EXPECT_FALSE(cache.IsShaded(kCount + 5));  // beyond the end: unshaded, no growth
+  EXPECT_EQ(cache.Size(), size_t(kCount));
+}
+
+// Two writers store and improve, while the cache grows under them, and
+// readers check that every sample they see is whole and that what was
+// shaded stays shaded with its rounds and paths only rising.
+TEST(SampleCache, ReadersSeeWholeSamplesWhileWritersStoreImproveAndGrow) {
+  SampleCache cache;
+  constexpr VertexId kVertices = 3 * 16384 + 100;  // three chunk boundaries crossed while read
+  constexpr uint16_t kRounds = 6;
+  std::atomic<bool> writersDone{false};
+  std::atomic<uint64_t> samplesRead{0};
+
+  auto writer = [&](VertexId first) {
+    for (VertexId v = first; v < kVertices; v += 2) cache.Store(std::vector{Sample(v, float(v % 97) + 1.0f)});
+    for (uint16_t round = 1; round <= kRounds; ++round)
+      for (VertexId v = first; v < kVertices; v += 2)
+        cache.Improve(std::vector{Sample(v, float(round * 1000 + v % 89), round, 16u << (round % 3))});
+  };
+  auto reader = [&](unsigned seed) {
+    std::vector<uint16_t> lastRounds(kVertices, 0);
+    std::vector<uint8_t> seenShaded(kVertices, 0);
+    uint64_t read = 0;
+    VertexId v = seed;
+    while (!writersDone.load(std::memory_order_acquire) || read < 200000) {
+      v = (v * 1103515245u + 12345u) % kVertices;
+      const auto sample = cache.Read(v);
+      if (!sample) {
+        ASSERT_FALSE(seenShaded[v]) << "vertex " << v << " was shaded and is not any more";
+        continue;
+      }
+      ++read;
+      seenShaded[v] = 1;
+      ASSERT_TRUE(Whole(*sample)) << "vertex " << v;
+      ASSERT_GE(sample->rounds, lastRounds[v]) << "vertex " << v;
+      ASSERT_LE(sample->rounds, kRounds);
+      ASSERT_GE(sample->paths, 16u);
+      lastRounds[v] = sample->rounds;
+    }
+    samplesRead += read;
+  };
+
+  std::vector<std::thread> threads;
+  threads.emplace_back(reader, 1u);
+  threads.emplace_back(reader, 7u);
+  std::thread w0(writer, 0), w1(writer, 1);
+  w0.join();
+  w1.join();
+  writersDone.store(true, std::memory_order_release);
+  for (auto& t : threads) t.join();
+
+  EXPECT_GT(samplesRead.load(), 0u);
+  EXPECT_EQ(cache.ShadedCount(), size_t(kVertices));
+  for (VertexId v = 0; v < kVertices; ++v) {
+    const auto sample = cache.Read(v);
+    ASSERT_TRUE(sample.has_value()) << v;
+    EXPECT_EQ(sample->rounds, kRounds) << v;
+    EXPECT_TRUE(Whole(*sample)) << v;
+  }
+}
+
+// Replacement as moving objects will do it: evict, store anew. A reader
+// that copied a sample can tell it is stale by its generation, and never
+// sees a torn one.
+TEST(SampleCache, EvictionWhileReadingBumpsGenerations) {
+  SampleCache cache;
+  constexpr VertexId kVertices = 512;
+  constexpr int kReplacements = 200;
+  cache.Reserve(kVertices);
+  for (VertexId v = 0; v < kVertices; ++v) cache.Store(std::vector{Sample(v, 1.0f)});
+  std::atomic<bool> done{false};
+  std::thread writer([&] {
+    for (int k = 0; k < kReplacements; ++k)
+      for (VertexId v = 0; v < kVertices; ++v) {
+        EXPECT_TRUE(cache.Evict(v));
+        cache.Store(std::vector{Sample(v, float(k + 2))});
+      }
+    done.store(true, std::memory_order_release);
+  });
+  std::thread reader([&] {
+    std::vector<uint32_t> generations(kVertices, 0);
+    VertexId v = 0;
+    while (!done.load(std::memory_order_acquire)) {
+      v = (v + 37) % kVertices;
+      const auto sample = cache.Read(v);
+      if (!sample) continue;
+      ASSERT_TRUE(Whole(*sample));
+      ASSERT_GE(sample->generation, generations[v]);
+      generations[v] = sample->generation;
+      // Value k + 2 was stored in generation k + 1 (the first store, 1.0, in 0).
+      ASSERT_EQ(sample->radiance.r, sample->generation == 0 ? 1.0f : float(sample->generation + 1));
+    }
+  });
+  writer.join();
+  reader.join();
+  for (VertexId v = 0; v < kVertices; ++v) EXPECT_EQ(cache.Generation(v), uint32_t(kReplacements));
+  EXPECT_EQ(cache.ShadedCount(), size_t(kVertices));
+}
+
+}  // namespace
+}  // namespace penumbra::sma

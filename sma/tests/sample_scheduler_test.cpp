@@ -1,0 +1,365 @@
+// The sample scheduler with a fake clock and no socket: requeue on loss,
+// never two requests for a vertex, priorities and interest, credits, a
+// renderer's timeout moving its work, quarantine after a bad reply.
+
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <set>
+#include <vector>
+
+#include "penumbra/sma/sample_scheduler.h"
+
+namespace penumbra::sma {
+namespace {
+
+using namespace std::chrono_literals;
+using Clock = SampleScheduler::Clock;
+
+struct FakeClock {
+  Clock::time_point now{};
+  SampleScheduler::Now Function() {
+    return [this] { return now; };
+  }
+};
+
+std::vector<SampleRequest> Requests(VertexId first, VertexId count, uint16_t round = 0) {
+  std::vector<SampleRequest> out;
+  for (VertexId v = first; v < first + count; ++v) {
+    SampleRequest r;
+    r.vertex = v;
+    r.round = round;
+    out.push_back(r);
+  }
+  return out;
+}
+
+// The renderer's answer to a batch: every sample, radiance 0.5.
+wire::ShadeReply Answer(const AssignedBatch& batch, uint32_t remaining = 0) {
+  wire::ShadeReply r;
+  r.set_batch_id(batch.id);
+  r.set_remaining(remaining);
+  for (const SampleRequest& s : batch.samples) {
+    r.add_sample_ids(WireSampleId(s.vertex, s.round));
+    for (int k = 0; k < 3; ++k) r.add_radiance(0.5f);
+    for (int k = 0; k < 3; ++k) r.add_irradiance(1.0f);
+    r.add_irradiance_stderr(0.01f);
+    r.add_sample_paths(16);
+  }
+  return r;
+}
+
+std::set<VertexId> VerticesOf(const std::vector<AssignedBatch>& batches) {
+  std::set<VertexId> out;
+  for (const auto& b : batches)
+    for (const auto& s : b.samples) out.insert(s.vertex);
+  return out;
+}
+
+SampleSchedulerOptions Options() {
+  SampleSchedulerOptions o;
+  o.pathsPerSample = 100;
+  o.firstPaths = 16;
+  o.improvePaths = 64;
+  o.creditsPerRenderer = 4;
+  o.minBatchSamples = 8;  // and 32 per batch until a rate is measured
+  o.maxBatchSamples = 1000;
+  o.batchTimeout = 10s;
+  o.quarantine = 30s;
+  o.radianceBounds.maxRadiance = 10.0f;
+  o.radianceBounds.maxIrradiance = 40.0f;
+  return o;
+}
+
+constexpr RendererCapacity kOneCredit{1, 1000, 32};
+
+TEST(SampleScheduler, AVertexIsNeverRequestedTwiceWhileAlive) {
+  FakeClock clock;
+  SampleScheduler s(Options(), clock.Function());
+  EXPECT_EQ(s.Request(Requests(0, 10), Priority::kVisible), 10u);
+  EXPECT_EQ(s.Request(Requests(5, 10), Priority::kBackground), 5u);  // 5..9 are alive already
+  EXPECT_EQ(s.Outstanding(), 15u);
+  s.RendererReady(1, RendererCapacity{4, 1000, 32});
+  auto batches = s.Assemble();
+  ASSERT_FALSE(batches.empty());
+  EXPECT_EQ(VerticesOf(batches).size(), 15u);
+  EXPECT_EQ(s.Request(Requests(0, 15), Priority::kVisible), 0u) << "in flight";
+
+  // Answered, not yet stored: still alive (the cache does not have them).
+  std::vector<ShadedSample> results;
+  for (const auto& b : batches) {
+    auto outcome = s.OnReply(1, Answer(b));
+    ASSERT_FALSE(outcome.badReply) << *outcome.badReply;
+    EXPECT_TRUE(outcome.batchDone);
+    results.insert(results.end(), outcome.results.begin(), outcome.results.end());
+  }
+  EXPECT_EQ(results.size(), 15u);
+  EXPECT_EQ(s.Request(Requests(0, 15), Priority::kVisible), 0u) << "answered, not stored";
+  s.Complete(results);
+  EXPECT_EQ(s.Outstanding(), 0u);
+  // Stored: a request now is the caller's decision (it asks only for what
+  // the cache lacks), and it is taken.
+  EXPECT_EQ(s.Request(Requests(0, 1), Priority::kVisible), 1u);
+  EXPECT_EQ(s.Counters().shaded, 15u);
+}
+
+TEST(SampleScheduler, VisibleBeforeBackgroundBeforeImprovementOnePriorityPerBatch) {
+  FakeClock clock;
+  SampleScheduler s(Options(), clock.Function());
+  s.Request(Requests(100, 3, 2), Priority::kImprove);
+  s.Request(Requests(0, 3), Priority::kBackground);
+  s.Request(Requests(10, 3), Priority::kVisible);
+  s.RendererReady(1, kOneCredit);
+  std::vector<std::pair<VertexId, uint32_t>> order;  // first vertex and paths of each batch
+  for (int i = 0; i < 3; ++i) {
+    auto batches = s.Assemble();
+    ASSERT_EQ(batches.size(), 1u) << "one credit";
+    EXPECT_TRUE(s.Assemble().empty()) << "no credit left";
+    const AssignedBatch& b = batches[0];
+    ASSERT_EQ(b.samples.size(), 3u);
+    for (const auto& sample : b.samples) EXPECT_EQ(sample.vertex / 10, b.samples[0].vertex / 10);
+    order.emplace_back(b.samples[0].vertex, b.pathsPerSample);
+    auto outcome = s.OnReply(1, Answer(b));
+    ASSERT_FALSE(outcome.badReply) << *outcome.badReply;
+    s.Complete(outcome.results);
+  }
+  EXPECT_EQ(order[0], std::make_pair(VertexId(10), 16u));   // visible: first paths
+  EXPECT_EQ(order[1], std::make_pair(VertexId(0), 100u));   // background
+  EXPECT_EQ(order[2], std::make_pair(VertexId(100), 64u));  // improvement
+  EXPECT_EQ(s.Outstanding(), 0u);
+}
+
+TEST(SampleScheduler, InterestReleasedDemotesAndANewViewPromotes) {
+  FakeClock clock;
+  SampleScheduler s(Options(), clock.Function());
+  s.Request(Requests(0, 4), Priority::kVisible);    // a view that moves on
+  s.Request(Requests(10, 4), Priority::kBackground);
+  s.Request(Requests(10, 2), Priority::kVisible);   // 10, 11 now wanted by a view
+  std::vector<VertexId> released{0, 1, 2, 3};
+  s.ReleaseInterest(released);
+  s.RendererReady(1, kOneCredit);
+  auto first = s.Assemble();
+  ASSERT_EQ(first.size(), 1u);
+  EXPECT_EQ(VerticesOf(first), (std::set<VertexId>{10, 11}));
+  EXPECT_EQ(first[0].pathsPerSample, 16u);
+  s.Complete(s.OnReply(1, Answer(first[0])).results);
+  auto second = s.Assemble();
+  ASSERT_EQ(second.size(), 1u);
+  // 12, 13 and the demoted 0..3 at background priority, each once.
+  EXPECT_EQ(VerticesOf(second), (std::set<VertexId>{0, 1, 2, 3, 12, 13}));
+  EXPECT_EQ(second[0].samples.size(), 6u);
+  EXPECT_EQ(second[0].pathsPerSample, 100u);
+}
+
+TEST(SampleScheduler, CreditsBoundBatchesInFlight) {
+  FakeClock clock;
+  SampleSchedulerOptions o = Options();
+  o.minBatchSamples = 1;
+  o.maxBatchSamples = 5;
+  SampleScheduler s(o, clock.Function());
+  s.Request(Requests(0, 100), Priority::kBackground);
+  s.RendererReady(1, RendererCapacity{2, 1000, 32});  // its own limit: 2 batches
+  auto batches = s.Assemble();
+  EXPECT_EQ(batches.size(), 2u);
+  for (const auto& b : batches) EXPECT_LE(b.samples.size(), 5u);
+  EXPECT_EQ(s.Load(1).batchesInFlight, 2u);
+  EXPECT_TRUE(s.Assemble().empty());
+  s.Complete(s.OnReply(1, Answer(batches[0])).results);
+  EXPECT_EQ(s.Assemble().size(), 1u) << "a credit back, a batch out";
+}
+
+TEST(SampleScheduler, ALostRenderersWorkGoesToTheOthersFirst) {
+  FakeClock clock;
+  SampleScheduler s(Options(), clock.Function());
+  s.Request(Requests(0, 6), Priority::kVisible);
+  s.RendererReady(1, kOneCredit);
+  auto lost = s.Assemble();
+  ASSERT_EQ(lost.size(), 1u);
+  const std::set<VertexId> carried = VerticesOf(lost);
+  s.Request(Requests(50, 3), Priority::kVisible);  // queued behind
+  EXPECT_EQ(s.RendererLost(1), carried.size());
+  EXPECT_EQ(s.Counters().requeued, carried.size());
+  EXPECT_EQ(s.Load(1).failures, 1u);
+  EXPECT_EQ(s.Request(Requests(0, 6), Priority::kVisible), 0u) << "requeued, still alive";
+  s.RendererReady(2, kOneCredit);
+  auto again = s.Assemble();
+  ASSERT_EQ(again.size(), 1u);
+  EXPECT_EQ(again[0].renderer, 2u);
+  // The requeued samples lead, in their order; the later ones follow.
+  ASSERT_GE(again[0].samples.size(), carried.size());
+  for (size_t i = 0; i < lost[0].samples.size(); ++i) EXPECT_EQ(again[0].samples[i].vertex, lost[0].samples[i].vertex);
+  EXPECT_EQ(VerticesOf(again).size(), again[0].samples.size()) << "each vertex once";
+}
+
+TEST(SampleScheduler, ATimedOutRenderersWorkMovesAndItsLateReplyIsIgnored) {
+  FakeClock clock;
+  SampleScheduler s(Options(), clock.Function());
+  s.Request(Requests(0, 4), Priority::kVisible);
+  s.RendererReady(1, kOneCredit);
+  auto slow = s.Assemble();
+  ASSERT_EQ(slow.size(), 1u);
+  s.RendererReady(2, kOneCredit);
+  clock.now += 9s;
+  EXPECT_TRUE(s.ExpireTimedOut().empty());
+  clock.now += 2s;  // 11 s > batchTimeout
+  auto expired = s.ExpireTimedOut();
+  ASSERT_EQ(expired.size(), 1u);
+  EXPECT_EQ(expired[0].first, 1u);
+  EXPECT_NE(expired[0].second.find("unanswered"), std::string::npos);
+  auto moved = s.Assemble();
+  ASSERT_EQ(moved.size(), 1u);
+  EXPECT_EQ(moved[0].renderer, 2u);
+  EXPECT_EQ(VerticesOf(moved), VerticesOf(slow));
+  // The slow renderer's answer arrives after all: not taken (it would be a
+  // second answer), not held against it either.
+  auto late = s.OnReply(1, Answer(slow[0]));
+  EXPECT_TRUE(late.results.empty());
+  EXPECT_FALSE(late.badReply);
+  auto good = s.OnReply(2, Answer(moved[0]));
+  EXPECT_EQ(good.results.size(), 4u);
+}
+
+TEST(SampleScheduler, ABadReplyRequeuesEverythingAndQuarantines) {
+  FakeClock clock;
+  SampleScheduler s(Options(), clock.Function());
+  s.Request(Requests(0, 4), Priority::kVisible);
+  s.RendererReady(1, kOneCredit);
+  auto batches = s.Assemble();
+  ASSERT_EQ(batches.size(), 1u);
+  wire::ShadeReply bad = Answer(batches[0]);
+  bad.set_radiance(4, 1e30f);  // the second sample: impossible radiance, after a good one
+  auto outcome = s.OnReply(1, bad);
+  ASSERT_TRUE(outcome.badReply);
+  EXPECT_TRUE(outcome.results.empty()) << "nothing of a bad part is taken";
+  EXPECT_EQ(s.Counters().rejected, 1u);
+  EXPECT_EQ(s.Load(1).badReplies, 1u);
+  EXPECT_TRUE(s.Quarantined(1));
+  EXPECT_EQ(s.QuarantineLeft(1), 30s);
+
+  // It comes back at once (its link reconnected): no work while quarantined.
+  s.RendererReady(1, kOneCredit);
+  EXPECT_TRUE(s.Assemble().empty());
+  clock.now += 29s;
+  EXPECT_TRUE(s.Assemble().empty());
+  clock.now += 1s;
+  EXPECT_FALSE(s.Quarantined(1));
+  auto retried = s.Assemble();
+  ASSERT_EQ(retried.size(), 1u);
+  EXPECT_EQ(VerticesOf(retried), VerticesOf(batches));
+}
+
+TEST(SampleScheduler, RepliesNamingWhatWasNotAskedAreBad) {
+  FakeClock clock;
+  SampleSchedulerOptions o = Options();
+  o.minBatchSamples = 1;
+  SampleScheduler s(o, clock.Function());
+  s.Request(Requests(0, 2), Priority::kVisible);
+  s.RendererReady(1, RendererCapacity{4, 1, 32});  // one sample per batch
+  auto batches = s.Assemble();
+  ASSERT_EQ(batches.size(), 2u);
+  // Batch 0 answered with batch 1's sample.
+  wire::ShadeReply swapped = Answer(batches[1]);
+  swapped.set_batch_id(batches[0].id);
+  auto outcome = s.OnReply(1, swapped);
+  ASSERT_TRUE(outcome.badReply);
+  EXPECT_NE(outcome.badReply->find("not asked for"), std::string::npos) << *outcome.badReply;
+  EXPECT_EQ(s.Counters().requeued, 2u) << "both batches back";
+
+  clock.now += 31s;
+  s.RendererReady(1, kOneCredit);
+  auto again = s.Assemble();
+  ASSERT_EQ(again.size(), 1u);
+  wire::ShadeReply unknown = Answer(again[0]);
+  unknown.set_batch_id(999);
+  EXPECT_TRUE(s.OnReply(1, unknown).badReply);
+  clock.now += 31s;
+  s.RendererReady(1, kOneCredit);
+  again = s.Assemble();
+  ASSERT_EQ(again.size(), 1u);
+  wire::ShadeReply shortAnswer = Answer(again[0]);  // ends the batch one sample short
+  shortAnswer.mutable_sample_ids()->RemoveLast();
+  shortAnswer.mutable_radiance()->Truncate(shortAnswer.radiance_size() - 3);
+  shortAnswer.mutable_irradiance()->Truncate(shortAnswer.irradiance_size() - 3);
+  shortAnswer.mutable_irradiance_stderr()->RemoveLast();
+  shortAnswer.mutable_sample_paths()->RemoveLast();
+  auto ended = s.OnReply(1, shortAnswer);
+  ASSERT_TRUE(ended.badReply);
+  EXPECT_NE(ended.badReply->find("ended with 1 of 2"), std::string::npos) << *ended.badReply;
+}
+
+TEST(SampleScheduler, ABatchInPartsAndARefusedOneGivenUpAfterThreeInvalids) {
+  FakeClock clock;
+  SampleScheduler s(Options(), clock.Function());
+  s.Request(Requests(0, 2), Priority::kVisible);
+  s.RendererReady(1, kOneCredit);
+  auto batches = s.Assemble();
+  ASSERT_EQ(batches.size(), 1u);
+  AssignedBatch firstHalf = batches[0], secondHalf = batches[0];
+  firstHalf.samples.resize(1);
+  secondHalf.samples.erase(secondHalf.samples.begin());
+  auto part = s.OnReply(1, Answer(firstHalf, 1));
+  EXPECT_EQ(part.results.size(), 1u);
+  EXPECT_FALSE(part.batchDone);
+  auto rest = s.OnReply(1, Answer(secondHalf, 0));
+  EXPECT_EQ(rest.results.size(), 1u);
+  EXPECT_TRUE(rest.batchDone);
+  s.Complete(part.results);
+  s.Complete(rest.results);
+
+  s.Request(Requests(7, 1), Priority::kVisible);
+  for (int attempt = 1; attempt <= 3; ++attempt) {
+    auto b = s.Assemble();
+    ASSERT_EQ(b.size(), 1u) << attempt;
+    auto givenUp = s.OnBatchRefused(1, b[0].id, /*invalid=*/true);
+    ASSERT_TRUE(givenUp.has_value());
+    if (attempt < 3) {
+      EXPECT_TRUE(givenUp->empty());
+    } else {
+      ASSERT_EQ(givenUp->size(), 1u);
+      EXPECT_EQ((*givenUp)[0].vertex, 7u);
+      EXPECT_EQ((*givenUp)[0].paths, 0u);
+      EXPECT_EQ((*givenUp)[0].radiance, Rgb(0.0f));
+    }
+  }
+  EXPECT_EQ(s.Counters().failed, 1u);
+  EXPECT_TRUE(s.Assemble().empty());
+  EXPECT_FALSE(s.OnBatchRefused(1, 12345, true).has_value()) << "unknown batch";
+}
+
+TEST(SampleScheduler, ADrainingRendererGetsNoNewBatches) {
+  FakeClock clock;
+  SampleScheduler s(Options(), clock.Function());
+  s.RendererReady(1, kOneCredit);
+  s.RendererDraining(1);
+  s.Request(Requests(0, 2), Priority::kVisible);
+  EXPECT_TRUE(s.Assemble().empty());
+  s.RendererReady(2, kOneCredit);
+  auto b = s.Assemble();
+  ASSERT_EQ(b.size(), 1u);
+  EXPECT_EQ(b[0].renderer, 2u);
+}
+
+// A vertex promoted from background to visible, shaded, and then asked to
+// be improved: the stale background copy must not send the improvement at
+// background priority (or twice).
+TEST(SampleScheduler, AStaleQueueCopyDoesNotSendAnImprovementEarly) {
+  FakeClock clock;
+  SampleScheduler s(Options(), clock.Function());
+  s.Request(Requests(0, 1), Priority::kBackground);
+  s.Request(Requests(0, 1), Priority::kVisible);  // promoted; its background copy stays in that queue
+  s.RendererReady(1, kOneCredit);
+  auto b = s.Assemble();
+  ASSERT_EQ(b.size(), 1u);
+  s.Complete(s.OnReply(1, Answer(b[0])).results);
+  s.Request(Requests(0, 1, 1), Priority::kImprove);
+  auto improve = s.Assemble();
+  ASSERT_EQ(improve.size(), 1u);
+  EXPECT_EQ(improve[0].pathsPerSample, 64u);
+  EXPECT_EQ(improve[0].samples.size(), 1u);
+  EXPECT_EQ(s.Counters().queuedImprove, 0u);
+}
+
+}  // namespace
+}  // namespace penumbra::sma
