@@ -78,13 +78,14 @@ Expected<Json> WaitForStats(ChildProcess& client, const std::string& path, const
 
 bool Converged(const Json& line) { return line["converged"].get<bool>(); }
 
-std::string WritePathFile(const std::string& dir, const CameraPreset& preset) {
+std::string WritePathFile(const std::string& dir, const CameraPreset& preset, int width = kWidth,
+                          int height = kHeight) {
   const std::string path = dir + "/" + preset.name + ".json";
   const auto& p = preset.pose;
   std::ofstream(path) << fmt::format(
       R"({{"fov_y_deg": {}, "width": {}, "height": {}, "keyframes": [{{"t": 0, "eye": [{}, {}, {}], )"
       R"("target": [{}, {}, {}], "up": [{}, {}, {}]}}]}})",
-      preset.fovYDeg, kWidth, kHeight, p.eye.x, p.eye.y, p.eye.z, p.target.x, p.target.y, p.target.z, p.up.x, p.up.y,
+      preset.fovYDeg, width, height, p.eye.x, p.eye.y, p.eye.z, p.target.x, p.target.y, p.target.z, p.up.x, p.up.y,
       p.up.z);
   return path;
 }
@@ -239,6 +240,70 @@ TEST_F(ClientTest, HeadlessWithoutXWritesTheRadianceOfExactlyWhatTheSmaSees) {
   const auto held = last["triangles_held"].get<size_t>();
   EXPECT_GE(held, visible.certain.size());
   EXPECT_LE(held, visible.certain.size() + visible.ties.size());
+}
+
+// Refined to convergence (NLD_OS: thousands of leaves, slivers along shared
+// edges) and at 1280 x 960 (a crack is a matter of sub-pixel rounding: it
+// takes many pixels along many edges to see one), the picture should be
+// closed: no pixel background where the brute-force ray cast hits the box. A
+// pixel whose ray passes within a tie of an edge counts too when none of its
+// eight neighbours' rays misses -- an edge inside the surface.
+// DISABLED: a known failure kept as the reproducer of issue 11's one-pixel
+// cracks. It finds one crack in most runs (the front view's pixel (592, 133),
+// or one in the corner view, inside a single base triangle), with the SMA's
+// visibility in robust mode and also with leaves smaller than two pixels
+// across visible leaves' edges sent as well (tried, did not remove it); the
+// cause is not found yet. Run it with --gtest_also_run_disabled_tests.
+constexpr int kCrackWidth = 1280, kCrackHeight = 960;
+TEST_F(ClientTest, DISABLED_RefinedViewsHaveNoCracksAlongSharedEdges) {
+  Service sma = StartSma({"--criterion", "nld_os", "--improve-paths", "0"});
+  SetDisplay("");
+  const int width = kCrackWidth, height = kCrackHeight;
+  for (const char* camera : {"front", "corner", "top"}) {
+    const CameraPreset* preset = scene_->FindCamera(camera);
+    ASSERT_NE(preset, nullptr) << camera;
+    const std::string exr = dir_ + "/" + camera + ".exr", stats = dir_ + "/" + camera + ".jsonl";
+    ChildProcess client = StartClient({"--connect", sma.Address(), "--headless", "--camera-path",
+                                       WritePathFile(dir_, *preset, width, height), "--until-converged", "--screenshot", exr,
+                                       "--stats", stats},
+                                      dir_ + "/client-" + camera + ".log");
+    const auto exit = client.WaitExit(300s);
+    ASSERT_TRUE(exit.has_value()) << client.LogTail();
+    ASSERT_EQ(*exit, 0) << client.LogTail();
+    auto image = ReadImage(exr);
+    ASSERT_TRUE(image.ok()) << image.error().message;
+    ASSERT_EQ(image->width, width);
+    ASSERT_EQ(image->height, height);
+    const auto lines = ReadStatsLines(stats);
+    ASSERT_FALSE(lines.empty());
+    EXPECT_GT(lines.back()["triangles_held"].get<size_t>(), 4 * scene_->triangles.size())
+        << camera << ": refined (the test is about refined meshes)";
+
+    const std::vector<int64_t> hits =
+        BruteForcePixelHits(*scene_, CameraView{preset->pose, preset->fovYDeg, width, height});
+    auto surfaceAround = [&](int x, int y) {
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          const int nx = x + dx, ny = y + dy;
+          if (nx < 0 || ny < 0 || nx >= width || ny >= height) return false;
+          if (hits[size_t(ny) * size_t(width) + size_t(nx)] == kPixelMiss) return false;
+        }
+      return true;
+    };
+    size_t cracks = 0, checked = 0;
+    std::string where;
+    for (int y = 0; y < height; ++y)
+      for (int x = 0; x < width; ++x) {
+        const size_t i = size_t(y) * size_t(width) + size_t(x);
+        if (hits[i] == kPixelMiss || (hits[i] == kPixelTie && !surfaceAround(x, y))) continue;
+        ++checked;
+        if (PixelOf(*image, i) == Rgb(0.0f)) {
+          if (++cracks <= 10) where += fmt::format(" ({}, {})", x, y);
+        }
+      }
+    EXPECT_GT(checked, size_t(width) * size_t(height) / 3) << camera;
+    EXPECT_EQ(cracks, 0u) << camera << ": background where the ray cast hits the box, e.g." << where;
+  }
 }
 
 // --supersample 2: the client draws (and asks the SMA's visibility for) 2 x 2

@@ -6,10 +6,7 @@
 #
 # Usage: bench/fidelity/run.sh [OUT]   (default bench/fidelity/results; needs
 #   a build, ../shared, and Blender: apt-get install blender python3-numpy)
-# Each case: scene file, camera preset, OBJ (for Cycles), image size, and
-# optionally Cycles' samples per pixel (CYCLES_SAMPLES otherwise): the dim
-# view from the bathroom's window needs 1024 for Cycles' noise to fall below
-# the 3 % it is measured against. Scenes
+# Each case: scene file, camera preset, OBJ (for Cycles), image size. Scenes
 # lit by sun and sky have no OBJ ("-"): Cycles is not run there (the tool
 # renders emitter-lit OBJ scenes only) and the full stack is compared with
 # penumbra-reference alone, which the emitter-lit cases check against Cycles.
@@ -21,9 +18,12 @@ set -euo pipefail
 root="$(cd "$(dirname "$0")/../.." && pwd)"
 shared="$root/../shared"
 out="${1:-$root/bench/fidelity/results}"
-build="$root/build"
+build="${BUILD:-$root/build}"  # BUILD: another build tree (e.g. a copy of the binaries)
 cycles_samples="${CYCLES_SAMPLES:-256}"
 ref_spp="${REF_SPP:-1024}"
+# penumbra-reference's pixel filters: "box" (the references' filter) and
+# "centre" (pixel centres, to show what the box filter is worth).
+ref_filters="${REF_FILTERS:-box centre}"
 mkdir -p "$out"
 tool="$build/bench/penumbra-image-tool"
 
@@ -32,7 +32,7 @@ cases=(
   "cornell-front    scenes/cornell-box.json          front        scenes/cornell-box/CornellBox-Original.obj          320x240"
   "inverted-walls   tests/data/inverted_room.json    walls        @tests/data/inverted_room.obj                       320x240"
   "bathroom-source  scenes/bathroom.json             source       scenes/contemporary-bathroom/contemporary-bathroom.obj 480x270"
-  "bathroom-window  scenes/bathroom.json             from-window  scenes/contemporary-bathroom/contemporary-bathroom.obj 480x270 1024"
+  "bathroom-window  scenes/bathroom.json             from-window  scenes/contemporary-bathroom/contemporary-bathroom.obj 480x270"
   "living-source    scenes/grey-white-room.json      source       -                                                   480x270"
   "living-back      scenes/grey-white-room.json      back         -                                                   480x270"
 )
@@ -53,8 +53,7 @@ field() { sed -E "s/.*\"$1\": ([0-9.eE+-]+).*/\\1/"; }
 echo "| view | reference (box) vs Cycles | Penumbra vs Cycles | reference (pixel centres) vs Cycles | Penumbra vs reference (box) | first complete image | converged |"
 echo "|---|---|---|---|---|---|---|"
 for c in "${cases[@]}"; do
-  read -r name scene camera obj size samples <<<"$c"
-  samples="${samples:-$cycles_samples}"
+  read -r name scene camera obj size <<<"$c"
   [ -z "$only" ] || [[ " $only " == *" $name "* ]] || continue
   w="${size%x*}"; h="${size#*x}"
   objpath="$shared/$obj"; [ "${obj#@}" != "$obj" ] && objpath="$root/${obj#@}"
@@ -62,10 +61,10 @@ for c in "${cases[@]}"; do
   cycles="$out/$name-cycles"
   if [ "$obj" != - ] && [ ! -s "$cycles.exr" ]; then
     (cd "$shared" && blender -b --python-exit-code 1 -P tools/cycles_reference.py -- render --obj "$objpath" \
-       $(camera_args "$scene" "$camera") --width "$w" --height "$h" --samples "$samples" --out "$cycles") \
+       $(camera_args "$scene" "$camera") --width "$w" --height "$h" --samples "$cycles_samples" --out "$cycles") \
        >"$out/$name-cycles.log" 2>&1
   fi
-  for filter in box centre; do
+  for filter in $ref_filters; do
     [ -s "$out/$name-ref-$filter.exr" ] ||
       "$build/renderer/penumbra-reference" --scene "$root/$scene" --camera "$camera" --width "$w" --height "$h" \
         --spp "$ref_spp" --pixel-filter "$filter" --out "$out/$name-ref-$filter.exr" --log-level warn
@@ -84,19 +83,23 @@ for c in "${cases[@]}"; do
     --size "$size" --supersample 4 --until-converged --timeout 1800 --screenshot "$out/$name-penumbra.exr" \
     --stats "$out/$name-stats.jsonl" --log-level warn >"$logs/c.log" 2>&1 || { cat "$logs/c.log" >&2; exit 1; }
   kill "$spid" "$rpid"; wait "$spid" "$rpid" 2>/dev/null || true
-  cell() { printf '%.1f %%, ratio %.3f' "$(echo "$1" | field rel_mae | awk '{print 100 * $1}')" "$(echo "$1" | field mean_ratio)"; }
+  cell() {
+    if [ -z "$1" ]; then echo "not run"; return; fi
+    printf '%.1f %%, ratio %.3f' "$(echo "$1" | field rel_mae | awk '{print 100 * $1}')" "$(echo "$1" | field mean_ratio)"
+  }
+  centre="$out/$name-ref-centre.exr"; refcentre=""
   penref="$(metric "$out/$name-ref-box.exr" "$out/$name-penumbra.exr")"
   if [ "$obj" = - ]; then  # sun and sky: penumbra-reference is the reference
     "$tool" tonemap "$out/$name-penumbra.exr" "$out/$name-penumbra.png" --like "$out/$name-ref-box.exr"
     "$tool" tonemap "$out/$name-ref-box.exr" "$out/$name-ref-box.png"
-    refcentre="$(metric "$out/$name-ref-box.exr" "$out/$name-ref-centre.exr")"
+    [ ! -s "$centre" ] || refcentre="$(metric "$out/$name-ref-box.exr" "$centre")"
     nocycles="no Cycles (sun and sky)"
   else
     "$tool" tonemap "$out/$name-penumbra.exr" "$out/$name-penumbra.png" --like "$cycles.exr"
     "$tool" tonemap "$cycles.exr" "$out/$name-cycles.png"
     refbox="$(metric "$cycles.exr" "$out/$name-ref-box.exr")"
     pen="$(metric "$cycles.exr" "$out/$name-penumbra.exr")"
-    refcentre="$(metric "$cycles.exr" "$out/$name-ref-centre.exr")"
+    [ ! -s "$centre" ] || refcentre="$(metric "$cycles.exr" "$centre")"
   fi
   # First complete image: the first frame after stage 1 (refining or converged); converged: the last frame.
   times="$(python3 -c 'import json, sys
