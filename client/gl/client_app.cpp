@@ -625,8 +625,7 @@ Status ClientApp::WriteScreenshot(const std::filesystem::path& path) {
 
 void ClientApp::SaveInteractiveScreenshot() {
   screenshotRequested_ = false;
-  const std::string stem = fmt::format("penumbra-{}-{}", model_.Scene() ? model_.Scene()->name : "empty",
-                                       LocalTimestamp());
+  const std::string stem = ScreenshotStem(model_.Scene() ? model_.Scene()->name : "empty", LocalTimestamp());
   const auto png = options_.screenshotDir / (stem + ".png");
   const auto exr = options_.screenshotDir / (stem + ".exr");
   std::error_code ec;

@@ -56,6 +56,19 @@ bool IsRadianceFile(const std::filesystem::path& path) {
   return ext == ".exr" || ext == ".hdr";
 }
 
+std::string ScreenshotStem(std::string_view sceneName, std::string_view timestamp) {
+  constexpr size_t kMaxNameChars = 64;
+  std::string name;
+  for (char c : sceneName.substr(0, kMaxNameChars)) {
+    const auto u = static_cast<unsigned char>(c);
+    const bool safe = (u < 0x80 && std::isalnum(u)) || c == '-' || c == '_' || c == '.';
+    name.push_back(safe ? c : '_');
+  }
+  if (!name.empty() && name.front() == '.') name.front() = '_';  // no hidden file, no "." or ".."
+  if (name.empty()) name = "scene";
+  return fmt::format("penumbra-{}-{}", name, timestamp);
+}
+
 std::vector<float> BoxFilterRgb(std::span<const float> pixels, int width, int height, int n) {
   if (n <= 1) return std::vector<float>(pixels.begin(), pixels.end());
   const int w = width / n, h = height / n;

@@ -113,6 +113,21 @@ TEST(HeadlessRunTest, SnapshotsAreTakenWhenTheImageChangedAndTheIntervalPassed) 
   EXPECT_FALSE(every.Due(kStart + seconds(9), 10, 6, 99).has_value()) << "stopped after a failure";
 }
 
+TEST(HeadlessRunTest, ScreenshotStemsAreSafeFileNamesWhateverTheSmaCallsItsScene) {
+  EXPECT_EQ(ScreenshotStem("cornell-box", "20261124-1600"), "penumbra-cornell-box-20261124-1600");
+  EXPECT_EQ(ScreenshotStem("../../etc/passwd", "t"), "penumbra-_._.._etc_passwd-t");
+  EXPECT_EQ(ScreenshotStem("..", "t"), "penumbra-_.-t");
+  EXPECT_EQ(ScreenshotStem("/abs\\path", "t"), "penumbra-_abs_path-t");
+  EXPECT_EQ(ScreenshotStem("", "t"), "penumbra-scene-t");
+  EXPECT_EQ(ScreenshotStem("caf\xc3\xa9 bar", "t"), "penumbra-caf___bar-t");
+  EXPECT_EQ(ScreenshotStem(std::string(1000, 'a'), "t"), "penumbra-" + std::string(64, 'a') + "-t");
+  for (const char* hostile : {"../x", "a/b", "..", ".", "x\0y"}) {
+    const std::string stem = ScreenshotStem(hostile, "t");
+    EXPECT_EQ(stem.find('/'), std::string::npos) << hostile;
+    EXPECT_EQ(std::filesystem::path(stem).filename().string(), stem) << hostile;
+  }
+}
+
 TEST(HeadlessRunTest, ScreenshotFormatsAndTheBoxFilter) {
   EXPECT_TRUE(IsRadianceFile("a/b.exr"));
   EXPECT_TRUE(IsRadianceFile("B.HDR"));

@@ -16,6 +16,7 @@
 #include <optional>
 #include <span>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "penumbra/client/session.h"
@@ -105,6 +106,14 @@ class SnapshotSchedule {
 /// .exr and .hdr screenshots hold linear radiance; others (.png, .jpg) the
 /// tone-mapped display image.
 bool IsRadianceFile(const std::filesystem::path& path);
+
+/// The file-name stem of an interactive screenshot, "penumbra-SCENE-TIME".
+/// The scene's name comes from the SMA, so it is made safe for a file name:
+/// only ASCII letters, digits, '-', '_' and '.' are kept (others become
+/// '_'), at most 64 of them, never "." or ".." or a leading '.', "scene"
+/// when nothing is left -- a hostile SMA's "../../x" cannot choose where
+/// the file goes.
+std::string ScreenshotStem(std::string_view sceneName, std::string_view timestamp);
 
 /// --supersample: RGB `pixels` (width x height, rows top first) averaged
 /// over boxes of n x n into (width / n) x (height / n) pixels, the pixel
