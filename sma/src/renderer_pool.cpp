@@ -14,20 +14,6 @@ namespace penumbra::sma {
 namespace {
 using boost::system::error_code;
 
-SampleSchedulerOptions SchedulerOptionsOf(const RendererPoolOptions& o) {
-  SampleSchedulerOptions s;
-  s.pathsPerSample = o.pathsPerSample;
-  s.firstPaths = o.firstPaths;
-  s.improvePaths = o.improvePaths;
-  s.creditsPerRenderer = o.creditsPerRenderer;
-  s.minBatchSamples = o.minBatchSamples;
-  s.maxBatchSamples = o.maxBatchSamples;
-  s.targetBatchTime = o.targetBatchTime;
-  s.batchTimeout = o.batchTimeout;
-  s.quarantine = o.quarantine;
-  s.radianceBounds = o.radianceBounds;
-  return s;
-}
 }  // namespace
 
 std::shared_ptr<RendererPool> RendererPool::Create(asio::io_context& io, RendererPoolOptions options,
@@ -45,7 +31,7 @@ RendererPool::RendererPool(asio::io_context& io, RendererPoolOptions options, Re
       resolveTimer_(io),
       timeoutTimer_(io),
       resolver_(io),
-      scheduler_(SchedulerOptionsOf(options_)),
+      scheduler_(static_cast<const SampleSchedulerOptions&>(options_)),
       resolved_(options_.renderers.size()) {}
 
 RendererPool::~RendererPool() = default;

@@ -45,25 +45,14 @@ namespace penumbra::sma {
 
 class RendererLink;
 
-struct RendererPoolOptions {
+// The scheduling options (paths, credits, batch sizes, timeouts, quarantine,
+// radiance bounds) are the scheduler's own; the pool adds the connections'.
+struct RendererPoolOptions : SampleSchedulerOptions {
   std::vector<HostPort> renderers;
   uint64_t sceneHash = 0;
   std::string name = "penumbra-sma";
-  uint32_t pathsPerSample = 0;           // background samples (refinement); 0: each renderer's default
-  uint32_t firstPaths = 16;              // visible samples (stage 1); 0: as pathsPerSample
-  uint32_t improvePaths = 64;            // each improvement round
-  uint32_t creditsPerRenderer = 4;       // batches in flight per renderer (and at most its own limit)
-  uint32_t minBatchSamples = 8;
-  uint32_t maxBatchSamples = 2048;       // and at most the renderer's own limit
-  std::chrono::milliseconds targetBatchTime{150};
-  std::chrono::milliseconds batchTimeout{60000};  // a batch unanswered this long drops its renderer
   std::chrono::milliseconds reconnectMin{100};
   std::chrono::milliseconds reconnectMax{5000};
-  /// A renderer that sent a bad reply (malformed, or radiance outside
-  /// `radianceBounds`) waits at least this long before it is reconnected.
-  std::chrono::milliseconds quarantine{30000};
-  /// What a sample's radiance may physically be in this scene.
-  RadianceBounds radianceBounds;
   std::chrono::milliseconds resolveInterval{10000};
   std::chrono::milliseconds connectTimeout{3000};
   net::ConnectionOptions connection;
