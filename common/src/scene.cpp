@@ -76,6 +76,71 @@ Rgb Scene::AlbedoAt(uint32_t triangle, float b1, float b2) const {
   return m.albedo * textures[size_t(m.albedoTexture)].Sample(uv);
 }
 
+uint32_t Scene::ObjectOfTriangle(uint32_t triangle) const {
+  if (triangle < staticTriangleCount || objects.empty()) return kStaticObject;
+  // Ranges are contiguous and increasing (Finalize checks it): the last
+  // object starting at or before `triangle`.
+  const auto it = std::upper_bound(objects.begin(), objects.end(), triangle,
+                                   [](uint32_t t, const MovableObject& o) { return t < o.firstTriangle; });
+  return uint32_t(it - objects.begin()) - 1;
+}
+
+uint32_t Scene::ObjectOfVertex(uint32_t vertex) const {
+  if (vertex < staticVertexCount || objects.empty()) return kStaticObject;
+  const auto it = std::upper_bound(objects.begin(), objects.end(), vertex,
+                                   [](uint32_t v, const MovableObject& o) { return v < o.firstVertex; });
+  return uint32_t(it - objects.begin()) - 1;
+}
+
+uint32_t Scene::FindObject(std::string_view objectName) const {
+  for (size_t i = 0; i < objects.size(); ++i)
+    if (objects[i].name == objectName) return uint32_t(i);
+  return kStaticObject;
+}
+
+RigidTransform ObjectAnimation::At(double timeS) const {
+  if (keys.empty()) return RigidTransform::Identity();
+  if (keys.size() == 1 || !(timeS > 0.0)) return keys.front().objectToWorld;
+  const double duration = DurationS();
+  double t = timeS;
+  if (t >= duration) {
+    if (!loop || duration <= 0.0) return keys.back().objectToWorld;
+    t = std::fmod(t, duration);
+  }
+  const auto next = std::upper_bound(keys.begin(), keys.end(), t,
+                                     [](double time, const ObjectKeyframe& k) { return time < double(k.timeS); });
+  if (next == keys.begin()) return keys.front().objectToWorld;
+  if (next == keys.end()) return keys.back().objectToWorld;
+  const ObjectKeyframe& a = *(next - 1);
+  const ObjectKeyframe& b = *next;
+  const double span = double(b.timeS) - double(a.timeS);
+  const float s = span > 0.0 ? float((t - double(a.timeS)) / span) : 1.0f;
+  return Interpolate(a.objectToWorld, b.objectToWorld, std::clamp(s, 0.0f, 1.0f));
+}
+
+ScenePose ScenePose::Initial(const Scene& scene) {
+  ScenePose pose;
+  pose.objectToWorld.reserve(scene.objects.size());
+  for (const MovableObject& o : scene.objects) pose.objectToWorld.push_back(o.objectToWorld);
+  return pose;
+}
+
+Vec3 WorldPointAt(const Scene& scene, const ScenePose& pose, uint32_t triangle, float b1, float b2) {
+  const Vec3 p = scene.PointAt(triangle, b1, b2);
+  const uint32_t object = scene.ObjectOfTriangle(triangle);
+  return object == kStaticObject ? p : pose.objectToWorld[object].ApplyPoint(p);
+}
+
+Vec3 WorldGeometricNormal(const Scene& scene, const ScenePose& pose, uint32_t triangle) {
+  const Vec3 n = scene.GeometricNormal(triangle);
+  const uint32_t object = scene.ObjectOfTriangle(triangle);
+  return object == kStaticObject ? n : pose.objectToWorld[object].ApplyVector(n);
+}
+
+Bounds3 WorldBounds(const Scene& scene, const ScenePose& pose, uint32_t object) {
+  return pose.objectToWorld[object].ApplyBounds(scene.objects[object].objectBounds);
+}
+
 const CameraPreset* Scene::FindCamera(std::string_view cameraName) const {
   for (const auto& c : cameras)
     if (c.name == cameraName) return &c;
@@ -133,6 +198,14 @@ uint64_t ComputeIdentity(const Scene& s) {
     h.Update(&s.sky->horizon, sizeof(Rgb));
     h.Update(&s.sky->ground, sizeof(Rgb));
   }
+  h.Update(uint64_t(s.objects.size()));
+  for (const MovableObject& o : s.objects) {
+    h.Update(o.name.data(), o.name.size());
+    h.Update(uint64_t(o.firstTriangle));
+    h.Update(uint64_t(o.triangleCount));
+    const auto m = o.objectToWorld.ToRowMajor();
+    h.Update(m.data(), sizeof m);
+  }
   return h.Digest();
 }
 
@@ -146,6 +219,56 @@ float Scene::MaxEmittedRadiance() const {
   if (sky)
     brightest = std::max({brightest, maxChannel(sky->zenith), maxChannel(sky->horizon), maxChannel(sky->ground)});
   return brightest;
+}
+
+namespace {
+
+Status CheckAnimation(const std::string& where, const MovableObject& o) {
+  const ObjectAnimation& a = *o.animation;
+  if (a.keys.size() < 2) return Fail(fmt::format("{}: object '{}': an animation needs at least 2 keyframes", where, o.name));
+  if (a.keys.front().timeS != 0.0f)
+    return Fail(fmt::format("{}: object '{}': the first keyframe must be at t = 0", where, o.name));
+  for (size_t k = 1; k < a.keys.size(); ++k)
+    if (!(a.keys[k].timeS > a.keys[k - 1].timeS) || !std::isfinite(a.keys[k].timeS))
+      return Fail(fmt::format("{}: object '{}': keyframe {} at t = {} is not after the one before", where, o.name, k,
+                              a.keys[k].timeS));
+  return Status::Ok();
+}
+
+}  // namespace
+
+Status Scene::CheckObjects(const std::string& where) {
+  if (objects.empty()) {
+    staticTriangleCount = uint32_t(triangles.size());
+    staticVertexCount = uint32_t(vertices.size());
+    return Status::Ok();
+  }
+  staticTriangleCount = objects.front().firstTriangle;
+  staticVertexCount = objects.front().firstVertex;
+  uint32_t nextTriangle = staticTriangleCount, nextVertex = staticVertexCount;
+  for (size_t i = 0; i < objects.size(); ++i) {
+    const MovableObject& o = objects[i];
+    if (o.name.empty()) return Fail(fmt::format("{}: movable object {} has no name", where, i));
+    for (size_t j = 0; j < i; ++j)
+      if (objects[j].name == o.name) return Fail(fmt::format("{}: two movable objects are called '{}'", where, o.name));
+    if (o.firstTriangle != nextTriangle || o.triangleCount == 0 || o.firstVertex != nextVertex || o.vertexCount == 0)
+      return Fail(fmt::format("{}: movable object '{}' has no triangles, or its ranges do not follow the part before it",
+                              where, o.name));
+    nextTriangle = o.firstTriangle + o.triangleCount;
+    nextVertex = o.firstVertex + o.vertexCount;
+    if (o.animation)
+      if (auto ok = CheckAnimation(where, o); !ok) return ok;
+  }
+  if (nextTriangle != triangles.size() || nextVertex != vertices.size())
+    return Fail(fmt::format("{}: the movable objects' ranges do not end at the end of the scene's arrays", where));
+  // Each part's triangles use only its own vertices.
+  for (uint32_t t = 0; t < triangles.size(); ++t) {
+    const uint32_t object = ObjectOfTriangle(t);
+    for (uint32_t v : triangles[t].v)
+      if (ObjectOfVertex(v) != object)
+        return Fail(fmt::format("{}: triangle {} uses vertex {} of another part of the scene", where, t, v));
+  }
+  return Status::Ok();
 }
 
 Status Scene::Finalize() {
@@ -189,11 +312,27 @@ Status Scene::Finalize() {
     return Fail(fmt::format("{}: the sky needs a finite up direction and finite radiances", where));
   if (sky) sky->up = glm::normalize(sky->up);
 
+  if (auto ok = CheckObjects(where); !ok) return ok;
+
   emissiveTriangles.clear();
   bounds = Bounds3{};
   for (uint32_t i = 0; i < triangles.size(); ++i) {
-    if (MaterialOf(i).IsEmissive()) emissiveTriangles.push_back(i);
+    if (MaterialOf(i).IsEmissive()) {
+      if (i >= staticTriangleCount)
+        return Fail(fmt::format("{}: movable object '{}' has an emissive material ('{}'); moving lights are not "
+                                "supported",
+                                where, objects[ObjectOfTriangle(i)].name, MaterialOf(i).name));
+      emissiveTriangles.push_back(i);
+    }
+  }
+  for (uint32_t i = 0; i < staticTriangleCount; ++i)
     for (int c = 0; c < 3; ++c) bounds.Extend(Position(i, c));
+  for (MovableObject& o : objects) {
+    o.objectBounds = Bounds3{};
+    for (uint32_t v = o.firstVertex; v < o.firstVertex + o.vertexCount; ++v) o.objectBounds.Extend(vertices[v].position);
+    const Bounds3 world = o.objectToWorld.ApplyBounds(o.objectBounds);
+    bounds.Extend(world.min);
+    bounds.Extend(world.max);
   }
   identity = ComputeIdentity(*this);
   return Status::Ok();
@@ -203,6 +342,12 @@ Status Scene::Finalize() {
 
 SceneBuilder::SceneBuilder(float creaseAngleDeg)
     : cosCrease_(std::cos(std::clamp(creaseAngleDeg, 0.0f, 180.0f) * kPi / 180.0f)) {}
+
+uint32_t SceneBuilder::BeginObject(MovableObject object) {
+  objects_.push_back(std::move(object));
+  currentObject_ = uint32_t(objects_.size() - 1);
+  return currentObject_;
+}
 
 uint32_t SceneBuilder::AddMaterial(Material material) {
   materials_.push_back(std::move(material));
@@ -225,6 +370,7 @@ void SceneBuilder::AddTriangle(const std::array<Vec3, 3>& positions, uint32_t ma
   }
   for (int c = 0; c < 3; ++c) corners_.push_back(Corner{positions[c], uv[c]});
   materialOf_.push_back(material);
+  objectOf_.push_back(currentObject_);
 }
 
 void SceneBuilder::AddQuad(const Vec3& corner, const Vec3& edge1, const Vec3& edge2,
@@ -238,15 +384,17 @@ namespace {
 
 struct PositionKey {
   uint32_t x, y, z;
+  uint32_t object;  // corners of different movable objects never weld
   bool operator==(const PositionKey&) const = default;
 };
 struct PositionKeyHash {
   size_t operator()(const PositionKey& k) const {
-    return size_t(HashCombine(HashCombine(Mix64(k.x), k.y), k.z));
+    return size_t(HashCombine(HashCombine(HashCombine(Mix64(k.x), k.y), k.z), k.object));
   }
 };
-PositionKey KeyOf(const Vec3& p) {
+PositionKey KeyOf(const Vec3& p, uint32_t object) {
   PositionKey k;
+  k.object = object;
   // +0.0f folds -0 into +0 so that the two weld together.
   const float x = p.x + 0.0f, y = p.y + 0.0f, z = p.z + 0.0f;
   std::memcpy(&k.x, &x, 4);
@@ -287,13 +435,33 @@ Status SceneBuilder::BuildInto(Scene& scene) {
                     : fmt::format("{}: the mesh has no triangles", where));
   }
 
-  // 1. Weld corners by exact position.
+  // 0. Static triangles first, then each movable object's, keeping the order
+  // within each part: every part becomes one contiguous range.
+  if (!objects_.empty()) {
+    std::vector<uint32_t> order(triangleCount);
+    std::iota(order.begin(), order.end(), 0u);
+    const auto partOf = [&](uint32_t t) { return objectOf_[t] == kStaticObject ? 0u : objectOf_[t] + 1u; };
+    std::stable_sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return partOf(a) < partOf(b); });
+    std::vector<Corner> corners(corners_.size());
+    std::vector<uint32_t> materialOf(triangleCount), objectOf(triangleCount);
+    for (size_t i = 0; i < triangleCount; ++i) {
+      for (int c = 0; c < 3; ++c) corners[3 * i + c] = corners_[3 * order[i] + c];
+      materialOf[i] = materialOf_[order[i]];
+      objectOf[i] = objectOf_[order[i]];
+    }
+    corners_ = std::move(corners);
+    materialOf_ = std::move(materialOf);
+    objectOf_ = std::move(objectOf);
+  }
+
+  // 1. Weld corners by exact position, within each part.
   std::unordered_map<PositionKey, uint32_t, PositionKeyHash> positionIndex;
   positionIndex.reserve(corners_.size());
   std::vector<uint32_t> positionOfCorner(corners_.size());
   std::vector<Vec3> positions;
   for (size_t c = 0; c < corners_.size(); ++c) {
-    auto [it, inserted] = positionIndex.try_emplace(KeyOf(corners_[c].position), uint32_t(positions.size()));
+    auto [it, inserted] =
+        positionIndex.try_emplace(KeyOf(corners_[c].position, objectOf_[c / 3]), uint32_t(positions.size()));
     if (inserted) positions.push_back(corners_[c].position);
     positionOfCorner[c] = it->second;
   }
@@ -321,12 +489,14 @@ Status SceneBuilder::BuildInto(Scene& scene) {
         positionOfCorner[3 * kept + c] = positionOfCorner[3 * t + c];
       }
       materialOf_[kept] = materialOf_[t];
+      objectOf_[kept] = objectOf_[t];
       ++kept;
     }
     triangleCount = kept;
     corners_.resize(3 * kept);
     positionOfCorner.resize(3 * kept);
     materialOf_.resize(kept);
+    objectOf_.resize(kept);
   }
 
   // 2. Face normals, and the interior angle at every corner (the weight of
@@ -423,8 +593,32 @@ Status SceneBuilder::BuildInto(Scene& scene) {
   }
   scene.materials = std::move(materials_);
   scene.textures = std::move(textures_);
+  // Object ranges: triangles are sorted by part, and so are the vertices
+  // (positions were numbered in corner order, and vertices in position order).
+  for (MovableObject& o : objects_) o.triangleCount = o.vertexCount = 0;
+  for (uint32_t t = 0; t < triangleCount; ++t) {
+    if (objectOf_[t] == kStaticObject) continue;
+    MovableObject& o = objects_[objectOf_[t]];
+    if (o.triangleCount++ == 0) o.firstTriangle = t;
+    const uint32_t lo = *std::min_element(scene.triangles[t].v.begin(), scene.triangles[t].v.end());
+    const uint32_t hi = *std::max_element(scene.triangles[t].v.begin(), scene.triangles[t].v.end());
+    if (o.vertexCount == 0) {
+      o.firstVertex = lo;
+      o.vertexCount = hi - lo + 1;
+    } else {
+      const uint32_t end = std::max(o.firstVertex + o.vertexCount, hi + 1);
+      o.firstVertex = std::min(o.firstVertex, lo);
+      o.vertexCount = end - o.firstVertex;
+    }
+  }
+  for (const MovableObject& o : objects_)
+    if (o.triangleCount == 0) return Fail(fmt::format("movable object '{}' has no triangles with area", o.name));
+  scene.objects = std::move(objects_);
   corners_.clear();
   materialOf_.clear();
+  objectOf_.clear();
+  objects_.clear();
+  currentObject_ = kStaticObject;
   return scene.Finalize();
 }
 

@@ -51,7 +51,7 @@ RTCRayHit MakeRayHit(const Vec3& origin, const Vec3& direction, float tMin, floa
 
 struct RayScene::Impl {
   std::unique_ptr<EmbreeScene> embree;
-  RTCScene Handle() const { return embree->Handle(); }  // for the queries
+  RTCScene Handle() const { return embree->Initial()->Handle(); }  // for the queries
 };
 
 Expected<std::unique_ptr<RayScene>> RayScene::Build(const Scene& scene) {

@@ -151,7 +151,7 @@ struct Packet {
 
 struct VisibilityTracer::Impl {
   std::unique_ptr<EmbreeScene> embree;
-  RTCScene Handle() const { return embree->Handle(); }  // for the queries
+  RTCScene Handle() const { return embree->Initial()->Handle(); }  // for the queries
   // Per base triangle, its geometric normal (counter-clockwise front): which
   // side a ray meets decides which of the hierarchy's roots it sees. Ours,
   // not Embree's Ng, so that "front" means one thing in every tier.

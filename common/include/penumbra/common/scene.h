@@ -11,6 +11,13 @@
 // common corner; at a crease (face normals further apart than the crease
 // angle) each side gets its own vertex with its own normal. Texture
 // coordinates live on triangle corners, so UV seams never split a vertex.
+//
+// Movable objects (issue 14). Everything is static unless the scene names
+// movable objects. Triangles and vertices are stored static part first, then
+// each movable object's in one contiguous range, in the object's own space;
+// a RigidTransform per object (ScenePose) places it in the world. For the
+// static part object space is world space. Base-triangle indices do not
+// change when an object moves; only the pose does.
 
 #include <array>
 #include <cstdint>
@@ -23,6 +30,7 @@
 #include "penumbra/common/camera.h"
 #include "penumbra/common/expected.h"
 #include "penumbra/common/math.h"
+#include "penumbra/common/rigid_transform.h"
 
 namespace penumbra {
 
@@ -48,8 +56,8 @@ struct Material {
 };
 
 struct Vertex {
-  Vec3 position;  // world space
-  Vec3 normal;    // world space, unit; the side samples at this vertex shade
+  Vec3 position;  // object space: world space for the static part
+  Vec3 normal;    // object space, unit; the side samples at this vertex shade
 };
 
 struct Triangle {
@@ -82,6 +90,39 @@ struct SkyLight {
   Rgb Radiance(const Vec3& direction) const;
 };
 
+/// Where a movable object is at time t of its animation: keyframes with
+/// increasing times, the first at t = 0, interpolated by Interpolate().
+struct ObjectKeyframe {
+  float timeS = 0.0f;
+  RigidTransform objectToWorld;
+};
+struct ObjectAnimation {
+  std::vector<ObjectKeyframe> keys;  // at least 2; times strictly increasing, keys[0].timeS == 0
+  bool loop = true;                  // false: stays at the last key after it
+  double DurationS() const { return keys.empty() ? 0.0 : keys.back().timeS; }
+  /// The transform at `timeS` seconds after the animation started (looped
+  /// or held at the end).
+  RigidTransform At(double timeS) const;
+};
+
+/// Names "no movable object": a triangle or vertex of the static part.
+inline constexpr uint32_t kStaticObject = ~0u;
+
+/// A rigid part of the scene that may move. Its triangles are
+/// Scene::triangles[firstTriangle, firstTriangle + triangleCount) and its
+/// vertices Scene::vertices[firstVertex, firstVertex + vertexCount), in
+/// object space; triangles refer only to their own object's vertices.
+struct MovableObject {
+  std::string name;  // unique in the scene; clients pick objects by it
+  uint32_t firstTriangle = 0;
+  uint32_t triangleCount = 0;
+  uint32_t firstVertex = 0;
+  uint32_t vertexCount = 0;
+  RigidTransform objectToWorld;             // its place when the scene loads
+  std::optional<ObjectAnimation> animation; // played by the SMA on its own clock
+  Bounds3 objectBounds;                     // derived by Finalize(), object space
+};
+
 struct Scene {
   std::string name;                    // for logs and the handshake
   std::filesystem::path sourcePath;    // the file it was loaded from
@@ -99,20 +140,32 @@ struct Scene {
   bool twoSided = true;
   std::vector<CameraPreset> cameras;
   std::vector<CameraPath> paths;
+  /// Movable objects, in the order their triangle ranges follow the static
+  /// part's. Empty: the whole scene is static.
+  std::vector<MovableObject> objects;
 
   // Derived by Finalize():
   std::vector<uint32_t> emissiveTriangles;  // triangles whose material emits
-  Bounds3 bounds;
+  Bounds3 bounds;                           // world space, objects at their initial place
+  uint32_t staticTriangleCount = 0;         // triangles [0, staticTriangleCount) never move
+  uint32_t staticVertexCount = 0;
   uint64_t identity = 0;  // hash of all that affects shading; the handshake compares it
 
+  /// Object-space corner position (world space for static triangles).
   const Vec3& Position(uint32_t triangle, int corner) const {
     return vertices[triangles[triangle].v[corner]].position;
   }
-  /// Unit geometric normal (counter-clockwise front face).
+  /// Unit geometric normal (counter-clockwise front face), object space.
   Vec3 GeometricNormal(uint32_t triangle) const;
   float Area(uint32_t triangle) const;
-  /// Point at barycentrics (b1, b2): (1-b1-b2) p0 + b1 p1 + b2 p2.
+  /// Object-space point at barycentrics (b1, b2): (1-b1-b2) p0 + b1 p1 + b2 p2.
   Vec3 PointAt(uint32_t triangle, float b1, float b2) const;
+  /// The movable object a triangle belongs to, or kStaticObject.
+  uint32_t ObjectOfTriangle(uint32_t triangle) const;
+  /// The movable object a scene vertex belongs to, or kStaticObject.
+  uint32_t ObjectOfVertex(uint32_t vertex) const;
+  /// Index into `objects` of the object called `name`, or kStaticObject.
+  uint32_t FindObject(std::string_view name) const;
   /// Diffuse albedo at a point of a triangle: Kd times the texture at its UV.
   Rgb AlbedoAt(uint32_t triangle, float b1, float b2) const;
   const Material& MaterialOf(uint32_t triangle) const { return materials[triangles[triangle].material]; }
@@ -128,9 +181,37 @@ struct Scene {
 
   /// Computes the derived fields after the geometry, materials and lights are
   /// in place. Returns an error for an empty scene, a vertex or normal that is
-  /// not finite, or an index out of range.
+  /// not finite, an index out of range, or movable objects whose ranges do
+  /// not tile the end of the triangle and vertex arrays, that share vertices
+  /// with another part, that emit light (moving lights are not supported),
+  /// or have duplicate names or invalid animations.
   Status Finalize();
+
+ private:
+  Status CheckObjects(const std::string& where);  // part of Finalize(): ranges, names, animations
 };
+
+/// Where every movable object is at one scene epoch (issue 14). Epoch 0 is
+/// the scene as loaded; the SMA numbers every change after it.
+struct ScenePose {
+  uint64_t epoch = 0;
+  std::vector<RigidTransform> objectToWorld;  // one per Scene::objects
+
+  /// Every object at its MovableObject::objectToWorld, epoch 0.
+  static ScenePose Initial(const Scene& scene);
+  /// The object-to-world transform of `object` (identity for kStaticObject).
+  RigidTransform Of(uint32_t object) const {
+    return object == kStaticObject ? RigidTransform::Identity() : objectToWorld[object];
+  }
+  /// Same places (epochs aside).
+  bool SamePlaces(const ScenePose& other) const { return objectToWorld == other.objectToWorld; }
+};
+
+/// World-space point and unit geometric normal of a triangle under a pose.
+Vec3 WorldPointAt(const Scene& scene, const ScenePose& pose, uint32_t triangle, float b1, float b2);
+Vec3 WorldGeometricNormal(const Scene& scene, const ScenePose& pose, uint32_t triangle);
+/// World-space bounds of a movable object under a pose.
+Bounds3 WorldBounds(const Scene& scene, const ScenePose& pose, uint32_t object);
 
 /// The most textures a scene may have: every tier, and every client that a
 /// SceneInfo announces them to, may allocate per texture.
@@ -147,6 +228,14 @@ class SceneBuilder {
   explicit SceneBuilder(float creaseAngleDeg = kDefaultCreaseAngleDeg);
 
   uint32_t AddMaterial(Material material);
+  /// Starts a movable object: triangles added from now until the next
+  /// BeginObject / EndObject belong to it, in its object space. Corners of
+  /// different objects (and of the static part) are never welded together.
+  /// Returns the object's index in Scene::objects. The ranges and bounds are
+  /// filled in by BuildInto.
+  uint32_t BeginObject(MovableObject object);
+  /// Triangles added after this belong to the static part again.
+  void EndObject() { currentObject_ = kStaticObject; }
   int32_t AddTexture(Texture texture);
   /// Adds a triangle (counter-clockwise seen from its front). Degenerate
   /// triangles (zero area) are dropped and counted.
@@ -164,8 +253,9 @@ class SceneBuilder {
   size_t DuplicateTriangles() const { return duplicates_; }
   size_t TriangleCount() const { return corners_.size() / 3; }
 
-  /// Moves the geometry, materials and textures into `scene` (its lights and
-  /// cameras are left alone) and calls scene.Finalize().
+  /// Moves the geometry, materials, textures and movable objects into
+  /// `scene` (its lights and cameras are left alone; triangles are ordered
+  /// static part first, then object by object) and calls scene.Finalize().
   Status BuildInto(Scene& scene);
 
  private:
@@ -176,6 +266,9 @@ class SceneBuilder {
   float cosCrease_;
   std::vector<Corner> corners_;      // 3 per triangle
   std::vector<uint32_t> materialOf_; // 1 per triangle
+  std::vector<uint32_t> objectOf_;   // 1 per triangle: kStaticObject or an index into objects_
+  std::vector<MovableObject> objects_;
+  uint32_t currentObject_ = kStaticObject;
   std::vector<Material> materials_;
   std::vector<Texture> textures_;
   size_t degenerate_ = 0;
