@@ -22,7 +22,17 @@ Status HeldMesh::Apply(const wire::Delta& d) {
   if (d.triangle_vertices_size() != 3 * nt || d.triangle_materials_size() != nt)
     return Fail("triangle arrays disagree in length");
   if (d.triangle_uvs_size() % 6 != 0 || d.triangle_uvs_size() / 6 > nt) return Fail("triangle_uvs length");
+  if (d.vertex_objects_size() != 0 && d.vertex_objects_size() != nv) return Fail("vertex_objects length");
+  if (d.scene_epoch() < sceneEpoch_)
+    return Fail(fmt::format("delta at scene epoch {} after epoch {}", d.scene_epoch(), sceneEpoch_));
+  if (d.kind() == wire::DELTA_KIND_MOVED &&
+      (nv > 0 || nt > 0 || d.removed_triangles_size() > 0 || d.updated_vertex_ids_size() > 0 ||
+       d.moved_object_transforms_size() != 12 * d.moved_objects_size()))
+    return Fail("a MOVED delta carries triangles or vertices, or its transforms disagree in length");
+  if (d.kind() == wire::DELTA_KIND_RESHADED && (nv > 0 || nt > 0 || d.removed_triangles_size() > 0))
+    return Fail("a RESHADED delta carries triangles or new vertices");
   sequence_ = d.sequence();
+  sceneEpoch_ = d.scene_epoch();
 
   for (uint64_t id : d.removed_triangles()) {
     auto it = triangles_.find(id);
@@ -42,6 +52,7 @@ Status HeldMesh::Apply(const wire::Delta& d) {
     v.position = Vec3(d.vertex_positions(3 * i), d.vertex_positions(3 * i + 1), d.vertex_positions(3 * i + 2));
     v.radiance = Rgb(d.vertex_radiance(3 * i), d.vertex_radiance(3 * i + 1), d.vertex_radiance(3 * i + 2));
     v.irradiance = Rgb(d.vertex_irradiance(3 * i), d.vertex_irradiance(3 * i + 1), d.vertex_irradiance(3 * i + 2));
+    v.object = d.vertex_objects_size() == nv ? d.vertex_objects(i) : 0;
     if (!IsFinite(v.position) || !IsFinite(v.radiance) || !IsFinite(v.irradiance))
       return Fail(fmt::format("vertex {} is not finite", id));
     vertices_.emplace(id, v);

@@ -17,7 +17,8 @@ namespace penumbra::testing {
 class HeldMesh {
  public:
   struct Vertex {
-    Vec3 position;
+    Vec3 position;     // as sent: object space for a vertex of a movable object
+    uint32_t object = 0;  // Delta.vertex_objects: 0 static, else the movable object's id
     Rgb radiance;
     Rgb irradiance;
     uint32_t refs = 0;
@@ -38,6 +39,8 @@ class HeldMesh {
   size_t CountTVertices() const;
 
   uint64_t LastViewId() const { return viewId_; }
+  /// The scene epoch of the last delta (never decreases).
+  uint64_t SceneEpoch() const { return sceneEpoch_; }
   bool Converged() const { return converged_; }
   uint32_t PendingSamples() const { return pending_; }
   uint64_t DeltasApplied() const { return sequence_; }
@@ -52,6 +55,7 @@ class HeldMesh {
   std::map<uint64_t, Vertex> vertices_;
   uint64_t sequence_ = 0;
   uint64_t viewId_ = 0;
+  uint64_t sceneEpoch_ = 0;
   bool converged_ = false;
   uint32_t pending_ = 0;
 };
