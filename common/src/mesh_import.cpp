@@ -349,7 +349,9 @@ Expected<std::vector<size_t>> AssignMeshesToGroups(const aiScene& scene, std::sp
       if (mesh >= scene.mNumMeshes)
         return Fail(fmt::format("{}: node \"{}\" refers to mesh {} of {}", where, name, mesh, scene.mNumMeshes));
       if (meshPlaced[mesh] && groupOfMesh[mesh] != group)
-        return Fail(fmt::format("{}: mesh '{}' is used under the nodes of two parts (a movable object and the static part, or two objects)", where,
+        return Fail(fmt::format("{}: mesh '{}' is used under the nodes of two parts (a movable object and the static "
+                                "part, or two objects)",
+                                where,
                                 scene.mMeshes[mesh]->mName.C_Str()));
       meshPlaced[mesh] = true;
       groupOfMesh[mesh] = group;
@@ -360,7 +362,7 @@ Expected<std::vector<size_t>> AssignMeshesToGroups(const aiScene& scene, std::sp
   for (size_t g = 0; g < groups.size(); ++g) {
     for (const std::string& name : groups[g].nodeNames) {
       if (found.count(name)) continue;
-      constexpr size_t kListed = 24;
+      constexpr size_t kListed = 128;
       const size_t shown = std::min(nodeNames.size(), kListed);
       return Fail(fmt::format("{}: objects.{}: no node (OBJ o/g group, glTF node) is called \"{}\"; the file has: "
                               "\"{}\"{}",

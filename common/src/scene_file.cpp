@@ -422,7 +422,8 @@ Expected<ObjectDescription> ParseObject(const JsonReader& r, const fs::path& sce
     auto transformJson = r.Object(j, ctx, "transform");
     if (!transformJson) return transformJson.error();
     const std::string transformCtx = ctx + ".transform";
-    if (auto ok = r.CheckKeys(**transformJson, transformCtx, {"translate", "rotate_deg", "axis", "matrix"}); !ok) return ok.error();
+    if (auto ok = r.CheckKeys(**transformJson, transformCtx, {"translate", "rotate_deg", "axis", "matrix"}); !ok)
+      return ok.error();
     auto transform = ParseTransform(r, **transformJson, transformCtx);
     if (!transform) return transform.error();
     o.placement = *transform;
