@@ -247,6 +247,49 @@ TEST(SceneObjectsTest, GltfNodeGroupTakesItsMeshWithTheNodeTransformsApplied) {
   EXPECT_EQ(loaded->emissiveTriangles.size(), 1u);
 }
 
+TEST(SceneObjectsTest, GltfGroupsNestAndANodeInsideAnotherObjectsNodeIsAnError) {
+  ScratchDir dir;
+  auto load = [&](const std::string& objects) {
+    return LoadScene(dir.Write("scene.json", R"({"mesh": ")" + TestData("two_materials.gltf").string() +
+                                                 R"(", "objects": )" + objects + "}"));
+  };
+  // "root" holds both meshes: nothing would stay static.
+  auto whole = load(R"({"all": {"group": "root"}})");
+  ASSERT_FALSE(whole.ok());
+  EXPECT_NE(whole.error().message.find("nothing would stay static"), std::string::npos) << whole.error().message;
+  auto nested = load(R"({"all": {"group": "root"}, "panel": {"group": "quad"}})");
+  ASSERT_FALSE(nested.ok());
+  EXPECT_NE(nested.error().message.find("objects.panel: node \"quad\" is inside a node of objects.all"),
+            std::string::npos)
+      << nested.error().message;
+}
+
+// The Cornell box OBJ writes each box's "g" line after its faces, so assimp
+// files them under the group before (docs/scenes.md, "Finding names").
+TEST(SceneObjectsTest, CornellBoxGroupsAreWhereAssimpPutsThem) {
+  ScratchDir dir;
+  const fs::path obj = SourceDir() / "scenes/cornell-box/CornellBox-Original.obj";
+  auto load = [&](const std::string& objects) {
+    return LoadScene(dir.Write("scene.json", R"({"mesh": ")" + obj.string() + R"(", "objects": )" + objects + "}"));
+  };
+  auto materialsOf = [](const Scene& scene, const MovableObject& o) {
+    std::vector<std::string> names;
+    for (uint32_t t = o.firstTriangle; t < o.firstTriangle + o.triangleCount; ++t)
+      if (std::find(names.begin(), names.end(), scene.MaterialOf(t).name) == names.end())
+        names.push_back(scene.MaterialOf(t).name);
+    std::sort(names.begin(), names.end());
+    return names;
+  };
+  auto scene = load(R"({"a": {"group": "shortBox"}, "b": {"group": "leftWall"}})");
+  ASSERT_TRUE(scene.ok()) << scene.error().message;
+  EXPECT_EQ(materialsOf(*scene, scene->objects[0]), std::vector<std::string>{"tallBox"});
+  EXPECT_EQ(materialsOf(*scene, scene->objects[1]), (std::vector<std::string>{"leftWall", "shortBox"}));
+  auto tall = load(R"({"a": {"group": "tallBox"}})");
+  ASSERT_FALSE(tall.ok());
+  EXPECT_NE(tall.error().message.find("the group \"tallBox\" has no triangles"), std::string::npos)
+      << tall.error().message;
+}
+
 // --- Mesh-file objects ----------------------------------------------------------
 
 TEST(SceneObjectsTest, MeshFileObjectKeepsItsFileCoordinatesAndItsMaterialsJoinTheScene) {
