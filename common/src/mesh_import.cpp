@@ -12,6 +12,7 @@
 #include <span>
 #include <string>
 #include <unordered_map>
+#include <unordered_set>
 #include <vector>
 
 #include <sys/wait.h>
@@ -22,7 +23,9 @@
 #include <assimp/material.h>
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
+#include <assimp/config.h>
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <nlohmann/json.hpp>
 
 #include "io_util.h"
@@ -255,11 +258,12 @@ constexpr unsigned kImportFlags = aiProcess_Triangulate | aiProcess_PreTransform
 // survives does this process read it (assimp is deterministic). This costs
 // a second parse of the mesh file at start-up. The child only parses and
 // exits (no threads, no logging, no exit handlers).
-Status ReadsWithoutCrashing(const fs::path& meshPath) {
+Status ReadsWithoutCrashing(const fs::path& meshPath, bool keepHierarchy) {
   const pid_t child = fork();
   if (child < 0) return Status::Ok();  // cannot probe: read it here, as without the probe
   if (child == 0) {
     Assimp::Importer importer;
+    importer.SetPropertyBool(AI_CONFIG_PP_PTV_KEEP_HIERARCHY, keepHierarchy);
     importer.ReadFile(meshPath.string(), kImportFlags);
     _exit(0);
   }
@@ -296,9 +300,82 @@ Status ReadsWithoutCrashing(const fs::path& meshPath) {
   return Status::Ok();
 }
 
+
+constexpr size_t kNoGroup = ~size_t(0);
+
+// The group (index into `groups`) each of the file's meshes belongs to, or
+// kNoGroup for the static part: a mesh belongs to the group naming the
+// nearest node above it (or its own node).
+Expected<std::vector<size_t>> AssignMeshesToGroups(const aiScene& scene, std::span<const MeshGroup> groups,
+                                                   const std::string& where) {
+  auto objectName = [&](size_t g) { return groups[g].object.name; };
+  std::unordered_map<std::string, size_t> groupOfName;
+  for (size_t g = 0; g < groups.size(); ++g) {
+    for (const std::string& name : groups[g].nodeNames) {
+      const auto [it, inserted] = groupOfName.emplace(name, g);
+      if (!inserted && it->second != g)
+        return Fail(fmt::format("{}: objects.{} and objects.{} both name the group \"{}\"", where,
+                                objectName(it->second), objectName(g), name));
+    }
+  }
+  std::vector<size_t> groupOfMesh(scene.mNumMeshes, kNoGroup);
+  std::vector<bool> meshPlaced(scene.mNumMeshes, false);
+  std::unordered_set<std::string> found;
+  std::vector<std::string> nodeNames;  // distinct, in tree order: for the message of a name not found
+  std::unordered_set<std::string> listed;
+  // An explicit stack: the file decides how deep its tree is.
+  struct Pending {
+    const aiNode* node;
+    size_t group;  // of the nearest node above that a group names
+  };
+  std::vector<Pending> stack;
+  if (scene.mRootNode) stack.push_back({scene.mRootNode, kNoGroup});
+  while (!stack.empty()) {
+    const Pending item = stack.back();
+    stack.pop_back();
+    const aiNode& node = *item.node;
+    const std::string name = node.mName.C_Str();
+    if (listed.insert(name).second) nodeNames.push_back(name);
+    size_t group = item.group;
+    if (const auto it = groupOfName.find(name); it != groupOfName.end()) {
+      found.insert(name);
+      if (group != kNoGroup && group != it->second)
+        return Fail(fmt::format("{}: objects.{}: node \"{}\" is inside a node of objects.{}", where,
+                                objectName(it->second), name, objectName(group)));
+      group = it->second;
+    }
+    for (unsigned i = 0; i < node.mNumMeshes; ++i) {
+      const unsigned mesh = node.mMeshes[i];
+      if (mesh >= scene.mNumMeshes)
+        return Fail(fmt::format("{}: node \"{}\" refers to mesh {} of {}", where, name, mesh, scene.mNumMeshes));
+      if (meshPlaced[mesh] && groupOfMesh[mesh] != group)
+        return Fail(fmt::format("{}: mesh '{}' is used under the nodes of two parts (a movable object and the static "
+                                "part, or two objects)",
+                                where,
+                                scene.mMeshes[mesh]->mName.C_Str()));
+      meshPlaced[mesh] = true;
+      groupOfMesh[mesh] = group;
+    }
+    for (unsigned i = node.mNumChildren; i-- > 0;)  // reversed: children are visited in file order
+      if (node.mChildren[i]) stack.push_back({node.mChildren[i], group});
+  }
+  for (size_t g = 0; g < groups.size(); ++g) {
+    for (const std::string& name : groups[g].nodeNames) {
+      if (found.count(name)) continue;
+      constexpr size_t kListed = 128;
+      const size_t shown = std::min(nodeNames.size(), kListed);
+      return Fail(fmt::format("{}: objects.{}: no node (OBJ o/g group, glTF node) is called \"{}\"; the file has: "
+                              "\"{}\"{}",
+                              where, objectName(g), name,
+                              fmt::join(nodeNames.begin(), nodeNames.begin() + std::ptrdiff_t(shown), "\", \""),
+                              nodeNames.size() > shown ? fmt::format(" and {} more", nodeNames.size() - shown) : ""));
+    }
+  }
+  return groupOfMesh;
+}
 }  // namespace
 
-Status ImportMesh(const fs::path& meshPath, SceneBuilder& builder) {
+Status ImportMesh(const fs::path& meshPath, SceneBuilder& builder, std::span<const MeshGroup> groups) {
   const std::string where = meshPath.string();
   if (auto ok = io::CheckRegularFile(meshPath); !ok) return ok;
   if (auto ok = CheckGlbSizes(meshPath); !ok) return ok;
@@ -311,9 +388,13 @@ Status ImportMesh(const fs::path& meshPath, SceneBuilder& builder) {
   const auto fileBytes = fs::file_size(meshPath, sizeError);
   log->info("reading {} ({:.1f} MB)", where, sizeError ? 0.0 : double(fileBytes) / 1e6);
   const auto readStart = Clock::now();
-  if (auto ok = ReadsWithoutCrashing(meshPath); !ok) return ok;
+  // Groups need the file's nodes, which pre-transforming otherwise merges
+  // away (meshes sharing a material become one).
+  const bool keepHierarchy = !groups.empty();
+  if (auto ok = ReadsWithoutCrashing(meshPath, keepHierarchy); !ok) return ok;
 
   Assimp::Importer importer;
+  importer.SetPropertyBool(AI_CONFIG_PP_PTV_KEEP_HIERARCHY, keepHierarchy);
   auto* io = new RecordingIOSystem;  // the importer owns it
   importer.SetIOHandler(io);
   // No vertex joining or normal generation: SceneBuilder welds by position and
@@ -339,7 +420,9 @@ Status ImportMesh(const fs::path& meshPath, SceneBuilder& builder) {
       ext == ".gltf" || ext == ".glb" ? GltfEmissiveStrengths(meshPath) : std::vector<float>{};
   TextureCache textures(*scene, meshPath, builder);
   std::vector<std::optional<UsedMaterial>> used(scene->mNumMaterials);
-  for (unsigned meshIndex = 0; meshIndex < scene->mNumMeshes; ++meshIndex) {
+  // Adds one mesh's triangles, each corner minus `origin` (the object-space
+  // origin of a group; zero for the static part).
+  auto addMesh = [&](unsigned meshIndex, const Vec3& origin) -> Status {
     const aiMesh& mesh = *scene->mMeshes[meshIndex];
     if (mesh.mMaterialIndex >= scene->mNumMaterials)
       return Fail(fmt::format("{}: mesh '{}' refers to material {} of {}", where, mesh.mName.C_Str(),
@@ -366,10 +449,66 @@ Status ImportMesh(const fs::path& meshPath, SceneBuilder& builder) {
         if (v >= mesh.mNumVertices)
           return Fail(fmt::format("{}: mesh '{}' face {} refers to vertex {} of {}", where, mesh.mName.C_Str(), f,
                                   v, mesh.mNumVertices));
-        positions[c] = ToVec3(mesh.mVertices[v]);
+        positions[c] = ToVec3(mesh.mVertices[v]) - origin;
         if (uvs) uv[c] = Vec2(uvs[v].x, uvs[v].y);
       }
       builder.AddTriangle(positions, material->builderIndex, uv);
+    }
+    return Status::Ok();
+  };
+
+  if (groups.empty()) {
+    for (unsigned meshIndex = 0; meshIndex < scene->mNumMeshes; ++meshIndex)
+      if (auto ok = addMesh(meshIndex, Vec3(0.0f)); !ok) return ok;
+  } else {
+    auto groupOfMesh = AssignMeshesToGroups(*scene, groups, where);
+    if (!groupOfMesh) return groupOfMesh.error();
+    // Each group's world bounds (for its default pivot) and triangle count.
+    std::vector<Bounds3> bounds(groups.size());
+    std::vector<size_t> triangles(groups.size(), 0);
+    size_t staticTriangles = 0;
+    for (unsigned meshIndex = 0; meshIndex < scene->mNumMeshes; ++meshIndex) {
+      const aiMesh& mesh = *scene->mMeshes[meshIndex];
+      const size_t group = (*groupOfMesh)[meshIndex];
+      for (unsigned f = 0; f < mesh.mNumFaces; ++f) {
+        const aiFace& face = mesh.mFaces[f];
+        if (face.mNumIndices != 3) continue;
+        if (group == kNoGroup) {
+          ++staticTriangles;
+          continue;
+        }
+        ++triangles[group];
+        for (int c = 0; c < 3; ++c)
+          if (face.mIndices[c] < mesh.mNumVertices) bounds[group].Extend(ToVec3(mesh.mVertices[face.mIndices[c]]));
+      }
+    }
+    for (size_t g = 0; g < groups.size(); ++g)
+      if (triangles[g] == 0)
+        return Fail(fmt::format("{}: objects.{}: the group \"{}\" has no triangles", where, groups[g].object.name,
+                                fmt::join(groups[g].nodeNames, "\", \"")));
+    if (staticTriangles == 0)
+      return Fail(fmt::format("{}: the movable objects' groups take every triangle; nothing would stay static "
+                              "(to move a whole file, give it as an object's \"mesh\")",
+                              where));
+    for (unsigned meshIndex = 0; meshIndex < scene->mNumMeshes; ++meshIndex)
+      if ((*groupOfMesh)[meshIndex] == kNoGroup)
+        if (auto ok = addMesh(meshIndex, Vec3(0.0f)); !ok) return ok;
+    for (size_t g = 0; g < groups.size(); ++g) {
+      const Vec3 pivot = groups[g].pivot.value_or(bounds[g].Center());
+      RigidTransform home;  // world axes, origin at the pivot
+      home.translation = pivot;
+      MovableObject object = groups[g].object;
+      object.objectToWorld = home.Compose(object.objectToWorld);
+      if (object.animation)
+        for (ObjectKeyframe& key : object.animation->keys) key.objectToWorld = home.Compose(key.objectToWorld);
+      builder.BeginObject(std::move(object));
+      for (unsigned meshIndex = 0; meshIndex < scene->mNumMeshes; ++meshIndex)
+        if ((*groupOfMesh)[meshIndex] == g)
+          if (auto ok = addMesh(meshIndex, pivot); !ok) {
+            builder.EndObject();
+            return ok;
+          }
+      builder.EndObject();
     }
   }
   log->info("converted {} meshes: {} textures loaded in {:.2f} s", scene->mNumMeshes, textures.Count(),

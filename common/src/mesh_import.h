@@ -3,6 +3,10 @@
 // SceneBuilder. Private to penumbra_scene_io; LoadScene is the public entry.
 
 #include <filesystem>
+#include <optional>
+#include <span>
+#include <string>
+#include <vector>
 
 #include "penumbra/common/expected.h"
 #include "penumbra/common/scene.h"
@@ -24,6 +28,30 @@ namespace penumbra {
 /// decode large cannot take any amount of memory.
 inline constexpr int64_t kMaxSceneTextureBytes = int64_t(1) << 30;
 
-Status ImportMesh(const std::filesystem::path& meshPath, SceneBuilder& builder);
+/// Part of a mesh file to import as a movable object (a scene file's
+/// "group" object, issue 14): the triangles of every mesh under an assimp
+/// node called one of `nodeNames` (OBJ `o`/`g` names, glTF node names), or
+/// under any of its descendants.
+struct MeshGroup {
+  std::vector<std::string> nodeNames;
+  /// The world point that becomes the object's origin: object-space
+  /// positions are world positions minus it. Default: the centre of the
+  /// group's world bounding box.
+  std::optional<Vec3> pivot;
+  /// Name and animation of the object. Its objectToWorld and animation keys
+  /// are relative to the home frame translate(pivot); ImportMesh composes
+  /// them with it before handing the object to SceneBuilder::BeginObject.
+  MovableObject object;
+};
+
+/// With `groups`, the triangles under the named nodes become movable objects
+/// (BeginObject in the order of `groups`, each group's triangles in its object
+/// space); the rest stay static. The static part keeps assimp's mesh order,
+/// which differs from the order without groups (meshes sharing a material are
+/// then not merged). Errors name the mesh file and the object: a name no node
+/// has (the message lists the nodes there are), a group without triangles, a
+/// node claimed by two objects, groups that would leave nothing static.
+Status ImportMesh(const std::filesystem::path& meshPath, SceneBuilder& builder,
+                  std::span<const MeshGroup> groups = {});
 
 }  // namespace penumbra

@@ -1,6 +1,7 @@
 #include "scene_file.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <fstream>
 #include <initializer_list>
@@ -315,6 +316,127 @@ Expected<CameraPath> ParseCameraPath(const JsonReader& r, const fs::path& sceneD
   return path;
 }
 
+// --- Movable objects (issue 14) ----------------------------------------------
+
+// A rigid transform, either {"matrix": [12 numbers, 3x4 row-major]} or any
+// of {"translate": [x, y, z], "rotate_deg": a, "axis": [x, y, z]} (rotation
+// about the axis through the origin, then the translation). Either way it is
+// checked by RigidTransform::FromRowMajor, so the rules are the wire's.
+Expected<RigidTransform> ParseTransform(const JsonReader& r, const Json& j, std::string_view ctx) {
+  std::array<float, 12> m{};
+  if (j.contains("matrix")) {
+    for (const char* key : {"translate", "rotate_deg", "axis"})
+      if (j.contains(key)) return r.Problem(ctx, fmt::format("give either \"matrix\" or \"{}\", not both", key));
+    const Json& matrix = j.at("matrix");
+    if (!matrix.is_array() || matrix.size() != 12)
+      return r.Problem(ctx, "\"matrix\" must be an array of 12 numbers (3x4, row-major: rotation | translation)");
+    for (size_t i = 0; i < 12; ++i) {
+      if (!matrix[i].is_number()) return r.Problem(ctx, fmt::format("\"matrix\" entry {} is not a number", i));
+      m[i] = matrix[i].get<float>();
+    }
+  } else {
+    auto translate = r.Vector(j, ctx, "translate", Vec3(0.0f));
+    if (!translate) return translate.error();
+    if (j.contains("axis") && !j.contains("rotate_deg")) return r.Problem(ctx, "\"axis\" without \"rotate_deg\"");
+    auto angle = r.Number(j, ctx, "rotate_deg", -3600.0f, 3600.0f, 0.0f);
+    if (!angle) return angle.error();
+    auto axis = r.Direction(j, ctx, "axis", Vec3(0.0f, 1.0f, 0.0f));
+    if (!axis) return axis.error();
+    m = RigidTransform::FromAxisAngle(*axis, *angle * kDegToRad, *translate).ToRowMajor();
+  }
+  auto transform = RigidTransform::FromRowMajor(m);
+  if (!transform) return r.Problem(ctx, transform.error().message);
+  return *transform;
+}
+
+Expected<ObjectAnimation> ParseObjectAnimation(const JsonReader& r, const Json& j, const std::string& ctx) {
+  if (!j.is_object()) return r.Problem(ctx, "must be an object");
+  if (auto ok = r.CheckKeys(j, ctx, {"loop", "keyframes"}); !ok) return ok.error();
+  ObjectAnimation animation;
+  if (j.contains("loop")) {
+    if (!j["loop"].is_boolean()) return r.Problem(ctx, "\"loop\" must be true or false");
+    animation.loop = j["loop"].get<bool>();
+  }
+  if (!j.contains("keyframes")) return r.Problem(ctx, "missing \"keyframes\"");
+  const Json& keys = j["keyframes"];
+  if (!keys.is_array() || keys.size() < 2 || keys.size() > kMaxObjectKeyframes)
+    return r.Problem(ctx, fmt::format("\"keyframes\" must be an array of 2 to {} keyframes", kMaxObjectKeyframes));
+  animation.keys.reserve(keys.size());
+  for (size_t i = 0; i < keys.size(); ++i) {
+    const std::string keyCtx = fmt::format("{}.keyframes[{}]", ctx, i);
+    const Json& key = keys[i];
+    if (!key.is_object()) return r.Problem(keyCtx, "must be an object");
+    // A keyframe is a transform (ParseTransform) at a time.
+    if (auto ok = r.CheckKeys(key, keyCtx, {"t", "translate", "rotate_deg", "axis", "matrix"}); !ok) return ok.error();
+    auto t = r.Number(key, keyCtx, "t", 0.0f, kMaxKeyframeTimeS);
+    if (!t) return t.error();
+    if (i == 0 && *t != 0.0f) return r.Problem(keyCtx, "the first keyframe must be at \"t\": 0");
+    if (i > 0 && !(*t > animation.keys.back().timeS))
+      return r.Problem(keyCtx, fmt::format("\"t\" ({}) must be after the previous keyframe's ({})", *t,
+                                           animation.keys.back().timeS));
+    auto transform = ParseTransform(r, key, keyCtx);
+    if (!transform) return transform.error();
+    animation.keys.push_back(ObjectKeyframe{*t, *transform});
+  }
+  return animation;
+}
+
+Expected<ObjectDescription> ParseObject(const JsonReader& r, const fs::path& sceneDir, const std::string& name,
+                                        const Json& j) {
+  const std::string ctx = fmt::format("objects.{}", name);
+  if (name.empty() || name.size() > kMaxObjectNameBytes)
+    return r.Problem("objects", fmt::format("an object's name must have 1 to {} bytes", kMaxObjectNameBytes));
+  if (!j.is_object()) return r.Problem(ctx, "must be an object");
+  if (auto ok = r.CheckKeys(j, ctx, {"group", "mesh", "pivot", "transform", "animation"}); !ok) return ok.error();
+  ObjectDescription o;
+  o.name = name;
+  auto byGroup = r.EitherOr(j, ctx, {"group"}, {"mesh"});
+  if (!byGroup) return byGroup.error();
+  if (*byGroup) {
+    const Json& group = j["group"];
+    const auto isName = [](const Json& v) { return v.is_string() && !v.get_ref<const std::string&>().empty(); };
+    if (isName(group)) {
+      o.groups.push_back(group.get<std::string>());
+    } else if (group.is_array() && !group.empty() && group.size() <= kMaxObjectGroups &&
+               std::all_of(group.begin(), group.end(), isName)) {
+      for (const Json& g : group) o.groups.push_back(g.get<std::string>());
+    } else {
+      return r.Problem(ctx, fmt::format("\"group\" must be a non-empty string or an array of 1 to {} of them",
+                                        kMaxObjectGroups));
+    }
+    if (j.contains("pivot")) {
+      auto pivot = r.Vector(j, ctx, "pivot");
+      if (!pivot) return pivot.error();
+      o.pivot = *pivot;
+    }
+  } else {
+    auto mesh = r.String(j, ctx, "mesh");
+    if (!mesh) return mesh.error();
+    o.meshPath = sceneDir / *mesh;
+    if (j.contains("pivot"))
+      return r.Problem(ctx, "\"pivot\" is for \"group\" objects (a mesh file's own origin is its pivot)");
+  }
+  if (j.contains("transform") && j.contains("animation"))
+    return r.Problem(ctx, "give either \"transform\" or \"animation\" (its first keyframe places the object)");
+  if (j.contains("transform")) {
+    auto transformJson = r.Object(j, ctx, "transform");
+    if (!transformJson) return transformJson.error();
+    const std::string transformCtx = ctx + ".transform";
+    if (auto ok = r.CheckKeys(**transformJson, transformCtx, {"translate", "rotate_deg", "axis", "matrix"}); !ok)
+      return ok.error();
+    auto transform = ParseTransform(r, **transformJson, transformCtx);
+    if (!transform) return transform.error();
+    o.placement = *transform;
+  }
+  if (j.contains("animation")) {
+    auto animation = ParseObjectAnimation(r, j["animation"], ctx + ".animation");
+    if (!animation) return animation.error();
+    o.placement = animation->keys.front().objectToWorld;
+    o.animation = std::move(*animation);
+  }
+  return o;
+}
+
 }  // namespace
 
 Expected<SceneDescription> ParseSceneFile(const fs::path& path) {
@@ -327,7 +449,7 @@ Expected<SceneDescription> ParseSceneFile(const fs::path& path) {
   const JsonReader r(fileName);
   if (!doc.is_object()) return r.Problem("", "a scene file must be a JSON object");
   if (auto ok = r.CheckKeys(doc, "", {"name", "mesh", "crease_angle_deg", "emission_scale", "two_sided", "materials", "sun",
-                                      "sky", "quad_lights", "cameras", "paths"});
+                                      "sky", "quad_lights", "cameras", "paths", "objects"});
       !ok)
     return ok.error();
 
@@ -404,6 +526,17 @@ Expected<SceneDescription> ParseSceneFile(const fs::path& path) {
       auto cameraPath = ParseCameraPath(r, sceneDir, fileName, item.key(), item.value());
       if (!cameraPath) return cameraPath.error();
       d.paths.push_back(std::move(*cameraPath));
+    }
+  }
+  if (doc.contains("objects")) {
+    auto objects = r.Object(doc, "", "objects");
+    if (!objects) return objects.error();
+    if ((*objects)->size() > kMaxSceneObjects)
+      return r.Problem("objects", fmt::format("{} objects; at most {} may move", (*objects)->size(), kMaxSceneObjects));
+    for (const auto& item : (*objects)->items()) {
+      auto object = ParseObject(r, sceneDir, item.key(), item.value());
+      if (!object) return object.error();
+      d.objects.push_back(std::move(*object));
     }
   }
   return d;

@@ -10,6 +10,7 @@
 
 #include "penumbra/common/camera.h"
 #include "penumbra/common/expected.h"
+#include "penumbra/common/rigid_transform.h"
 #include "penumbra/common/scene.h"
 
 namespace penumbra {
@@ -32,6 +33,36 @@ struct QuadLight {
   Rgb radiance{0.0f};
 };
 
+/// Bounds on a scene file's "objects" (issue 14): each object costs every
+/// tier an instance and every client a transform, and each is read from the
+/// file before anything checks the mesh.
+inline constexpr size_t kMaxSceneObjects = 256;
+inline constexpr size_t kMaxObjectGroups = 256;        // names in one object's "group"
+inline constexpr size_t kMaxObjectKeyframes = 10'000;  // keys in one object's "animation"
+inline constexpr size_t kMaxObjectNameBytes = 128;
+inline constexpr float kMaxKeyframeTimeS = 1e6f;
+
+/// A movable object named under "objects" (docs/scenes.md). Exactly one of
+/// `groups` (parts of the main mesh, by assimp node name) and `meshPath` (a
+/// mesh file of its own) is set.
+///
+/// Frames. A mesh-file object's object space is its file's own coordinates.
+/// A group's object space has world axes and its origin at `pivot` (default:
+/// the centre of the group's world bounding box, known once the mesh is
+/// read): object-space vertex = world vertex - pivot. `placement` and every
+/// keyframe are given relative to the object's home frame, identity for a
+/// mesh file and translate(pivot) for a group, so that the object-to-world
+/// transform is home * placement (home * key), and a rotation in the file
+/// turns a group about its pivot.
+struct ObjectDescription {
+  std::string name;                   // the key under "objects"
+  std::vector<std::string> groups;    // "group": one name or a list
+  std::filesystem::path meshPath;     // "mesh", resolved against the scene file's folder
+  std::optional<Vec3> pivot;          // "pivot" (groups only), world space
+  RigidTransform placement;           // "transform"; the first keyframe when animated
+  std::optional<ObjectAnimation> animation;  // keys relative to the home frame, like `placement`
+};
+
 /// A parsed and validated scene file. Paths are resolved against the folder
 /// of the scene file; camera paths given as files are already read.
 struct SceneDescription {
@@ -47,6 +78,7 @@ struct SceneDescription {
   std::optional<SkyLight> sky;
   std::vector<CameraPreset> cameras;  // in file order
   std::vector<CameraPath> paths;      // in file order
+  std::vector<ObjectDescription> objects;  // in file order
 };
 
 /// Reads and validates a scene file. Every error names the file and, where

@@ -108,9 +108,35 @@ Expected<Scene> Load(const fs::path& path, const SceneLoadOptions& options, size
   }
 
   SceneBuilder builder(creaseAngleDeg);
-  if (auto ok = ImportMesh(meshPath, builder); !ok)
+  // Movable objects (issue 14): parts of the main mesh ("group") become
+  // objects as it is read; then each separate mesh file is read into an
+  // object of its own. So Scene::objects lists group objects first, then
+  // mesh-file objects, each in file order.
+  std::vector<MeshGroup> groups;
+  if (description) {
+    for (const ObjectDescription& o : description->objects) {
+      if (o.groups.empty()) continue;
+      MovableObject object;
+      object.name = o.name;
+      object.objectToWorld = o.placement;
+      object.animation = o.animation;
+      groups.push_back(MeshGroup{o.groups, o.pivot, std::move(object)});
+    }
+  }
+  if (auto ok = ImportMesh(meshPath, builder, groups); !ok)
     return description ? Fail(fmt::format("{}: {}", path.string(), ok.error().message)) : ok.error();
   if (description) {
+    for (const ObjectDescription& o : description->objects) {
+      if (o.meshPath.empty()) continue;
+      MovableObject object;
+      object.name = o.name;
+      object.objectToWorld = o.placement;
+      object.animation = o.animation;
+      builder.BeginObject(std::move(object));
+      auto ok = ImportMesh(o.meshPath, builder);
+      builder.EndObject();
+      if (!ok) return Fail(fmt::format("{}: objects.{}: {}", path.string(), o.name, ok.error().message));
+    }
     if (auto ok = ApplyToBuilder(*description, builder); !ok) return ok.error();
   }
 
@@ -125,7 +151,13 @@ Expected<Scene> Load(const fs::path& path, const SceneLoadOptions& options, size
     scene.paths = std::move(description->paths);
   }
   const auto buildStart = std::chrono::steady_clock::now();
-  if (auto ok = builder.BuildInto(scene); !ok) return ok.error();
+  if (auto ok = builder.BuildInto(scene); !ok) {
+    // Some of the builder's messages (an object left without triangles)
+    // do not name the file.
+    const std::string& message = ok.error().message;
+    return message.find(path.string()) == std::string::npos ? Fail(fmt::format("{}: {}", path.string(), message))
+                                                            : ok.error();
+  }
   Logger("scene")->info("built {} triangles and {} vertices (welded, split at creases) in {:.2f} s",
                         scene.triangles.size(), scene.vertices.size(),
                         std::chrono::duration<double>(std::chrono::steady_clock::now() - buildStart).count());
@@ -164,11 +196,24 @@ Expected<Scene> LoadScene(const fs::path& path, const SceneLoadOptions& options)
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   Logger("scene")->info(
       "loaded '{}' from {}: {} triangles ({} degenerate and {} duplicate dropped), {} vertices after crease splitting, "
-      "{} materials, {} textures, {} emissive triangles{}{} in {:.2f} s",
+      "{} materials, {} textures, {} emissive triangles{}{}, {} movable objects in {:.2f} s",
       scene->name, path.string(), scene->triangles.size(), degenerateTriangles, duplicateTriangles,
       scene->vertices.size(),
       scene->materials.size(), scene->textures.size(), scene->emissiveTriangles.size(), scene->sun ? ", sun" : "",
-      scene->sky ? ", sky" : "", seconds);
+      scene->sky ? ", sky" : "", scene->objects.size(), seconds);
+  const ScenePose initial = ScenePose::Initial(*scene);
+  for (uint32_t i = 0; i < scene->objects.size(); ++i) {
+    const MovableObject& o = scene->objects[i];
+    const Bounds3 world = WorldBounds(*scene, initial, i);
+    Logger("scene")->info(
+        "movable object {} '{}': {} triangles, {} vertices, world bounds ({:.3g}, {:.3g}, {:.3g})..({:.3g}, {:.3g}, "
+        "{:.3g}), placed at {}{}",
+        i + 1, o.name, o.triangleCount, o.vertexCount, world.min.x, world.min.y, world.min.z, world.max.x,
+        world.max.y, world.max.z, Describe(o.objectToWorld),
+        o.animation ? fmt::format(", animated: {} keyframes over {:.3g} s, {}", o.animation->keys.size(),
+                                  o.animation->DurationS(), o.animation->loop ? "looped" : "once")
+                    : std::string());
+  }
   return scene;
 }
 

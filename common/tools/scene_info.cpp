@@ -70,6 +70,17 @@ void PrintSummary(const Scene& scene, double loadSeconds, bool listMaterials) {
   for (const CameraPath& p : scene.paths)
     fmt::print("path        {}: {} keyframes, {:.1f} s, {}x{}, fov_y {:.1f} deg\n", p.name, p.keyframes.size(),
                p.DurationSeconds(), p.width, p.height, p.fovYDeg);
+  const ScenePose initial = ScenePose::Initial(scene);
+  for (uint32_t i = 0; i < scene.objects.size(); ++i) {
+    const MovableObject& o = scene.objects[i];
+    const Bounds3 world = WorldBounds(scene, initial, i);
+    fmt::print("object      {} '{}': {} triangles, {} vertices, world bounds min {} max {}\n", i + 1, o.name,
+               o.triangleCount, o.vertexCount, Format(world.min), Format(world.max));
+    fmt::print("            placed at {}{}\n", Describe(o.objectToWorld),
+               o.animation ? fmt::format("; animated: {} keyframes over {:.3g} s, {}", o.animation->keys.size(),
+                                         o.animation->DurationS(), o.animation->loop ? "looped" : "once")
+                           : std::string("; still"));
+  }
   fmt::print("load time   {:.2f} s\n", loadSeconds);
 }
 
@@ -78,8 +89,8 @@ void PrintSummary(const Scene& scene, double loadSeconds, bool listMaterials) {
 int main(int argc, char** argv) {
   CLI::App app{
       "Loads a Penumbra scene file (.json, see docs/scenes.md) or a mesh file (.obj, .gltf, .glb, ...) and "
-      "prints what it holds: counts, bounds, identity hash, lights, cameras and camera paths. On any problem "
-      "it prints the error and exits with code 1, so it also validates scene files.",
+      "prints what it holds: counts, bounds, identity hash, lights, cameras, camera paths and movable objects. "
+      "On any problem it prints the error and exits with code 1, so it also validates scene files.",
       "penumbra-scene-info"};
   std::string scenePath;
   float creaseAngleDeg = kDefaultCreaseAngleDeg;
