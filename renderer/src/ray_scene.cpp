@@ -16,7 +16,6 @@
 #include <xmmintrin.h>
 
 #include <cstring>
-#include <vector>
 
 #include "penumbra/common/embree_scene.h"
 
@@ -54,21 +53,7 @@ RTCRayHit MakeRayHit(const Vec3& origin, const Vec3& direction, float tMin, floa
 struct RayScene::Impl {
   std::unique_ptr<EmbreeScene> embree;
   std::shared_ptr<const PosedRayScene> initial;
-  // For PosedRayScene::Bounds: the static part's world bounds and each
-  // object's object-space bounds, copied so that the scene need not outlive us.
-  Bounds3 staticBounds;
-  std::vector<Bounds3> objectBounds;
-
-  Bounds3 BoundsAt(const ScenePose& pose) const {
-    Bounds3 b = staticBounds;
-    for (size_t i = 0; i < objectBounds.size(); ++i) {
-      const Bounds3 world = pose.objectToWorld[i].ApplyBounds(objectBounds[i]);
-      if (world.Empty()) continue;
-      b.Extend(world.min);
-      b.Extend(world.max);
-    }
-    return b;
-  }
+  size_t objectCount = 0;
 };
 
 Expected<std::unique_ptr<RayScene>> RayScene::Build(const Scene& scene) {
@@ -80,14 +65,9 @@ Expected<std::unique_ptr<RayScene>> RayScene::Build(const Scene& scene) {
   if (!embree) return embree.error();
   auto impl = std::make_unique<Impl>();
   impl->embree = std::move(*embree);
-  // As Scene::Finalize measures its bounds: over the triangles' corners.
-  const uint32_t staticTriangles = scene.objects.empty() ? uint32_t(scene.triangles.size()) : scene.staticTriangleCount;
-  for (uint32_t t = 0; t < staticTriangles; ++t)
-    for (int c = 0; c < 3; ++c) impl->staticBounds.Extend(scene.Position(t, c));
-  for (const MovableObject& o : scene.objects) impl->objectBounds.push_back(o.objectBounds);
-  const ScenePose initialPose = ScenePose::Initial(scene);
-  impl->initial = std::shared_ptr<const PosedRayScene>(
-      new PosedRayScene(impl->embree->Initial(), initialPose, impl->BoundsAt(initialPose)));
+  impl->objectCount = scene.objects.size();
+  impl->initial =
+      std::shared_ptr<const PosedRayScene>(new PosedRayScene(impl->embree->Initial(), ScenePose::Initial(scene)));
   return std::unique_ptr<RayScene>(new RayScene(std::move(impl)));
 }
 
@@ -96,7 +76,7 @@ RayScene::~RayScene() = default;
 
 const std::shared_ptr<const PosedRayScene>& RayScene::Initial() const { return impl_->initial; }
 
-size_t RayScene::MovableObjectCount() const { return impl_->objectBounds.size(); }
+size_t RayScene::MovableObjectCount() const { return impl_->objectCount; }
 
 Expected<std::shared_ptr<const PosedRayScene>> RayScene::AtPose(const ScenePose& pose) const {
   if (!impl_->embree->HasMovableObjects()) {
@@ -104,11 +84,11 @@ Expected<std::shared_ptr<const PosedRayScene>> RayScene::AtPose(const ScenePose&
       return Fail(fmt::format("a pose of {} objects for a scene without movable objects", pose.objectToWorld.size()));
     if (pose.epoch == impl_->initial->Pose().epoch) return impl_->initial;
     // Same BVH; only the epoch the caller reads back differs.
-    return std::shared_ptr<const PosedRayScene>(new PosedRayScene(impl_->embree->Initial(), pose, impl_->staticBounds));
+    return std::shared_ptr<const PosedRayScene>(new PosedRayScene(impl_->embree->Initial(), pose));
   }
   auto embree = impl_->embree->AtPose(pose);
   if (!embree) return embree.error();
-  return std::shared_ptr<const PosedRayScene>(new PosedRayScene(std::move(*embree), pose, impl_->BoundsAt(pose)));
+  return std::shared_ptr<const PosedRayScene>(new PosedRayScene(std::move(*embree), pose));
 }
 
 std::optional<RayHit> RayScene::Intersect(const Vec3& origin, const Vec3& direction, float tMin, float tMax) const {
@@ -123,8 +103,8 @@ size_t RayScene::TraceRaw(std::span<const Ray> rays, RayQuery query) const {
   return impl_->initial->TraceRaw(rays, query);
 }
 
-PosedRayScene::PosedRayScene(std::shared_ptr<const PosedEmbreeScene> embree, ScenePose pose, const Bounds3& bounds)
-    : embree_(std::move(embree)), pose_(std::move(pose)), bounds_(bounds) {}
+PosedRayScene::PosedRayScene(std::shared_ptr<const PosedEmbreeScene> embree, ScenePose pose)
+    : embree_(std::move(embree)), pose_(std::move(pose)) {}
 PosedRayScene::~PosedRayScene() = default;
 
 std::optional<RayHit> PosedRayScene::Intersect(const Vec3& origin, const Vec3& direction, float tMin,

@@ -62,13 +62,7 @@ struct PathVertex {
   Vec3 origin;
   Frame frame;
   Vec3 geometricNormal;
-};
-
-// The scene at the pose a sample is shaded at: its rays, and how far ray
-// origins move off surfaces there.
-struct PoseContext {
-  const PosedRayScene& rays;
-  float offset;
+  float offset = 0.0f;  // how far the origin was moved off its surface (Shader::Impl::OffsetAt)
 };
 
 }  // namespace
@@ -115,19 +109,22 @@ struct Shader::Impl {
   Impl(const Scene& s, const RayScene& r, ShadingSettings ss);
 
   // Irradiance estimate of one path from `start`.
-  Rgb TracePath(const PoseContext& at, const PathVertex& start, Pcg32& rng, ShadeCounters& counters) const;
+  Rgb TracePath(const PosedRayScene& at, const PathVertex& start, Pcg32& rng, ShadeCounters& counters) const;
   // Next-event estimates at `v` (throughput not applied), one shadow ray each.
-  Rgb SampleAreaLight(const PoseContext& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const;
-  Rgb SampleSun(const PoseContext& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const;
+  Rgb SampleAreaLight(const PosedRayScene& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const;
+  Rgb SampleSun(const PosedRayScene& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const;
   // Where to shade a sample leaving from `start` (header: "Buried samples");
   // `inside` is a point off the same side of the sample's triangle, well inside it.
-  Vec3 UnburiedOrigin(const PoseContext& at, const PathVertex& start, const Vec3& inside, Pcg32& rng,
+  Vec3 UnburiedOrigin(const PosedRayScene& at, const PathVertex& start, const Vec3& inside, Pcg32& rng,
                       ShadeCounters& counters) const;
-  // The origin offset at a pose: relative to the largest coordinate of the
-  // scene as loaded or of its triangles at the pose, whichever is larger, so
-  // that a pose within the scene's bounds shades exactly as the initial one.
-  float OffsetAt(const PosedRayScene& posed) const {
-    return std::max(offset, kRelativeOffset * LargestCoordinate(posed.Bounds()));
+  // How far a ray origin at `p` moves off its surface: `offset`, unless p
+  // lies on a movable object taken beyond twice the scene's reach, whose
+  // coordinates' rounding needs an offset relative to its own. Static points
+  // always get `offset` (they lie within the scene's bounds), so a client
+  // moving an object far out changes nothing for the rest of the scene.
+  float OffsetAt(const Vec3& p) const {
+    const float reach = std::max({std::abs(p.x), std::abs(p.y), std::abs(p.z)});
+    return reach <= 2.0f * largestCoordinate ? offset : kRelativeOffset * reach;
   }
 
   const Scene& scene;
@@ -143,7 +140,8 @@ struct Shader::Impl {
   Frame sunFrame{};  // z toward the sun's centre
   float sunCosHalfAngle = 1.0f;
   float sunSolidAngle = 0.0f;
-  float offset = 0.0f;  // how far ray origins are moved off the surface they leave, for the scene as loaded
+  float largestCoordinate = 0.0f;  // of the scene's bounds as loaded
+  float offset = 0.0f;             // how far ray origins are moved off the surface they leave
 };
 
 Shader::Impl::Impl(const Scene& s, const RayScene& r, ShadingSettings ss)
@@ -172,10 +170,11 @@ Shader::Impl::Impl(const Scene& s, const RayScene& r, ShadingSettings ss)
     sunCosHalfAngle = s.sun->CosHalfAngle();
     sunSolidAngle = s.sun->SolidAngle();
   }
-  offset = kRelativeOffset * LargestCoordinate(s.bounds);
+  largestCoordinate = LargestCoordinate(s.bounds);
+  offset = kRelativeOffset * largestCoordinate;
 }
 
-Rgb Shader::Impl::TracePath(const PoseContext& at, const PathVertex& start, Pcg32& rng,
+Rgb Shader::Impl::TracePath(const PosedRayScene& at, const PathVertex& start, Pcg32& rng,
                             ShadeCounters& counters) const {
   PathVertex v = start;
   Rgb throughput(1.0f);
@@ -189,7 +188,7 @@ Rgb Shader::Impl::TracePath(const PoseContext& at, const PathVertex& start, Pcg3
     const Vec3 direction = v.frame.ToWorld(local);
     if (glm::dot(direction, v.geometricNormal) <= 0.0f) break;  // into the surface itself
     ++counters.rays;
-    const std::optional<RayHit> hit = at.rays.Intersect(v.origin, direction, 0.0f, kInfinity);
+    const std::optional<RayHit> hit = at.Intersect(v.origin, direction, 0.0f, kInfinity);
     // Cosine-weighted incident radiance over the cosine pdf: a factor pi.
     if (!hit) {
       if (scene.sky) irradiance += throughput * kPi * scene.sky->Radiance(direction);
@@ -225,12 +224,14 @@ Rgb Shader::Impl::TracePath(const PoseContext& at, const PathVertex& start, Pcg3
     // the offset.
     v.geometricNormal = cosAtHit < 0.0f ? hitNormal : -hitNormal;
     v.frame = Frame::FromNormal(v.geometricNormal);
-    v.origin = v.origin + hit->t * direction + at.offset * v.geometricNormal;
+    const Vec3 hitPoint = v.origin + hit->t * direction;
+    v.offset = OffsetAt(hitPoint);
+    v.origin = hitPoint + v.offset * v.geometricNormal;
   }
   return irradiance;
 }
 
-Rgb Shader::Impl::SampleAreaLight(const PoseContext& at, const PathVertex& v, Pcg32& rng,
+Rgb Shader::Impl::SampleAreaLight(const PosedRayScene& at, const PathVertex& v, Pcg32& rng,
                                   ShadeCounters& counters) const {
   const float u1 = rng.NextFloat(), u2 = rng.NextFloat();
   const Light& light = lights[lightSelection.Sample(u1, u2)];
@@ -249,21 +250,21 @@ Rgb Shader::Impl::SampleAreaLight(const PoseContext& at, const PathVertex& v, Pc
   ++counters.rays;
   ++counters.shadowRays;
   // Stop short of the light so that its own surface does not occlude it.
-  if (at.rays.Occluded(v.origin, direction, 0.0f, distance - at.offset)) return Rgb(0.0f);
+  if (at.Occluded(v.origin, direction, 0.0f, distance - v.offset)) return Rgb(0.0f);
   const float pdfLight = light.pdfArea * distance2 / cosAtLight;
   const float weight = sampling::PowerHeuristic(pdfLight, sampling::CosineHemispherePdf(cosAtVertex));
   return light.emission * (weight * cosAtVertex / pdfLight);
 }
 
-Vec3 Shader::Impl::UnburiedOrigin(const PoseContext& at, const PathVertex& start, const Vec3& inside, Pcg32& rng,
+Vec3 Shader::Impl::UnburiedOrigin(const PosedRayScene& at, const PathVertex& start, const Vec3& inside, Pcg32& rng,
                                   ShadeCounters& counters) const {
-  const float offset = at.offset;
+  const float offset = start.offset;
   const Vec3 toSample = start.origin - inside;
   const float distance = glm::length(toSample);
   if (!(distance > 4.0f * offset)) return start.origin;
   const Vec3 along = toSample / distance;
   ++counters.rays;
-  const std::optional<RayHit> entry = at.rays.Intersect(inside, along, 0.0f, distance);
+  const std::optional<RayHit> entry = at.Intersect(inside, along, 0.0f, distance);
   // Nothing in the way, or the way leaves a solid rather than entering one
   // (the inside point is enclosed itself, or the occluder is wound inward):
   // nothing better to shade than the sample itself.
@@ -275,7 +276,7 @@ Vec3 Shader::Impl::UnburiedOrigin(const PoseContext& at, const PathVertex& start
   for (int i = 0; i < kProbes; ++i) {
     const Vec3 direction = start.frame.ToWorld(sampling::CosineHemisphere(rng.NextFloat(), rng.NextFloat()));
     ++counters.rays;
-    const std::optional<RayHit> hit = at.rays.Intersect(start.origin, direction, 0.0f, kInfinity);
+    const std::optional<RayHit> hit = at.Intersect(start.origin, direction, 0.0f, kInfinity);
     if (hit ? glm::dot(hit->normal, direction) < 0.0f : openSky) ++seesOut;
   }
   if (seesOut * 10 > kProbes) return start.origin;  // it sees the scene: in a crease, not buried
@@ -284,14 +285,14 @@ Vec3 Shader::Impl::UnburiedOrigin(const PoseContext& at, const PathVertex& start
   return inside + std::max(0.0f, entry->t - backOff) * along;
 }
 
-Rgb Shader::Impl::SampleSun(const PoseContext& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const {
+Rgb Shader::Impl::SampleSun(const PosedRayScene& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const {
   const Vec3 direction =
       sunFrame.ToWorld(sampling::UniformCone(rng.NextFloat(), rng.NextFloat(), sunCosHalfAngle));
   const float cosAtVertex = glm::dot(direction, v.frame.n);
   if (cosAtVertex <= 0.0f || glm::dot(direction, v.geometricNormal) <= 0.0f) return Rgb(0.0f);
   ++counters.rays;
   ++counters.shadowRays;
-  if (at.rays.Occluded(v.origin, direction, 0.0f, kInfinity)) return Rgb(0.0f);
+  if (at.Occluded(v.origin, direction, 0.0f, kInfinity)) return Rgb(0.0f);
   // Uniform over the cone: radiance * cos / (1 / solid angle).
   return scene.sun->radiance * (cosAtVertex * sunSolidAngle);
 }
@@ -315,8 +316,8 @@ ShadeOutput Shader::Shade(const ShadeInput& in, int paths, ShadeCounters* counte
 ShadeOutput Shader::Shade(const PosedRayScene& posed, const ShadeInput& in, int paths, ShadeCounters* counters,
                           const std::atomic<bool>* cancel) const {
   const Impl& s = *impl_;
-  const PoseContext at{posed, s.OffsetAt(posed)};
-  const float offset = at.offset;
+  const PosedRayScene& at = posed;
+  const float offset = s.OffsetAt(in.position);
   const int pathCount = paths > 0 ? paths : s.settings.pathsPerSample;
   const Vec3 normal = glm::normalize(in.normal);
   // The sample's triangle where the pose puts it (a movable object's
@@ -327,6 +328,7 @@ ShadeOutput Shader::Shade(const PosedRayScene& posed, const ShadeInput& in, int 
   PathVertex start;
   start.frame = Frame::FromNormal(normal);
   start.geometricNormal = frontSide ? faceNormal : -faceNormal;
+  start.offset = offset;
   // Off the surface along the normal, and into the triangle toward its
   // centroid (no further than halfway), so that a neighbour meeting this
   // vertex or edge at an angle -- a wall at the edge of a floor -- lies

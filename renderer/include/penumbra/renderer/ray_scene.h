@@ -60,8 +60,6 @@ class PosedRayScene {
 
   /// The pose asked for (with its epoch).
   const ScenePose& Pose() const { return pose_; }
-  /// World-space bounds of every triangle at this pose.
-  const Bounds3& Bounds() const { return bounds_; }
 
   /// Closest hit along origin + t*direction, t in (tMin, tMax). Both sides of
   /// every triangle are hit. Thread-safe.
@@ -77,10 +75,9 @@ class PosedRayScene {
 
  private:
   friend class RayScene;
-  PosedRayScene(std::shared_ptr<const PosedEmbreeScene> embree, ScenePose pose, const Bounds3& bounds);
+  PosedRayScene(std::shared_ptr<const PosedEmbreeScene> embree, ScenePose pose);
   std::shared_ptr<const PosedEmbreeScene> embree_;
   ScenePose pose_;
-  Bounds3 bounds_;
 };
 
 class RayScene {
