@@ -9,8 +9,10 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <memory>
 #include <set>
 #include <thread>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -563,6 +565,219 @@ TEST(RendererProcessTest, OutOfDescriptorsPausesAcceptingWithoutFloodingTheLog) 
   idle.erase(idle.begin(), idle.begin() + 3);
   auto welcome = idle.front().Handshake(wire::ROLE_SMA, scene->identity);
   EXPECT_TRUE(welcome.ok()) << welcome.error().message << "\n" << r.process.LogTail();
+}
+
+// --- Movable objects (issue 14) ----------------------------------------------
+
+// A floor (y = 0, 20 wide), a static quad light of side 0.5 facing down at
+// y = 2, and a movable unit square "occluder" (front up, in its own y = 0
+// plane) that starts at (0, 1, 0), right under the light: the floor's origin
+// is in its umbra. Returns the scene file.
+std::string WriteOccluderScene(const std::string& dir) {
+  std::ofstream(dir + "/floor.obj") << "v -10 0 -10\nv -10 0 10\nv 10 0 10\nv 10 0 -10\nf 1 2 3 4\n";
+  std::ofstream(dir + "/occluder.obj") << "v -0.5 0 -0.5\nv -0.5 0 0.5\nv 0.5 0 0.5\nv 0.5 0 -0.5\nf 1 2 3 4\n";
+  std::ofstream(dir + "/scene.json") << R"({
+  "name": "moving-occluder",
+  "mesh": "floor.obj",
+  "quad_lights": [
+    {"name": "lamp", "corner": [-0.25, 2, -0.25], "edge1": [0.5, 0, 0], "edge2": [0, 0, 0.5], "radiance": [5, 5, 5]}
+  ],
+  "objects": {
+    "occluder": {"mesh": "occluder.obj", "transform": {"translate": [0, 1, 0]}}
+  }
+})";
+  return dir + "/scene.json";
+}
+
+// Irradiance of the lamp at floor point (x, 0, z), unoccluded (the parallel
+// rectangle's closed form, as in renderer/tests).
+double LampIrradianceAt(double x, double z) {
+  const double h = 2.0, radiance = 5.0, half = 0.25;
+  auto corner = [h](double a0, double b0) {
+    const double a = a0 / h, b = b0 / h;
+    const double sa = std::sqrt(1.0 + a * a), sb = std::sqrt(1.0 + b * b);
+    return a / sa * std::atan(b / sa) + b / sb * std::atan(a / sb);
+  };
+  const double x0 = -half - x, x1 = half - x, z0 = -half - z, z1 = half - z;
+  return 0.5 * radiance * (corner(x1, z1) - corner(x0, z1) - corner(x1, z0) + corner(x0, z0));
+}
+
+// One sample at world `position` with normal up on `triangle`, shaded at
+// `pose` (object_transforms empty when `transforms` is).
+wire::Envelope PoseBatch(uint64_t batchId, uint64_t epoch, const std::vector<RigidTransform>& transforms,
+                         const Scene& scene, const ScenePose& pose, uint32_t triangle, float b1, float b2) {
+  wire::Envelope envelope;
+  auto* r = envelope.mutable_shade_request();
+  r->set_batch_id(batchId);
+  r->set_scene_epoch(epoch);
+  for (const RigidTransform& t : transforms)
+    for (float v : t.ToRowMajor()) r->add_object_transforms(v);
+  r->add_sample_ids(batchId);
+  const Vec3 p = WorldPointAt(scene, pose, triangle, b1, b2);
+  for (int k = 0; k < 3; ++k) r->add_positions(p[k]);
+  r->add_normals(0.0f);
+  r->add_normals(1.0f);
+  r->add_normals(0.0f);
+  r->add_triangle_ids(triangle);
+  r->add_barycentrics(b1);
+  r->add_barycentrics(b2);
+  return envelope;
+}
+
+// The whole of a one-sample batch: its irradiance (red) and the reply's epoch.
+struct PosedAnswer {
+  float irradiance = -1.0f;
+  uint64_t epoch = ~0ull;
+};
+Expected<PosedAnswer> Answer(WireClient& c, uint64_t batchId) {
+  const auto deadline = std::chrono::steady_clock::now() + 60s;
+  while (std::chrono::steady_clock::now() < deadline) {
+    auto e = c.Receive(60s);
+    if (!e) return e.error();
+    if (e->has_error()) return Fail("error reply: " + e->error().message());
+    if (!e->has_shade_reply() || e->shade_reply().batch_id() != batchId) continue;
+    const auto& part = e->shade_reply();
+    if (part.irradiance_size() != 3 || part.remaining() != 0) return Fail("expected one part of one sample");
+    return PosedAnswer{part.irradiance(0), part.scene_epoch()};
+  }
+  return Fail("timeout waiting for batch");
+}
+
+class RendererPoseTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const std::string dir = MakeTempDir("penumbra-renderer-pose");
+    const std::string file = WriteOccluderScene(dir);
+    auto scene = LoadScene(file);
+    ASSERT_TRUE(scene.ok()) << scene.error().message;
+    scene_ = std::move(*scene);
+    ASSERT_EQ(scene_.objects.size(), 1u) << "the scene file's movable object was not loaded";
+    // Direct light only: under the occluder exactly 0, elsewhere the closed form.
+    auto service = StartService(PENUMBRA_RENDERER_EXE,
+                                {"--scene", file, "--threads", "2", "--spp", "1024", "--max-bounces", "0"},
+                                "renderer-pose");
+    ASSERT_TRUE(service.ok()) << service.error().message;
+    renderer_ = std::move(*service);
+    auto c = WireClient::Connect("127.0.0.1", renderer_.port);
+    ASSERT_TRUE(c.ok()) << c.error().message;
+    auto welcome = c->Handshake(wire::ROLE_SMA, scene_.identity);
+    ASSERT_TRUE(welcome.ok()) << welcome.error().message;
+    client_ = std::make_unique<WireClient>(std::move(*c));
+    // The floor's triangle under the origin (the static part comes first).
+    for (uint32_t t = 0; t < scene_.staticTriangleCount && floorTriangle_ == kNone; ++t) {
+      const Vec3 a = scene_.Position(t, 0), e1 = scene_.Position(t, 1) - a, e2 = scene_.Position(t, 2) - a;
+      // Barycentrics of the origin in the triangle's (y = 0) plane.
+      const Vec3 d = -a;
+      const float det = e1.x * e2.z - e1.z * e2.x;
+      const float b1 = (d.x * e2.z - d.z * e2.x) / det, b2 = (e1.x * d.z - e1.z * d.x) / det;
+      if (b1 >= 0.0f && b2 >= 0.0f && b1 + b2 <= 1.0f) {
+        floorTriangle_ = t;
+        floorB1_ = b1;
+        floorB2_ = b2;
+      }
+    }
+    ASSERT_NE(floorTriangle_, kNone);
+  }
+  void TearDown() override {
+    if (client_) ASSERT_TRUE(renderer_.process.Running()) << renderer_.process.LogTail();
+  }
+
+  static constexpr uint32_t kNone = ~0u;
+  Scene scene_;
+  Renderer renderer_;
+  std::unique_ptr<WireClient> client_;
+  uint32_t floorTriangle_ = kNone;
+  float floorB1_ = 0.0f, floorB2_ = 0.0f;
+};
+
+TEST_F(RendererPoseTest, ShadesAtTheRequestsPoseAndEchoesItsEpoch) {
+  WireClient& c = *client_;
+  const ScenePose initial = ScenePose::Initial(scene_);
+  // Epoch 0 without transforms: the scene as loaded, the origin in the umbra.
+  ASSERT_TRUE(c.Send(PoseBatch(1, 0, {}, scene_, initial, floorTriangle_, floorB1_, floorB2_)));
+  auto dark = Answer(c, 1);
+  ASSERT_TRUE(dark.ok()) << dark.error().message;
+  EXPECT_EQ(dark->irradiance, 0.0f);
+  EXPECT_EQ(dark->epoch, 0u);
+
+  // Epoch 5: the occluder 3 to the side; the origin sees the whole lamp.
+  ScenePose aside = initial;
+  aside.epoch = 5;
+  aside.objectToWorld[0] = RigidTransform{glm::mat3(1.0f), Vec3(3.0f, 1.0f, 0.0f)};
+  ASSERT_TRUE(c.Send(PoseBatch(2, 5, aside.objectToWorld, scene_, aside, floorTriangle_, floorB1_, floorB2_)));
+  auto lit = Answer(c, 2);
+  ASSERT_TRUE(lit.ok()) << lit.error().message;
+  EXPECT_EQ(lit->epoch, 5u);
+  const double exact = LampIrradianceAt(0.0, 0.0);
+  EXPECT_NEAR(lit->irradiance, exact, 0.05 * exact);
+
+  // A sample on the occluder itself, where epoch 5 puts it (y = 1, x = 3):
+  // lit by the lamp 1 up and 3 across.
+  const uint32_t onOccluder = scene_.objects[0].firstTriangle;
+  ASSERT_TRUE(c.Send(PoseBatch(3, 5, aside.objectToWorld, scene_, aside, onOccluder, 0.3f, 0.3f)));
+  auto top = Answer(c, 3);
+  ASSERT_TRUE(top.ok()) << top.error().message;
+  EXPECT_EQ(top->epoch, 5u);
+  EXPECT_GT(top->irradiance, 0.0f);
+
+  // Back to the initial places at epoch 6: dark again.
+  ASSERT_TRUE(c.Send(PoseBatch(4, 6, initial.objectToWorld, scene_, initial, floorTriangle_, floorB1_, floorB2_)));
+  auto again = Answer(c, 4);
+  ASSERT_TRUE(again.ok()) << again.error().message;
+  EXPECT_EQ(again->irradiance, 0.0f);
+  EXPECT_EQ(again->epoch, 6u);
+}
+
+TEST_F(RendererPoseTest, ABadPoseIsRefusedForThatBatchAndTheConnectionGoesOn) {
+  WireClient& c = *client_;
+  const ScenePose initial = ScenePose::Initial(scene_);
+  auto expectRejected = [&](wire::Envelope batch, const std::string& mention) {
+    const uint64_t id = batch.shade_request().batch_id();
+    ASSERT_TRUE(c.Send(batch));
+    auto e = c.Receive(30s);
+    ASSERT_TRUE(e.ok()) << e.error().message;
+    ASSERT_TRUE(e->has_error()) << BodyName(*e);
+    EXPECT_EQ(e->error().code(), wire::ERROR_CODE_INVALID_REQUEST);
+    EXPECT_EQ(e->error().request_id(), id);
+    EXPECT_FALSE(e->error().fatal());
+    EXPECT_NE(e->error().message().find(mention), std::string::npos) << e->error().message();
+  };
+  const auto valid = [&](uint64_t id, uint64_t epoch) {
+    return PoseBatch(id, epoch, initial.objectToWorld, scene_, initial, floorTriangle_, floorB1_, floorB2_);
+  };
+  {
+    auto b = valid(11, 1);
+    b.mutable_shade_request()->set_object_transforms(5, std::nanf(""));
+    expectRejected(b, "not finite");
+  }
+  {
+    auto b = valid(12, 1);
+    for (int i : {0, 5, 10}) b.mutable_shade_request()->set_object_transforms(i, 1.5f);  // a scale
+    expectRejected(b, "not a rotation");
+  }
+  {
+    auto b = valid(13, 1);
+    b.mutable_shade_request()->add_object_transforms(0.0f);  // 13 values
+    expectRejected(b, "object_transforms has 13 values");
+  }
+  {
+    auto b = valid(14, 1);
+    b.mutable_shade_request()->clear_object_transforms();  // a later epoch without its pose
+    expectRejected(b, "scene_epoch 1 without object_transforms");
+  }
+  {
+    // A sample on the occluder sent with a pose that does not put it there.
+    ScenePose elsewhere = initial;
+    elsewhere.objectToWorld[0].translation = Vec3(-4.0f, 0.5f, 2.0f);
+    auto b = PoseBatch(15, 2, initial.objectToWorld, scene_, elsewhere, scene_.objects[0].firstTriangle, 0.3f, 0.3f);
+    expectRejected(b, "away from triangle");
+  }
+  // The connection still shades, at the pose it is given.
+  ASSERT_TRUE(c.Send(valid(16, 3)));
+  auto ok = Answer(c, 16);
+  ASSERT_TRUE(ok.ok()) << ok.error().message;
+  EXPECT_EQ(ok->epoch, 3u);
+  EXPECT_EQ(ok->irradiance, 0.0f);
 }
 
 TEST(RendererProcessTest, BadSceneFileIsOneClearErrorAndNonZeroExit) {

@@ -4,9 +4,13 @@
 
 #include <algorithm>
 #include <atomic>
+#include <charconv>
 #include <limits>
+#include <string_view>
 #include <thread>
 #include <vector>
+
+#include <fmt/format.h>
 
 #include "penumbra/common/rng.h"
 #include "penumbra/renderer/ray_scene.h"
@@ -16,20 +20,24 @@ namespace penumbra {
 namespace {
 
 // The sample for a camera ray's hit: on the side facing the camera, with the
-// smooth normal the SMA's vertex samples would interpolate to.
-ShadeInput SampleAtHit(const Scene& scene, const RayHit& hit, const Vec3& direction, uint64_t sampleId) {
+// smooth normal the SMA's vertex samples would interpolate to, placed by the
+// pose (a movable object's vertices are in its own space).
+ShadeInput SampleAtHit(const Scene& scene, const ScenePose& pose, const RayHit& hit, const Vec3& direction,
+                       uint64_t sampleId) {
   const Vec3 faceNormal = glm::normalize(hit.normal);
   const Vec3 towardCamera = glm::dot(faceNormal, direction) < 0.0f ? faceNormal : -faceNormal;
   const Triangle& tri = scene.triangles[hit.triangle];
-  const Vec3 interpolated = (1.0f - hit.b1 - hit.b2) * scene.vertices[tri.v[0]].normal +
-                            hit.b1 * scene.vertices[tri.v[1]].normal + hit.b2 * scene.vertices[tri.v[2]].normal;
+  const Vec3 interpolated = pose.Of(scene.ObjectOfTriangle(hit.triangle))
+                                .ApplyVector((1.0f - hit.b1 - hit.b2) * scene.vertices[tri.v[0]].normal +
+                                             hit.b1 * scene.vertices[tri.v[1]].normal +
+                                             hit.b2 * scene.vertices[tri.v[2]].normal);
   const float length = glm::length(interpolated);
   Vec3 normal = length > 0.0f ? interpolated / length : towardCamera;
   if (glm::dot(normal, towardCamera) < 0.0f) normal = -normal;
 
   ShadeInput in;
   in.sampleId = sampleId;
-  in.position = scene.PointAt(hit.triangle, hit.b1, hit.b2);
+  in.position = WorldPointAt(scene, pose, hit.triangle, hit.b1, hit.b2);
   in.normal = normal;
   in.triangle = hit.triangle;
   in.b1 = hit.b1;
@@ -46,13 +54,14 @@ constexpr uint64_t kProgressiveStream = 0xbb67ae8584caa73bull;
 // The radiance along the camera ray through image point (px, py) of
 // `camera`, from pathCount paths of sample `sampleId` (0: the shader's
 // paths per sample); the sky's where the ray escapes.
-Rgb RadianceThrough(const Shader& shader, const RayScene& rays, const PinholeCamera& camera, float px, float py,
+Rgb RadianceThrough(const Shader& shader, const PosedRayScene& rays, const PinholeCamera& camera, float px, float py,
                     uint64_t sampleId, int pathCount, ShadeCounters* counters) {
   constexpr float kInfinity = std::numeric_limits<float>::infinity();
   const Scene& scene = shader.GetScene();
   const Vec3 direction = camera.DirectionThrough(px, py);
   if (const auto hit = rays.Intersect(camera.Origin(), direction, 0.0f, kInfinity))
-    return shader.Shade(SampleAtHit(scene, *hit, direction, sampleId), pathCount, counters).radiance;
+    return shader.Shade(rays, SampleAtHit(scene, rays.Pose(), *hit, direction, sampleId), pathCount, counters)
+        .radiance;
   return scene.sky ? scene.sky->Radiance(direction) : Rgb(0.0f);
 }
 
@@ -78,7 +87,7 @@ void ForEachRow(int height, int threads, ShadeCounters* counters, PerRow perRow)
 
 }  // namespace
 
-Image RenderReference(const Shader& shader, const RayScene& rays, const CameraView& view, int threads,
+Image RenderReference(const Shader& shader, const PosedRayScene& rays, const CameraView& view, int threads,
                       ShadeCounters* counters, PixelFilter filter) {
   const PinholeCamera camera(view);
   Image image;
@@ -112,7 +121,7 @@ Image RenderReference(const Shader& shader, const RayScene& rays, const CameraVi
   return image;
 }
 
-void AddProgressivePass(const Shader& shader, const RayScene& rays, const CameraView& view, int threads,
+void AddProgressivePass(const Shader& shader, const PosedRayScene& rays, const CameraView& view, int threads,
                         uint64_t pass, std::vector<float>* sum, ShadeCounters* counters) {
   const size_t pixelCount = size_t(view.width) * size_t(view.height);
   if (sum->size() != pixelCount * 3) sum->assign(pixelCount * 3, 0.0f);
@@ -134,6 +143,55 @@ void AddProgressivePass(const Shader& shader, const RayScene& rays, const Camera
       out[2] += radiance.b;
     }
   });
+}
+
+Status PlaceObject(const Scene& scene, const std::string& spec, ScenePose* pose) {
+  const size_t equals = spec.find('=');
+  if (equals == std::string::npos)
+    return Fail(fmt::format("--object '{}': expected NAME=12 numbers or NAME=translate:x,y,z", spec));
+  const std::string name = spec.substr(0, equals);
+  const uint32_t object = scene.FindObject(name);
+  if (object == kStaticObject) {
+    std::string known;
+    for (const MovableObject& o : scene.objects) known += (known.empty() ? "" : ", ") + o.name;
+    return Fail(fmt::format("--object '{}': the scene has no movable object '{}' ({})", spec, name,
+                            known.empty() ? "it has none" : "it has " + known));
+  }
+  std::string_view numbers = std::string_view(spec).substr(equals + 1);
+  constexpr std::string_view kTranslate = "translate:";
+  const bool translate = numbers.starts_with(kTranslate);
+  if (translate) numbers.remove_prefix(kTranslate.size());
+  std::vector<float> values;
+  for (size_t begin = 0; begin <= numbers.size();) {
+    size_t end = numbers.find(',', begin);
+    if (end == std::string_view::npos) end = numbers.size();
+    const std::string_view text = numbers.substr(begin, end - begin);
+    // from_chars takes no leading '+'; a person may well write one.
+    const std::string_view digits = text.starts_with('+') ? text.substr(1) : text;
+    float value = 0.0f;
+    const auto [at, ec] = std::from_chars(digits.data(), digits.data() + digits.size(), value);
+    if (digits.empty() || ec != std::errc() || at != digits.data() + digits.size())
+      return Fail(fmt::format("--object '{}': '{}' is not a number", spec, text));
+    values.push_back(value);
+    if (values.size() > 12) break;
+    begin = end + 1;
+  }
+  const size_t expected = translate ? 3 : 12;
+  if (values.size() != expected)
+    return Fail(fmt::format("--object '{}': expected {} numbers, got {}", spec, expected,
+                            values.size() > 12 ? "more" : std::to_string(values.size())));
+  RigidTransform& place = pose->objectToWorld[object];
+  if (translate) {
+    // Through FromRowMajor too, so that a translation out of range is refused alike.
+    RigidTransform moved = place;
+    moved.translation += Vec3(values[0], values[1], values[2]);
+    const auto m = moved.ToRowMajor();
+    values.assign(m.begin(), m.end());
+  }
+  auto transform = RigidTransform::FromRowMajor(values);
+  if (!transform) return Fail(fmt::format("--object '{}': {}", spec, transform.error().message));
+  place = *transform;
+  return Status::Ok();
 }
 
 }  // namespace penumbra

@@ -10,6 +10,7 @@
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
 #include "penumbra/common/server_skeleton.h"
+#include "penumbra/renderer/ray_scene.h"
 #include "penumbra/renderer/shading_pool.h"
 #include "renderer_metrics.h"
 
@@ -182,12 +183,25 @@ class RendererServer::Impl::Session : public std::enable_shared_from_this<Sessio
       return Reject(batchId, wire::ERROR_CODE_INVALID_REQUEST,
                     fmt::format("batch {}: a batch with this id is already in flight", batchId));
     }
-    auto inputs = DecodeShadeRequest(request, server_.GetShader().GetScene(), server_.Options().limits);
+    const Scene& scene = server_.GetShader().GetScene();
+    auto pose = DecodeShadePose(request, scene);
+    if (!pose) return Reject(batchId, wire::ERROR_CODE_INVALID_REQUEST, pose.error().message);
+    auto inputs = DecodeShadeRequest(request, scene, *pose, server_.Options().limits);
     if (!inputs) return Reject(batchId, wire::ERROR_CODE_INVALID_REQUEST, inputs.error().message);
+    // The posed scene: the last one again while the SMAs stay at one pose,
+    // else a top-level commit of a few instances -- microseconds, as cheap
+    // as the validation above, so it is done here rather than on a worker.
+    auto posed = server_.GetShader().GetRays().AtPose(*pose);
+    if (!posed) {
+      // Not the request's fault (Embree out of memory): the SMA sends it again.
+      return Reject(batchId, wire::ERROR_CODE_OVERLOADED,
+                    fmt::format("batch {}: cannot place the objects: {}", batchId, posed.error().message));
+    }
 
     auto job = std::make_shared<ShadeJob>();
     job->batchId = batchId;
     job->paths = int(request.paths_per_sample());
+    job->pose = std::move(*posed);
     job->inputs = std::move(*inputs);
     std::weak_ptr<Session> weak = weak_from_this();
     job->onPart = [weak, connection = connection_](const ShadeJob& j, size_t begin, size_t end,
@@ -196,6 +210,7 @@ class RendererServer::Impl::Session : public std::enable_shared_from_this<Sessio
       FillShadeReply(j.batchId, std::span(j.inputs).subspan(begin, end - begin),
                      std::span(j.outputs).subspan(begin, end - begin), uint32_t(remaining), counters,
                      reply.mutable_shade_reply());
+      reply.mutable_shade_reply()->set_scene_epoch(j.pose->Pose().epoch);
       if (!connection->Send(reply) && connection->IsOpen()) {
         // Never drop a result silently: closing makes the SMA re-send the batch elsewhere.
         connection->Close(fmt::format("send queue full while answering batch {}", j.batchId));

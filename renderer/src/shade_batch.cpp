@@ -2,10 +2,49 @@
 
 #include <fmt/format.h>
 
+#include <span>
+
 namespace penumbra {
+
+Expected<ScenePose> DecodeShadePose(const wire::ShadeRequest& request, const Scene& scene) {
+  const uint64_t id = request.batch_id();
+  const size_t objects = scene.objects.size();
+  const size_t values = size_t(request.object_transforms_size());
+  ScenePose pose;
+  pose.epoch = request.scene_epoch();
+  if (values == 0) {
+    if (objects > 0 && pose.epoch != 0)
+      return Fail(fmt::format("batch {}: scene_epoch {} without object_transforms (the initial pose is epoch 0 only; "
+                              "a later epoch sends 12 values per movable object)",
+                              id, pose.epoch));
+    pose.objectToWorld = ScenePose::Initial(scene).objectToWorld;
+    return pose;
+  }
+  if (values != 12 * objects)
+    return Fail(fmt::format("batch {}: object_transforms has {} values, expected {} (12 per movable object for {} "
+                            "objects) or none",
+                            id, values, 12 * objects, objects));
+  pose.objectToWorld.reserve(objects);
+  const float* data = request.object_transforms().data();
+  for (size_t o = 0; o < objects; ++o) {
+    auto transform = RigidTransform::FromRowMajor(std::span<const float>(data + 12 * o, 12));
+    if (!transform)
+      return Fail(fmt::format("batch {}: object_transforms of object {} ('{}'): {}", id, o + 1,
+                              scene.objects[o].name, transform.error().message));
+    pose.objectToWorld.push_back(*transform);
+  }
+  return pose;
+}
 
 Expected<std::vector<ShadeInput>> DecodeShadeRequest(const wire::ShadeRequest& request, const Scene& scene,
                                                      const ShadeLimits& limits) {
+  auto pose = DecodeShadePose(request, scene);
+  if (!pose) return pose.error();
+  return DecodeShadeRequest(request, scene, *pose, limits);
+}
+
+Expected<std::vector<ShadeInput>> DecodeShadeRequest(const wire::ShadeRequest& request, const Scene& scene,
+                                                     const ScenePose& pose, const ShadeLimits& limits) {
   const uint64_t id = request.batch_id();
   const size_t n = size_t(request.sample_ids_size());
   if (n == 0) return Fail(fmt::format("batch {}: no samples", id));
@@ -35,7 +74,7 @@ Expected<std::vector<ShadeInput>> DecodeShadeRequest(const wire::ShadeRequest& r
     in.triangle = request.triangle_ids(int(i));
     in.b1 = request.barycentrics(int(2 * i));
     in.b2 = request.barycentrics(int(2 * i + 1));
-    if (auto valid = ValidateShadeInput(scene, in); !valid)
+    if (auto valid = ValidateShadeInput(scene, pose, in); !valid)
       return Fail(fmt::format("batch {}: sample {} (id {}): {}", id, i, in.sampleId, valid.error().message));
   }
   return inputs;

@@ -62,6 +62,7 @@ struct PathVertex {
   Vec3 origin;
   Frame frame;
   Vec3 geometricNormal;
+  float offset = 0.0f;  // how far the origin was moved off its surface (Shader::Impl::OffsetAt)
 };
 
 }  // namespace
@@ -69,6 +70,10 @@ struct PathVertex {
 // --- Validation -------------------------------------------------------------
 
 Status ValidateShadeInput(const Scene& scene, const ShadeInput& in) {
+  return ValidateShadeInput(scene, ScenePose::Initial(scene), in);
+}
+
+Status ValidateShadeInput(const Scene& scene, const ScenePose& pose, const ShadeInput& in) {
   if (!IsFinite(in.position))
     return Fail(fmt::format("position ({}, {}, {}) is not finite", in.position.x, in.position.y, in.position.z));
   if (!IsFinite(in.normal))
@@ -84,8 +89,12 @@ Status ValidateShadeInput(const Scene& scene, const ShadeInput& in) {
   constexpr float kBarycentricSlack = 1e-3f;
   if (in.b1 < -kBarycentricSlack || in.b2 < -kBarycentricSlack || in.b1 + in.b2 > 1.0f + kBarycentricSlack)
     return Fail(fmt::format("barycentrics ({}, {}) are outside triangle {}", in.b1, in.b2, in.triangle));
-  const float tolerance = 1e-4f * glm::length(scene.bounds.Diagonal());
-  const float distance = glm::length(in.position - scene.PointAt(in.triangle, in.b1, in.b2));
+  const Vec3 expected = WorldPointAt(scene, pose, in.triangle, in.b1, in.b2);
+  // An object moved far from the scene has coordinates whose rounding can
+  // exceed a tolerance relative to the scene's size.
+  const float tolerance = std::max(1e-4f * glm::length(scene.bounds.Diagonal()),
+                                   1e-6f * std::max({std::abs(expected.x), std::abs(expected.y), std::abs(expected.z)}));
+  const float distance = glm::length(in.position - expected);
   if (!(distance <= tolerance))
     return Fail(fmt::format("position ({}, {}, {}) is {} away from triangle {} at barycentrics ({}, {}) "
                             "(tolerance {})",
@@ -100,13 +109,23 @@ struct Shader::Impl {
   Impl(const Scene& s, const RayScene& r, ShadingSettings ss);
 
   // Irradiance estimate of one path from `start`.
-  Rgb TracePath(const PathVertex& start, Pcg32& rng, ShadeCounters& counters) const;
+  Rgb TracePath(const PosedRayScene& at, const PathVertex& start, Pcg32& rng, ShadeCounters& counters) const;
   // Next-event estimates at `v` (throughput not applied), one shadow ray each.
-  Rgb SampleAreaLight(const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const;
-  Rgb SampleSun(const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const;
+  Rgb SampleAreaLight(const PosedRayScene& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const;
+  Rgb SampleSun(const PosedRayScene& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const;
   // Where to shade a sample leaving from `start` (header: "Buried samples");
   // `inside` is a point off the same side of the sample's triangle, well inside it.
-  Vec3 UnburiedOrigin(const PathVertex& start, const Vec3& inside, Pcg32& rng, ShadeCounters& counters) const;
+  Vec3 UnburiedOrigin(const PosedRayScene& at, const PathVertex& start, const Vec3& inside, Pcg32& rng,
+                      ShadeCounters& counters) const;
+  // How far a ray origin at `p` moves off its surface: `offset`, unless p
+  // lies on a movable object taken beyond twice the scene's reach, whose
+  // coordinates' rounding needs an offset relative to its own. Static points
+  // always get `offset` (they lie within the scene's bounds), so a client
+  // moving an object far out changes nothing for the rest of the scene.
+  float OffsetAt(const Vec3& p) const {
+    const float reach = std::max({std::abs(p.x), std::abs(p.y), std::abs(p.z)});
+    return reach <= 2.0f * largestCoordinate ? offset : kRelativeOffset * reach;
+  }
 
   const Scene& scene;
   const RayScene& rays;
@@ -121,7 +140,8 @@ struct Shader::Impl {
   Frame sunFrame{};  // z toward the sun's centre
   float sunCosHalfAngle = 1.0f;
   float sunSolidAngle = 0.0f;
-  float offset = 0.0f;  // how far ray origins are moved off the surface they leave
+  float largestCoordinate = 0.0f;  // of the scene's bounds as loaded
+  float offset = 0.0f;             // how far ray origins are moved off the surface they leave
 };
 
 Shader::Impl::Impl(const Scene& s, const RayScene& r, ShadingSettings ss)
@@ -150,23 +170,25 @@ Shader::Impl::Impl(const Scene& s, const RayScene& r, ShadingSettings ss)
     sunCosHalfAngle = s.sun->CosHalfAngle();
     sunSolidAngle = s.sun->SolidAngle();
   }
-  offset = kRelativeOffset * LargestCoordinate(s.bounds);
+  largestCoordinate = LargestCoordinate(s.bounds);
+  offset = kRelativeOffset * largestCoordinate;
 }
 
-Rgb Shader::Impl::TracePath(const PathVertex& start, Pcg32& rng, ShadeCounters& counters) const {
+Rgb Shader::Impl::TracePath(const PosedRayScene& at, const PathVertex& start, Pcg32& rng,
+                            ShadeCounters& counters) const {
   PathVertex v = start;
   Rgb throughput(1.0f);
   Rgb irradiance(0.0f);
   const int maxSegments = settings.MaxSegments();
   for (int depth = 0; depth < maxSegments; ++depth) {
-    if (!lights.empty()) irradiance += throughput * SampleAreaLight(v, rng, counters);
-    if (scene.sun) irradiance += throughput * SampleSun(v, rng, counters);
+    if (!lights.empty()) irradiance += throughput * SampleAreaLight(at, v, rng, counters);
+    if (scene.sun) irradiance += throughput * SampleSun(at, v, rng, counters);
 
     const Vec3 local = sampling::CosineHemisphere(rng.NextFloat(), rng.NextFloat());
     const Vec3 direction = v.frame.ToWorld(local);
     if (glm::dot(direction, v.geometricNormal) <= 0.0f) break;  // into the surface itself
     ++counters.rays;
-    const std::optional<RayHit> hit = rays.Intersect(v.origin, direction, 0.0f, kInfinity);
+    const std::optional<RayHit> hit = at.Intersect(v.origin, direction, 0.0f, kInfinity);
     // Cosine-weighted incident radiance over the cosine pdf: a factor pi.
     if (!hit) {
       if (scene.sky) irradiance += throughput * kPi * scene.sky->Radiance(direction);
@@ -202,12 +224,15 @@ Rgb Shader::Impl::TracePath(const PathVertex& start, Pcg32& rng, ShadeCounters& 
     // the offset.
     v.geometricNormal = cosAtHit < 0.0f ? hitNormal : -hitNormal;
     v.frame = Frame::FromNormal(v.geometricNormal);
-    v.origin = v.origin + hit->t * direction + offset * v.geometricNormal;
+    const Vec3 hitPoint = v.origin + hit->t * direction;
+    v.offset = OffsetAt(hitPoint);
+    v.origin = hitPoint + v.offset * v.geometricNormal;
   }
   return irradiance;
 }
 
-Rgb Shader::Impl::SampleAreaLight(const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const {
+Rgb Shader::Impl::SampleAreaLight(const PosedRayScene& at, const PathVertex& v, Pcg32& rng,
+                                  ShadeCounters& counters) const {
   const float u1 = rng.NextFloat(), u2 = rng.NextFloat();
   const Light& light = lights[lightSelection.Sample(u1, u2)];
   const Vec2 b = sampling::UniformTriangle(rng.NextFloat(), rng.NextFloat());
@@ -225,20 +250,21 @@ Rgb Shader::Impl::SampleAreaLight(const PathVertex& v, Pcg32& rng, ShadeCounters
   ++counters.rays;
   ++counters.shadowRays;
   // Stop short of the light so that its own surface does not occlude it.
-  if (rays.Occluded(v.origin, direction, 0.0f, distance - offset)) return Rgb(0.0f);
+  if (at.Occluded(v.origin, direction, 0.0f, distance - v.offset)) return Rgb(0.0f);
   const float pdfLight = light.pdfArea * distance2 / cosAtLight;
   const float weight = sampling::PowerHeuristic(pdfLight, sampling::CosineHemispherePdf(cosAtVertex));
   return light.emission * (weight * cosAtVertex / pdfLight);
 }
 
-Vec3 Shader::Impl::UnburiedOrigin(const PathVertex& start, const Vec3& inside, Pcg32& rng,
+Vec3 Shader::Impl::UnburiedOrigin(const PosedRayScene& at, const PathVertex& start, const Vec3& inside, Pcg32& rng,
                                   ShadeCounters& counters) const {
+  const float offset = start.offset;
   const Vec3 toSample = start.origin - inside;
   const float distance = glm::length(toSample);
   if (!(distance > 4.0f * offset)) return start.origin;
   const Vec3 along = toSample / distance;
   ++counters.rays;
-  const std::optional<RayHit> entry = rays.Intersect(inside, along, 0.0f, distance);
+  const std::optional<RayHit> entry = at.Intersect(inside, along, 0.0f, distance);
   // Nothing in the way, or the way leaves a solid rather than entering one
   // (the inside point is enclosed itself, or the occluder is wound inward):
   // nothing better to shade than the sample itself.
@@ -250,7 +276,7 @@ Vec3 Shader::Impl::UnburiedOrigin(const PathVertex& start, const Vec3& inside, P
   for (int i = 0; i < kProbes; ++i) {
     const Vec3 direction = start.frame.ToWorld(sampling::CosineHemisphere(rng.NextFloat(), rng.NextFloat()));
     ++counters.rays;
-    const std::optional<RayHit> hit = rays.Intersect(start.origin, direction, 0.0f, kInfinity);
+    const std::optional<RayHit> hit = at.Intersect(start.origin, direction, 0.0f, kInfinity);
     if (hit ? glm::dot(hit->normal, direction) < 0.0f : openSky) ++seesOut;
   }
   if (seesOut * 10 > kProbes) return start.origin;  // it sees the scene: in a crease, not buried
@@ -259,14 +285,14 @@ Vec3 Shader::Impl::UnburiedOrigin(const PathVertex& start, const Vec3& inside, P
   return inside + std::max(0.0f, entry->t - backOff) * along;
 }
 
-Rgb Shader::Impl::SampleSun(const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const {
+Rgb Shader::Impl::SampleSun(const PosedRayScene& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const {
   const Vec3 direction =
       sunFrame.ToWorld(sampling::UniformCone(rng.NextFloat(), rng.NextFloat(), sunCosHalfAngle));
   const float cosAtVertex = glm::dot(direction, v.frame.n);
   if (cosAtVertex <= 0.0f || glm::dot(direction, v.geometricNormal) <= 0.0f) return Rgb(0.0f);
   ++counters.rays;
   ++counters.shadowRays;
-  if (rays.Occluded(v.origin, direction, 0.0f, kInfinity)) return Rgb(0.0f);
+  if (at.Occluded(v.origin, direction, 0.0f, kInfinity)) return Rgb(0.0f);
   // Uniform over the cone: radiance * cos / (1 / solid angle).
   return scene.sun->radiance * (cosAtVertex * sunSolidAngle);
 }
@@ -280,32 +306,43 @@ Shader::Shader(Shader&&) noexcept = default;
 
 const ShadingSettings& Shader::Settings() const { return impl_->settings; }
 const Scene& Shader::GetScene() const { return impl_->scene; }
+const RayScene& Shader::GetRays() const { return impl_->rays; }
 
 ShadeOutput Shader::Shade(const ShadeInput& in, int paths, ShadeCounters* counters,
                           const std::atomic<bool>* cancel) const {
+  return Shade(*impl_->rays.Initial(), in, paths, counters, cancel);
+}
+
+ShadeOutput Shader::Shade(const PosedRayScene& posed, const ShadeInput& in, int paths, ShadeCounters* counters,
+                          const std::atomic<bool>* cancel) const {
   const Impl& s = *impl_;
+  const PosedRayScene& at = posed;
+  const float offset = s.OffsetAt(in.position);
   const int pathCount = paths > 0 ? paths : s.settings.pathsPerSample;
   const Vec3 normal = glm::normalize(in.normal);
-  const Vec3 faceNormal = s.scene.GeometricNormal(in.triangle);
+  // The sample's triangle where the pose puts it (a movable object's
+  // vertices are stored in its own space).
+  const Vec3 faceNormal = WorldGeometricNormal(s.scene, posed.Pose(), in.triangle);
   const bool frontSide = glm::dot(normal, faceNormal) >= 0.0f;
 
   PathVertex start;
   start.frame = Frame::FromNormal(normal);
   start.geometricNormal = frontSide ? faceNormal : -faceNormal;
+  start.offset = offset;
   // Off the surface along the normal, and into the triangle toward its
   // centroid (no further than halfway), so that a neighbour meeting this
   // vertex or edge at an angle -- a wall at the edge of a floor -- lies
   // clearly on one side of the origin.
-  const Vec3 centroid = s.scene.PointAt(in.triangle, 1.0f / 3.0f, 1.0f / 3.0f);
+  const Vec3 centroid = WorldPointAt(s.scene, posed.Pose(), in.triangle, 1.0f / 3.0f, 1.0f / 3.0f);
   const Vec3 toCentroid = centroid - in.position;
   const float toCentroidLength = glm::length(toCentroid);
-  start.origin = in.position + s.offset * start.geometricNormal;
+  start.origin = in.position + offset * start.geometricNormal;
   if (toCentroidLength > 0.0f)
-    start.origin += toCentroid * (std::min(s.offset, 0.5f * toCentroidLength) / toCentroidLength);
+    start.origin += toCentroid * (std::min(offset, 0.5f * toCentroidLength) / toCentroidLength);
 
   Pcg32 rng = Pcg32::ForSample(s.settings.seed, in.sampleId);
   ShadeCounters work;
-  start.origin = s.UnburiedOrigin(start, centroid + s.offset * start.geometricNormal, rng, work);
+  start.origin = s.UnburiedOrigin(at, start, centroid + offset * start.geometricNormal, rng, work);
   Rgb sum(0.0f);
   double luminanceSquares = 0.0;
   int traced = 0;
@@ -327,7 +364,7 @@ ShadeOutput Shader::Shade(const ShadeInput& in, int paths, ShadeCounters* counte
         abandoned = true;
         break;
       }
-      const Rgb estimate = s.TracePath(start, rng, work);
+      const Rgb estimate = s.TracePath(at, start, rng, work);
       sum += estimate;
       const double l = Luminance(estimate);
       luminanceSquares += l * l;

@@ -110,7 +110,8 @@ void ShadingPool::RunChunk(Source& source, const Chunk& chunk) {
     // A closed connection (or a shutdown) stops its work between samples,
     // and within a sample between paths, not after the chunk.
     if (source.cancelled.load(std::memory_order_relaxed)) break;
-    job.outputs[done] = shader_.Shade(job.inputs[done], job.paths, &counters, &source.cancelled);
+    job.outputs[done] = job.pose ? shader_.Shade(*job.pose, job.inputs[done], job.paths, &counters, &source.cancelled)
+                                 : shader_.Shade(job.inputs[done], job.paths, &counters, &source.cancelled);
   }
   const size_t shaded = done - chunk.begin;
   samplesShaded_ += shaded;

@@ -52,7 +52,7 @@ TEST_F(ReferenceTest, PixelsReadTheLitPlaneOrTheSky) {
   settings.pathsPerSample = 4;
   const Shader shader(t_.scene, *t_.rays, settings);
   ShadeCounters work;
-  const Image image = RenderReference(shader, *t_.rays, view_, 2, &work, PixelFilter::kCentre);
+  const Image image = RenderReference(shader, *t_.rays->Initial(), view_, 2, &work, PixelFilter::kCentre);
   ASSERT_EQ(image.width, view_.width);
   ASSERT_EQ(image.height, view_.height);
   ASSERT_EQ(image.rgb.size(), size_t(view_.width * view_.height * 3));
@@ -74,7 +74,7 @@ TEST_F(ReferenceTest, BoxFilterAveragesThePixelAreaAcrossTheHorizon) {
   settings.pathsPerSample = 256;
   const Shader shader(t_.scene, *t_.rays, settings);
   ShadeCounters work;
-  const Image image = RenderReference(shader, *t_.rays, view_, 2, &work, PixelFilter::kBox);
+  const Image image = RenderReference(shader, *t_.rays->Initial(), view_, 2, &work, PixelFilter::kBox);
   // Pixels wholly on the plane or the sky read exactly those values; the
   // ones the plane's far edge crosses read something in between.
   int inBetween = 0;
@@ -106,8 +106,8 @@ TEST_F(ReferenceTest, ImageDoesNotDependOnTheThreadCount) {
   ShadingSettings settings;
   settings.pathsPerSample = 2;
   const Shader shader(box.scene, *box.rays, settings);
-  const Image one = RenderReference(shader, *box.rays, view_, 1);
-  const Image three = RenderReference(shader, *box.rays, view_, 3);
+  const Image one = RenderReference(shader, *box.rays->Initial(), view_, 1);
+  const Image three = RenderReference(shader, *box.rays->Initial(), view_, 3);
   ASSERT_EQ(one.rgb.size(), three.rgb.size());
   EXPECT_EQ(std::memcmp(one.rgb.data(), three.rgb.data(), one.rgb.size() * sizeof(float)), 0);
 }
@@ -117,7 +117,7 @@ TEST_F(ReferenceTest, ProgressivePassesAverageToTheBoxFilteredImage) {
   const Shader shader(t_.scene, *t_.rays, settings);
   std::vector<float> sum;
   constexpr int kPasses = 64;
-  for (int pass = 0; pass < kPasses; ++pass) AddProgressivePass(shader, *t_.rays, view_, 2, uint64_t(pass), &sum);
+  for (int pass = 0; pass < kPasses; ++pass) AddProgressivePass(shader, *t_.rays->Initial(), view_, 2, uint64_t(pass), &sum);
   ASSERT_EQ(sum.size(), size_t(view_.width * view_.height * 3));
   // Each path reads the plane or the sky exactly, so the mean is one of
   // them where the pixel lies wholly on one, and in between across the edge.
@@ -143,9 +143,9 @@ TEST_F(ReferenceTest, ProgressivePassesAreDeterministicAndIndependent) {
   const TestScene box = Finish(b);
   const Shader shader(box.scene, *box.rays, ShadingSettings{});
   std::vector<float> one, three, next;
-  AddProgressivePass(shader, *box.rays, view_, 1, 5, &one);
-  AddProgressivePass(shader, *box.rays, view_, 3, 5, &three);
-  AddProgressivePass(shader, *box.rays, view_, 2, 6, &next);
+  AddProgressivePass(shader, *box.rays->Initial(), view_, 1, 5, &one);
+  AddProgressivePass(shader, *box.rays->Initial(), view_, 3, 5, &three);
+  AddProgressivePass(shader, *box.rays->Initial(), view_, 2, 6, &next);
   ASSERT_EQ(one.size(), three.size());
   EXPECT_EQ(std::memcmp(one.data(), three.data(), one.size() * sizeof(float)), 0);
   EXPECT_NE(std::memcmp(one.data(), next.data(), one.size() * sizeof(float)), 0) << "pass 6 repeats pass 5";
@@ -153,11 +153,11 @@ TEST_F(ReferenceTest, ProgressivePassesAreDeterministicAndIndependent) {
   // Many passes converge to the reference: the mean radiance of 256 passes
   // is within 3 % of a 256-path box-filtered image's.
   std::vector<float> sum;
-  for (int pass = 0; pass < 256; ++pass) AddProgressivePass(shader, *box.rays, view_, 2, uint64_t(pass), &sum);
+  for (int pass = 0; pass < 256; ++pass) AddProgressivePass(shader, *box.rays->Initial(), view_, 2, uint64_t(pass), &sum);
   ShadingSettings many;
   many.pathsPerSample = 256;
   const Shader reference(box.scene, *box.rays, many);
-  const Image image = RenderReference(reference, *box.rays, view_, 2);
+  const Image image = RenderReference(reference, *box.rays->Initial(), view_, 2);
   double progressiveTotal = 0.0, referenceTotal = 0.0;
   for (size_t i = 0; i < sum.size(); ++i) {
     progressiveTotal += sum[i] / 256.0;

@@ -9,6 +9,9 @@
 // per pixel per pass to a running mean, starts the mean afresh whenever the
 // pose changes, and at path times 0, S, 2S, ... writes the image it shows
 // then (bench/walkthrough/).
+//
+// --object NAME=... (repeatable) places a movable object elsewhere than the
+// scene file does, for a from-scratch reference of a moved scene.
 
 #include <chrono>
 #include <cmath>
@@ -49,7 +52,7 @@ bool SamePose(const CameraPose& a, const CameraPose& b) {
 // snapshot time t is the running mean for the pose at t; when that pose is
 // new (the camera moved), the frame is the first pass at it, as a
 // progressive viewer's first frame after a move.
-int RunProgressive(const Shader& shader, const RayScene& rays, const CameraPath& path, double interval,
+int RunProgressive(const Shader& shader, const PosedRayScene& rays, const CameraPath& path, double interval,
                    double duration, const std::string& prefix, int workers, const std::string& startFile) {
   auto log = Logger("reference");
   if (!startFile.empty()) {
@@ -160,6 +163,12 @@ int main(int argc, char** argv) {
   startOption->needs(progressive);
   prefixOption->needs(progressive);
   durationOption->needs(progressive);
+  std::vector<std::string> objectSpecs;
+  app.add_option("--object", objectSpecs,
+                 "Place a movable object of the scene elsewhere: NAME=r00,r01,r02,tx,r10,r11,r12,ty,r20,r21,r22,tz "
+                 "(its object-to-world transform, 3x4 row-major, rigid) or NAME=translate:x,y,z (moved by x,y,z "
+                 "from where the scene puts it); repeatable")
+      ->take_all();
   app.add_option("--log-level", logLevel, "trace, debug, info, warn, error, critical or off")->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   if (!SetupLogging(logLevel)) return Exit("unknown --log-level '" + logLevel + "'");
@@ -202,12 +211,20 @@ int main(int argc, char** argv) {
       progressive->count() != 0 ? snapshotPrefix + "_t000000.exr" : outAt(times.empty() ? 0.0 : times.front());
   if (auto ok = WriteImage(probePath, 1, 1, probe); !ok) return Exit(ok.error().message);
 
+  ScenePose pose = ScenePose::Initial(*scene);
+  for (const std::string& spec : objectSpecs)
+    if (auto ok = PlaceObject(*scene, spec, &pose); !ok) return Exit(ok.error().message);
+
   auto rays = RayScene::Build(*scene);
   if (!rays) return Exit(rays.error().message);
   const Shader shader(*scene, **rays, shading);
+  auto posed = (*rays)->AtPose(pose);
+  if (!posed) return Exit(posed.error().message);
+  for (size_t i = 0; i < scene->objects.size(); ++i)
+    Logger("reference")->info("object '{}': {}", scene->objects[i].name, Describe(pose.objectToWorld[i]));
   const int workers = threads > 0 ? threads : int(std::max(1u, std::thread::hardware_concurrency()));
   if (progressive->count() != 0)
-    return RunProgressive(shader, **rays, cameraPath, progressiveInterval,
+    return RunProgressive(shader, **posed, cameraPath, progressiveInterval,
                           duration >= 0.0 ? duration : cameraPath.DurationSeconds(), snapshotPrefix, workers,
                           startFile);
 
@@ -217,7 +234,7 @@ int main(int argc, char** argv) {
     if (cameraName.empty()) view = cameraPath.ViewAt(t);
     const auto start = std::chrono::steady_clock::now();
     ShadeCounters work;
-    Image image = RenderReference(shader, **rays, view, workers, &work, filter);
+    Image image = RenderReference(shader, **posed, view, workers, &work, filter);
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     Logger("reference")->info("{}x{} at {} paths/pixel in {:.3f} s ({:.2f} Mrays/s, {} thread(s))", view.width,
                               view.height, shading.pathsPerSample, seconds, double(work.rays) / seconds * 1e-6,

@@ -16,11 +16,16 @@
 // the sky's radiance in that direction (black without a sky). The sun's disc
 // is not drawn.
 //
+// Movable objects: an image shows the scene at one pose, the PosedRayScene
+// passed in (RayScene::Initial() for the scene as loaded, AtPose() for the
+// objects placed elsewhere: a from-scratch reference of a moved scene).
+//
 // Sample ids: pixel p = y * width + x uses id p for kCentre and
 // p * paths + k for its k-th path under kBox; the jitter of pixel p comes
 // from its own stream too, so images do not depend on the thread count.
 
 #include <cstdint>
+#include <string>
 #include <vector>
 
 #include "penumbra/common/camera.h"
@@ -29,16 +34,17 @@
 
 namespace penumbra {
 
-class RayScene;
+class PosedRayScene;
 
 enum class PixelFilter { kBox, kCentre };
 
-/// Renders `view` with `threads` worker threads (at least one), each pixel
+/// Renders `view` of the scene at the pose `rays` (of the shader's RayScene)
+/// with `threads` worker threads (at least one), each pixel
 /// with the shader's paths per sample. Returns linear radiance, row 0 at the
 /// top; adds the work done to `counters` when it is not null. The view must
 /// have passed ValidateCameraView. Deterministic: the image does not depend
 /// on the thread count. Blocks until done; call from any one thread.
-Image RenderReference(const Shader& shader, const RayScene& rays, const CameraView& view, int threads,
+Image RenderReference(const Shader& shader, const PosedRayScene& rays, const CameraView& view, int threads,
                       ShadeCounters* counters = nullptr, PixelFilter filter = PixelFilter::kBox);
 
 /// One pass of progressive per-pixel path tracing: adds one path per pixel of
@@ -49,7 +55,18 @@ Image RenderReference(const Shader& shader, const RayScene& rays, const CameraVi
 /// has random streams of its own (ids pass * pixels + pixel), so an image
 /// restarted at pass 0 repeats itself. Threads and blocking as
 /// RenderReference.
-void AddProgressivePass(const Shader& shader, const RayScene& rays, const CameraView& view, int threads,
+void AddProgressivePass(const Shader& shader, const PosedRayScene& rays, const CameraView& view, int threads,
                         uint64_t pass, std::vector<float>* sum, ShadeCounters* counters = nullptr);
+
+/// Places one movable object of `scene` in `pose` from a command-line
+/// spec (penumbra-reference --object):
+///   NAME=r00,r01,r02,tx,r10,r11,r12,ty,r20,r21,r22,tz
+///       its object-to-world transform, 3x4 row-major as on the wire, rigid;
+///   NAME=translate:x,y,z
+///       moved by (x, y, z) in world space from its place in `pose`.
+/// Fails, naming the spec and the problem, for an unknown object, a number
+/// that does not parse, the wrong count, or a transform that is not rigid.
+/// `pose` must have one transform per movable object.
+Status PlaceObject(const Scene& scene, const std::string& spec, ScenePose* pose);
 
 }  // namespace penumbra

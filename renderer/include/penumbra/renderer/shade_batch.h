@@ -17,14 +17,29 @@ struct ShadeLimits {
   uint32_t maxPathsPerSample = 65536;
 };
 
-/// Decodes a request into shader inputs. Fails, naming the field and the
-/// sample index, when the parallel arrays disagree in length, the batch is
-/// empty or over the limit, the path count is over the limit, or any sample
-/// fails ValidateShadeInput.
+/// The pose a request is to be shaded at (issue 14): epoch scene_epoch, and
+/// object_transforms, 12 floats per movable object of the scene in scene
+/// order, each a rigid object-to-world transform (RigidTransform::
+/// FromRowMajor). An empty object_transforms means the scene's initial pose;
+/// a scene with movable objects accepts that only at scene_epoch 0 (a later
+/// epoch without its transforms is a peer's mistake, not a pose). Fails,
+/// naming the batch, the object and the problem, for any other count or a
+/// transform that is not finite and rigid; the count is checked before
+/// anything is allocated.
+Expected<ScenePose> DecodeShadePose(const wire::ShadeRequest& request, const Scene& scene);
+
+/// Decodes a request into shader inputs at `pose`. Fails, naming the field
+/// and the sample index, when the parallel arrays disagree in length, the
+/// batch is empty or over the limit, the path count is over the limit, or
+/// any sample fails ValidateShadeInput at `pose`.
+Expected<std::vector<ShadeInput>> DecodeShadeRequest(const wire::ShadeRequest& request, const Scene& scene,
+                                                     const ScenePose& pose, const ShadeLimits& limits);
+/// DecodeShadePose, then the samples at that pose.
 Expected<std::vector<ShadeInput>> DecodeShadeRequest(const wire::ShadeRequest& request, const Scene& scene,
                                                      const ShadeLimits& limits);
 
-/// Fills one reply part: results for `inputs[i]` are `outputs[i]`.
+/// Fills one reply part: results for `inputs[i]` are `outputs[i]` (the
+/// caller sets scene_epoch).
 void FillShadeReply(uint64_t batchId, std::span<const ShadeInput> inputs, std::span<const ShadeOutput> outputs,
                     uint32_t remaining, const ShadeCounters& counters, wire::ShadeReply* reply);
 

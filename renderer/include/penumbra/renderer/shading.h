@@ -53,6 +53,14 @@
 // reweighted by the inverse of that probability, which keeps the estimate
 // unbiased.
 //
+// Movable objects (issue 14). A sample is shaded at one pose of the scene
+// (a PosedRayScene): its position and normal are world space at that pose,
+// its triangle and barycentrics name the base triangle (whose vertices are
+// stored in its object's space), and every ray of its paths meets the
+// objects where the pose puts them. Lights are static (Scene::Finalize
+// refuses emissive movable objects), so light sampling is the same at every
+// pose.
+//
 // Determinism: sample `sampleId` uses its own random stream, derived from
 // (settings.seed, sampleId) only, so the same input gives the same output on
 // any thread (with flush-to-zero set, see EnableFlushToZero), in any batch,
@@ -69,6 +77,7 @@
 namespace penumbra {
 
 class RayScene;
+class PosedRayScene;
 
 struct ShadingSettings {
   int pathsPerSample = 64;       // --spp: paths averaged per sample, >= 1
@@ -91,7 +100,7 @@ struct ShadingSettings {
 
 struct ShadeInput {
   uint64_t sampleId = 0;
-  Vec3 position;          // world space, on `triangle`
+  Vec3 position;          // world space at the pose it is shaded at, on `triangle`
   Vec3 normal;            // world space, unit: the side of the surface to shade
   uint32_t triangle = 0;  // base triangle (Scene::triangles)
   float b1 = 0.0f;        // barycentrics of `position` on `triangle`
@@ -124,11 +133,15 @@ struct ShadeCounters {
   }
 };
 
-/// Checks one input against the scene: finite fields, unit normal (within
-/// 1e-2), triangle in range, barycentrics in the triangle (within 1e-3), and
-/// the position within 1e-4 times the scene's bounding-box diagonal of the
-/// triangle's point at those barycentrics. The message names the field and
-/// its value.
+/// Checks one input against the scene at `pose`: finite fields, unit normal
+/// (within 1e-2), triangle in range, barycentrics in the triangle (within
+/// 1e-3), and the position within 1e-4 times the scene's bounding-box
+/// diagonal (or 1e-6 times the point's largest coordinate, for an object
+/// moved far out) of the triangle's world point at those barycentrics
+/// (WorldPointAt). The message names the field and its value. `pose` must
+/// have one transform per movable object.
+Status ValidateShadeInput(const Scene& scene, const ScenePose& pose, const ShadeInput& input);
+/// The same at the scene's initial pose.
 Status ValidateShadeInput(const Scene& scene, const ShadeInput& input);
 
 class Shader {
@@ -141,18 +154,23 @@ class Shader {
   Shader(const Shader&) = delete;
   Shader& operator=(const Shader&) = delete;
 
-  /// Shades one sample with `paths` paths (the settings' count when 0), or
-  /// more under adaptive sampling (ShadingSettings::maxPathsPerSample).
-  /// Input must have passed ValidateShadeInput. Adds the work done to
-  /// `counters` when it is not null. Thread-safe; deterministic.
+  /// Shades one sample at the pose `at` (from this shader's RayScene) with
+  /// `paths` paths (the settings' count when 0), or more under adaptive
+  /// sampling (ShadingSettings::maxPathsPerSample). Input must have passed
+  /// ValidateShadeInput at that pose. Adds the work done to `counters` when
+  /// it is not null. Thread-safe; deterministic.
   /// When `cancel` is set (it is looked at every few dozen paths, so that a
   /// sample of thousands of paths does not hold up a shutdown), the sample
   /// is abandoned: the result is meaningless and must be dropped.
+  ShadeOutput Shade(const PosedRayScene& at, const ShadeInput& input, int paths, ShadeCounters* counters,
+                    const std::atomic<bool>* cancel = nullptr) const;
+  /// The same at the scene's initial pose.
   ShadeOutput Shade(const ShadeInput& input, int paths, ShadeCounters* counters,
                     const std::atomic<bool>* cancel = nullptr) const;
 
   const ShadingSettings& Settings() const;
   const Scene& GetScene() const;
+  const RayScene& GetRays() const;
 
  private:
   struct Impl;  // the path tracer and its tables (shading.cpp)

@@ -30,6 +30,10 @@ struct ShadeJob {
 
   uint64_t batchId = 0;
   int paths = 0;  // 0: the shader's default
+  /// The pose every sample is shaded at (from the shader's RayScene); null:
+  /// the scene's initial pose. Held by the job, so a newer pose built
+  /// meanwhile never changes what an older batch is shaded against.
+  std::shared_ptr<const PosedRayScene> pose;
   std::vector<ShadeInput> inputs;
   std::vector<ShadeOutput> outputs;  // filled by the pool; sized like inputs
   PartCallback onPart;

@@ -1,0 +1,503 @@
+// Movable objects in the renderer (issue 14): ray queries at a pose, shading
+// at a pose against closed forms, the wire pose's validation, and reference
+// images of a moved scene.
+
+#include <gtest/gtest.h>
+
+#include <glm/trigonometric.hpp>
+
+#include <cmath>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "penumbra/renderer/ray_scene.h"
+#include "penumbra/renderer/reference.h"
+#include "penumbra/renderer/shade_batch.h"
+#include "penumbra/renderer/shading.h"
+#include "test_scenes.h"
+
+namespace penumbra {
+namespace {
+
+using testing::AddHorizontalSquare;
+using testing::Agrees;
+using testing::Estimate;
+using testing::Finish;
+using testing::MakeMaterial;
+using testing::SampleAt;
+using testing::TestScene;
+
+constexpr Vec3 kUp(0.0f, 1.0f, 0.0f);
+constexpr float kInfinity = std::numeric_limits<float>::infinity();
+
+RigidTransform Translation(const Vec3& t) { return RigidTransform{glm::mat3(1.0f), t}; }
+
+// The irradiance at a point a height h below the centre-relative rectangle
+// [x0, x1] x [z0, z1] of a parallel, downward-facing Lambertian emitter of
+// radiance L (as in shading_test.cpp).
+double ParallelRectangleIrradiance(double radiance, double h, double x0, double x1, double z0, double z1) {
+  auto corner = [h](double x, double z) {
+    const double a = x / h, b = z / h;
+    const double sa = std::sqrt(1.0 + a * a), sb = std::sqrt(1.0 + b * b);
+    return a / sa * std::atan(b / sa) + b / sb * std::atan(a / sb);
+  };
+  return 0.5 * radiance * (corner(x1, z1) - corner(x0, z1) - corner(x1, z0) + corner(x0, z0));
+}
+
+// A floor (y = 0, side 20; black unless asked), a static square light of side 0.5 facing
+// down at y = 2, and a movable black "occluder": a unit square in its own
+// y = 0 plane, front up, starting at (0, 1, 0) -- right under the light.
+struct OccluderScene {
+  TestScene t;
+  static constexpr float kLightHeight = 2.0f, kLightSide = 0.5f, kRadiance = 5.0f;
+};
+
+OccluderScene MakeOccluderScene(float floorAlbedo = 0.0f) {
+  OccluderScene s;
+  SceneBuilder b;
+  const uint32_t black = b.AddMaterial(MakeMaterial(Rgb(0.0f)));
+  const uint32_t light = b.AddMaterial(MakeMaterial(Rgb(0.0f), Rgb(OccluderScene::kRadiance)));
+  const uint32_t floor = b.AddMaterial(MakeMaterial(Rgb(floorAlbedo)));
+  AddHorizontalSquare(b, Vec3(0.0f), 20.0f, floor, true);
+  AddHorizontalSquare(b, Vec3(0.0f, OccluderScene::kLightHeight, 0.0f), OccluderScene::kLightSide, light, false);
+  MovableObject occluder;
+  occluder.name = "occluder";
+  occluder.objectToWorld = Translation(Vec3(0.0f, 1.0f, 0.0f));
+  b.BeginObject(occluder);
+  AddHorizontalSquare(b, Vec3(0.0f), 1.0f, black, true);
+  s.t = Finish(b);
+  return s;
+}
+
+ShadingSettings DirectOnly() {
+  ShadingSettings s;
+  s.maxBounces = 0;
+  return s;
+}
+
+// The irradiance of the light at floor point p (no occluder in the way).
+double LightAt(const Vec3& p) {
+  const double half = 0.5 * OccluderScene::kLightSide;
+  return ParallelRectangleIrradiance(OccluderScene::kRadiance, OccluderScene::kLightHeight - p.y, -half - p.x,
+                                     half - p.x, -half - p.z, half - p.z);
+}
+
+Estimate EstimateAt(const Shader& shader, const PosedRayScene& at, ShadeInput input, int batches, int paths) {
+  Rgb sum(0.0f), sumSquares(0.0f);
+  for (int i = 0; i < batches; ++i) {
+    input.sampleId = 1000 + uint64_t(i);
+    const Rgb value = shader.Shade(at, input, paths, nullptr).irradiance;
+    sum += value;
+    sumSquares += value * value;
+  }
+  const float n = float(batches);
+  Estimate e;
+  e.mean = sum / n;
+  e.standardError = glm::sqrt(glm::max(Rgb(0.0f), (sumSquares - n * e.mean * e.mean) / (n - 1.0f)) / n);
+  return e;
+}
+
+std::shared_ptr<const PosedRayScene> PoseOrFail(const RayScene& rays, const ScenePose& pose) {
+  auto posed = rays.AtPose(pose);
+  EXPECT_TRUE(posed.ok()) << (posed.ok() ? "" : posed.error().message);
+  return posed.ok() ? *posed : nullptr;
+}
+
+// --- Ray queries at a pose -------------------------------------------------------
+
+TEST(PosedRaySceneTest, HitsFindAMovedObjectWhereThePosePutsItWithWorldNormalsAndBaseTriangles) {
+  const OccluderScene s = MakeOccluderScene();
+  const Scene& scene = s.t.scene;
+  const RayScene& rays = *s.t.rays;
+  ASSERT_EQ(rays.MovableObjectCount(), 1u);
+  const MovableObject& occluder = scene.objects[0];
+
+  // Initially the occluder's top is at y = 1 over the origin.
+  const auto before = rays.Initial()->Intersect(Vec3(0.1f, 1.5f, 0.2f), -kUp, 0.0f, kInfinity);
+  ASSERT_TRUE(before);
+  EXPECT_NEAR(before->t, 0.5f, 1e-5f);
+  EXPECT_EQ(scene.ObjectOfTriangle(before->triangle), 0u);
+  EXPECT_EQ(rays.Intersect(Vec3(0.1f, 1.5f, 0.2f), -kUp, 0.0f, kInfinity)->triangle, before->triangle);
+
+  // Turned upside down (half a turn about x) and moved to (4, 0.5, 0): its
+  // front now faces down.
+  ScenePose pose = ScenePose::Initial(scene);
+  pose.epoch = 3;
+  pose.objectToWorld[0] = RigidTransform::FromAxisAngle(Vec3(1, 0, 0), glm::radians(180.0f), Vec3(4.0f, 0.5f, 0.0f));
+  const auto posed = PoseOrFail(rays, pose);
+  ASSERT_TRUE(posed);
+  EXPECT_EQ(posed->Pose().epoch, 3u);
+  // Its old place shows the floor.
+  const auto floor = posed->Intersect(Vec3(0.1f, 1.5f, 0.2f), -kUp, 0.0f, kInfinity);
+  ASSERT_TRUE(floor);
+  EXPECT_NEAR(floor->t, 1.5f, 1e-5f);
+  EXPECT_EQ(scene.ObjectOfTriangle(floor->triangle), kStaticObject);
+  EXPECT_GT(glm::normalize(floor->normal).y, 0.999f);
+  EXPECT_FALSE(posed->Occluded(Vec3(0.1f, 1.5f, 0.2f), -kUp, 0.0f, 1.4f));
+  // Its new place: hit from above on its back, the normal is world space (down).
+  const auto moved = posed->Intersect(Vec3(4.1f, 1.5f, 0.2f), -kUp, 0.0f, kInfinity);
+  ASSERT_TRUE(moved);
+  EXPECT_NEAR(moved->t, 1.0f, 1e-5f);
+  EXPECT_GE(moved->triangle, occluder.firstTriangle);
+  EXPECT_LT(moved->triangle, occluder.firstTriangle + occluder.triangleCount);
+  EXPECT_LT(glm::normalize(moved->normal).y, -0.999f);
+  EXPECT_NEAR(glm::dot(glm::normalize(moved->normal), WorldGeometricNormal(scene, pose, moved->triangle)), 1.0f, 1e-5f);
+  EXPECT_NEAR(glm::length(WorldPointAt(scene, pose, moved->triangle, moved->b1, moved->b2) - Vec3(4.1f, 0.5f, 0.2f)),
+              0.0f, 1e-5f);
+  EXPECT_TRUE(posed->Occluded(Vec3(4.1f, 1.5f, 0.2f), -kUp, 0.0f, 1.1f));
+  // The initial pose answers as before.
+  EXPECT_NEAR(rays.Initial()->Intersect(Vec3(0.1f, 1.5f, 0.2f), -kUp, 0.0f, kInfinity)->t, 0.5f, 1e-5f);
+}
+
+TEST(PosedRaySceneTest, AStaticSceneHasOnePoseAndRefusesObjectTransforms) {
+  SceneBuilder b;
+  AddHorizontalSquare(b, Vec3(0.0f), 2.0f, b.AddMaterial(MakeMaterial(Rgb(0.5f))), true);
+  const TestScene t = Finish(b);
+  EXPECT_EQ(t.rays->MovableObjectCount(), 0u);
+  auto same = t.rays->AtPose(ScenePose::Initial(t.scene));
+  ASSERT_TRUE(same.ok());
+  EXPECT_EQ(same->get(), t.rays->Initial().get());
+  ScenePose later;
+  later.epoch = 5;
+  auto atLater = t.rays->AtPose(later);
+  ASSERT_TRUE(atLater.ok());
+  EXPECT_EQ((*atLater)->Pose().epoch, 5u);
+  EXPECT_TRUE((*atLater)->Occluded(Vec3(0.0f, 1.0f, 0.0f), -kUp, 0.0f, 2.0f));
+  ScenePose wrong;
+  wrong.objectToWorld.resize(1);
+  EXPECT_FALSE(t.rays->AtPose(wrong).ok());
+}
+
+// --- Shading at a pose --------------------------------------------------------------
+
+// The issue's analytic case: the floor under a static light, with a movable
+// occluder that blocks all of it at one pose and none of it at another.
+TEST(PosedShadingTest, FloorUnderTheLightIsDarkWhereTheOccluderBlocksItAndLitWhereItHasMoved) {
+  const OccluderScene s = MakeOccluderScene();
+  const Shader shader(s.t.scene, *s.t.rays, DirectOnly());
+  const ShadeInput underLight = SampleAt(s.t.scene, Vec3(0.0f), kUp);
+  ASSERT_EQ(s.t.scene.ObjectOfTriangle(underLight.triangle), kStaticObject);
+
+  // Initial pose: every line from the origin to the light crosses the unit
+  // occluder at y = 1 (it spans x, z in [-0.5, 0.5]; the lines cross y = 1
+  // within [-0.125, 0.125]).
+  const Estimate blocked = EstimateAt(shader, *s.t.rays->Initial(), underLight, 16, 64);
+  EXPECT_EQ(blocked.mean, Rgb(0.0f));
+
+  // Moved 3 to the side: nothing between the origin and the light.
+  ScenePose aside = ScenePose::Initial(s.t.scene);
+  aside.epoch = 1;
+  aside.objectToWorld[0] = Translation(Vec3(3.0f, 1.0f, 0.0f));
+  const auto posed = PoseOrFail(*s.t.rays, aside);
+  ASSERT_TRUE(posed);
+  const double exact = LightAt(Vec3(0.0f));
+  ASSERT_GT(exact, 0.1);
+  EXPECT_TRUE(Agrees(EstimateAt(shader, *posed, underLight, 32, 64), Rgb(float(exact)), 0.01f));
+
+  // And back: the same pose as the start shades as the start did.
+  ScenePose back = ScenePose::Initial(s.t.scene);
+  back.epoch = 2;
+  const auto again = PoseOrFail(*s.t.rays, back);
+  ASSERT_TRUE(again);
+  EXPECT_EQ(EstimateAt(shader, *again, underLight, 4, 64).mean, Rgb(0.0f));
+}
+
+// A sample on the moving object itself is shaded where the pose puts it:
+// its world position and its triangle's world normal, not its object-space ones.
+TEST(PosedShadingTest, ASampleOnTheMovedObjectIsShadedAtItsWorldPlace) {
+  const OccluderScene s = MakeOccluderScene();
+  const Scene& scene = s.t.scene;
+  const Shader shader(scene, *s.t.rays, DirectOnly());
+  const uint32_t triangle = scene.objects[0].firstTriangle;
+
+  // Lowered to y = 0.5 and moved to x = 1.5: its centre sees the light 1.5 up
+  // and 1.5 across.
+  ScenePose pose = ScenePose::Initial(scene);
+  pose.objectToWorld[0] = Translation(Vec3(1.5f, 0.5f, 0.0f));
+  const auto posed = PoseOrFail(*s.t.rays, pose);
+  ASSERT_TRUE(posed);
+  // The triangle's point nearest the object's centre: its centroid.
+  ShadeInput in;
+  in.triangle = triangle;
+  in.b1 = in.b2 = 1.0f / 3.0f;
+  in.position = WorldPointAt(scene, pose, triangle, in.b1, in.b2);
+  in.normal = WorldGeometricNormal(scene, pose, triangle);
+  ASSERT_NEAR(in.normal.y, 1.0f, 1e-6f);
+  EXPECT_TRUE(ValidateShadeInput(scene, pose, in).ok());
+  // At the initial pose that position is off the triangle (it is 0.5 lower and 1.5 across).
+  EXPECT_FALSE(ValidateShadeInput(scene, in).ok());
+  const double exact = LightAt(in.position);
+  EXPECT_TRUE(Agrees(EstimateAt(shader, *posed, in, 32, 64), Rgb(float(exact)), 0.01f)) << "exact " << exact;
+
+  // Turned upside down at the same place, its front faces the floor: the
+  // side facing up is now its back, lit the same (both sides reflect), and
+  // its front sees nothing (a black floor, no sky).
+  ScenePose flipped = pose;
+  flipped.objectToWorld[0] = RigidTransform::FromAxisAngle(Vec3(1, 0, 0), glm::radians(180.0f), Vec3(1.5f, 0.5f, 0.0f));
+  const auto flippedPosed = PoseOrFail(*s.t.rays, flipped);
+  ASSERT_TRUE(flippedPosed);
+  ShadeInput back = in;
+  back.position = WorldPointAt(scene, flipped, triangle, in.b1, in.b2);
+  back.normal = kUp;
+  ASSERT_LT(WorldGeometricNormal(scene, flipped, triangle).y, -0.999f);
+  ASSERT_TRUE(ValidateShadeInput(scene, flipped, back).ok());
+  EXPECT_TRUE(Agrees(EstimateAt(shader, *flippedPosed, back, 32, 64), Rgb(float(LightAt(back.position))), 0.01f));
+  ShadeInput front = back;
+  front.normal = -kUp;
+  EXPECT_EQ(EstimateAt(shader, *flippedPosed, front, 4, 64).mean, Rgb(0.0f));
+
+  // Stood on edge by a quarter turn about z, at x = 1, its front faces -x,
+  // toward the light. A sample whose smooth normal leans a little down from
+  // -x sees the light above it through the face's world plane (x = 1). Were
+  // the face taken in object space (its plane y = const), that normal would
+  // pick the face's lower side and the light would be behind it: black.
+  ScenePose standing = pose;
+  standing.objectToWorld[0] = RigidTransform::FromAxisAngle(Vec3(0, 0, 1), glm::radians(90.0f), Vec3(1.0f, 1.0f, 0.0f));
+  const auto standingPosed = PoseOrFail(*s.t.rays, standing);
+  ASSERT_TRUE(standingPosed);
+  ShadeInput edge = in;
+  edge.position = WorldPointAt(scene, standing, triangle, in.b1, in.b2);
+  edge.normal = glm::normalize(Vec3(-1.0f, -0.2f, 0.0f));
+  ASSERT_LT(WorldGeometricNormal(scene, standing, triangle).x, -0.999f);
+  ASSERT_TRUE(ValidateShadeInput(scene, standing, edge).ok());
+  // E = integral over the light of L cos(at the sample) cos(at the light) / r^2, by the midpoint rule.
+  double edgeExact = 0.0;
+  constexpr int kCells = 200;
+  const double cell = OccluderScene::kLightSide / kCells;
+  for (int i = 0; i < kCells; ++i)
+    for (int k = 0; k < kCells; ++k) {
+      const Vec3 onLight(float(-0.5 * OccluderScene::kLightSide + (i + 0.5) * cell), OccluderScene::kLightHeight,
+                         float(-0.5 * OccluderScene::kLightSide + (k + 0.5) * cell));
+      const Vec3 toLight = onLight - edge.position;
+      const double r2 = glm::dot(toLight, toLight);
+      const Vec3 d = toLight / float(std::sqrt(r2));
+      edgeExact += OccluderScene::kRadiance * std::max(0.0f, glm::dot(d, edge.normal)) * std::max(0.0f, d.y) / r2 * cell * cell;
+    }
+  ASSERT_GT(edgeExact, 0.1);
+  EXPECT_TRUE(Agrees(EstimateAt(shader, *standingPosed, edge, 32, 64), Rgb(float(edgeExact)), 0.01f))
+      << "exact " << edgeExact;
+}
+
+// A scene without movable objects shades exactly as before through any
+// pose object, and the initial pose of a scene with objects exactly as the
+// pose-less call: no change for static work.
+TEST(PosedShadingTest, TheInitialPoseShadesBitIdenticallyToThePoselessCall) {
+  const OccluderScene s = MakeOccluderScene();
+  const Shader shader(s.t.scene, *s.t.rays, ShadingSettings{});
+  ScenePose again = ScenePose::Initial(s.t.scene);
+  again.epoch = 4;
+  const auto posed = PoseOrFail(*s.t.rays, again);
+  ASSERT_TRUE(posed);
+  for (const Vec3 p : {Vec3(0.0f), Vec3(0.7f, 0.0f, -0.3f), Vec3(2.0f, 0.0f, 1.0f)}) {
+    const ShadeInput in = SampleAt(s.t.scene, p, kUp, 77);
+    const ShadeOutput a = shader.Shade(in, 32, nullptr);
+    const ShadeOutput b = shader.Shade(*posed, in, 32, nullptr);
+    EXPECT_EQ(a.irradiance, b.irradiance);
+    EXPECT_EQ(a.radiance, b.radiance);
+    EXPECT_EQ(a.irradianceStdErr, b.irradianceStdErr);
+  }
+}
+
+// Moving an object far out of the scene (as a client may) changes nothing
+// for the static points it does not shadow: their rays leave surfaces by the
+// same offsets as before, bit for bit.
+TEST(PosedShadingTest, AnObjectMovedFarAwayLeavesTheStaticShadingAsItWas) {
+  const OccluderScene s = MakeOccluderScene(0.5f);
+  const Shader shader(s.t.scene, *s.t.rays, ShadingSettings{});
+  ScenePose far = ScenePose::Initial(s.t.scene);
+  far.epoch = 1;
+  far.objectToWorld[0] = Translation(Vec3(5e4f, 1.0f, -3e4f));
+  const auto posed = PoseOrFail(*s.t.rays, far);
+  ASSERT_TRUE(posed);
+  // (3, 0, 0) sees the whole light past the occluder's first place too.
+  const ShadeInput in = SampleAt(s.t.scene, Vec3(3.0f, 0.0f, 0.0f), kUp, 5);
+  const ShadeOutput before = shader.Shade(in, 64, nullptr);
+  const ShadeOutput after = shader.Shade(*posed, in, 64, nullptr);
+  EXPECT_GT(before.irradiance.r, 0.0f);
+  EXPECT_EQ(before.irradiance, after.irradiance);
+  EXPECT_EQ(before.radiance, after.radiance);
+  // And a sample on the far object is still checked and shaded there.
+  ShadeInput onFar;
+  onFar.triangle = s.t.scene.objects[0].firstTriangle;
+  onFar.b1 = onFar.b2 = 0.25f;
+  onFar.position = WorldPointAt(s.t.scene, far, onFar.triangle, onFar.b1, onFar.b2);
+  onFar.normal = kUp;
+  ASSERT_TRUE(ValidateShadeInput(s.t.scene, far, onFar).ok());
+  const ShadeOutput out = shader.Shade(*posed, onFar, 16, nullptr);
+  EXPECT_TRUE(std::isfinite(out.irradiance.r) && out.irradiance.r >= 0.0f);
+}
+
+// --- The wire pose ------------------------------------------------------------------
+
+wire::ShadeRequest OneSampleRequest(const Scene& scene, const ShadeInput& in) {
+  wire::ShadeRequest r;
+  r.set_batch_id(42);
+  r.add_sample_ids(in.sampleId);
+  for (int k = 0; k < 3; ++k) r.add_positions(in.position[k]);
+  for (int k = 0; k < 3; ++k) r.add_normals(in.normal[k]);
+  r.add_triangle_ids(in.triangle);
+  r.add_barycentrics(in.b1);
+  r.add_barycentrics(in.b2);
+  (void)scene;
+  return r;
+}
+
+void AddTransform(wire::ShadeRequest& r, const RigidTransform& t) {
+  for (float v : t.ToRowMajor()) r.add_object_transforms(v);
+}
+
+std::string ErrorOf(const Expected<ScenePose>& pose) { return pose.ok() ? std::string() : pose.error().message; }
+
+TEST(ShadePoseTest, NoTransformsIsTheInitialPoseAtEpochZeroOnly) {
+  const OccluderScene s = MakeOccluderScene();
+  const wire::ShadeRequest r = OneSampleRequest(s.t.scene, SampleAt(s.t.scene, Vec3(0.0f), kUp));
+  auto pose = DecodeShadePose(r, s.t.scene);
+  ASSERT_TRUE(pose.ok()) << pose.error().message;
+  EXPECT_EQ(pose->epoch, 0u);
+  EXPECT_TRUE(pose->SamePlaces(ScenePose::Initial(s.t.scene)));
+
+  wire::ShadeRequest later = r;
+  later.set_scene_epoch(3);
+  const std::string error = ErrorOf(DecodeShadePose(later, s.t.scene));
+  EXPECT_NE(error.find("batch 42: scene_epoch 3 without object_transforms"), std::string::npos) << error;
+
+  // A scene without movable objects has one pose, whatever its number.
+  SceneBuilder b;
+  AddHorizontalSquare(b, Vec3(0.0f), 2.0f, b.AddMaterial(MakeMaterial(Rgb(0.5f))), true);
+  const TestScene plain = Finish(b);
+  auto plainPose = DecodeShadePose(later, plain.scene);
+  ASSERT_TRUE(plainPose.ok()) << plainPose.error().message;
+  EXPECT_EQ(plainPose->epoch, 3u);
+  EXPECT_TRUE(plainPose->objectToWorld.empty());
+}
+
+TEST(ShadePoseTest, TransformsAreTwelvePerObjectFiniteAndRigid) {
+  const OccluderScene s = MakeOccluderScene();
+  const Scene& scene = s.t.scene;
+  // A sample on the floor: its place does not depend on the pose.
+  wire::ShadeRequest r = OneSampleRequest(scene, SampleAt(scene, Vec3(0.5f, 0.0f, 0.5f), kUp));
+  r.set_scene_epoch(8);
+  const RigidTransform moved = RigidTransform::FromAxisAngle(Vec3(0, 1, 0), glm::radians(30.0f), Vec3(2, 1, 0));
+  AddTransform(r, moved);
+  auto pose = DecodeShadePose(r, scene);
+  ASSERT_TRUE(pose.ok()) << pose.error().message;
+  EXPECT_EQ(pose->epoch, 8u);
+  ASSERT_EQ(pose->objectToWorld.size(), 1u);
+  EXPECT_NEAR(glm::length(pose->objectToWorld[0].translation - Vec3(2, 1, 0)), 0.0f, 1e-6f);
+  EXPECT_TRUE(DecodeShadeRequest(r, scene, ShadeLimits{}).ok());
+
+  wire::ShadeRequest tooMany = r;
+  AddTransform(tooMany, moved);
+  std::string error = ErrorOf(DecodeShadePose(tooMany, scene));
+  EXPECT_NE(error.find("object_transforms has 24 values, expected 12"), std::string::npos) << error;
+  wire::ShadeRequest partial = r;
+  partial.mutable_object_transforms()->RemoveLast();
+  error = ErrorOf(DecodeShadePose(partial, scene));
+  EXPECT_NE(error.find("has 11 values"), std::string::npos) << error;
+
+  wire::ShadeRequest nan = r;
+  nan.set_object_transforms(4, std::numeric_limits<float>::quiet_NaN());
+  error = ErrorOf(DecodeShadePose(nan, scene));
+  EXPECT_NE(error.find("object 1 ('occluder'): transform entry 4 is not finite"), std::string::npos) << error;
+  wire::ShadeRequest scaled = r;
+  for (int i : {0, 5, 10}) scaled.set_object_transforms(i, 2.0f * scaled.object_transforms(i));
+  error = ErrorOf(DecodeShadePose(scaled, scene));
+  EXPECT_NE(error.find("not a rotation"), std::string::npos) << error;
+  // The two-argument decode refuses the batch for its pose too.
+  auto decoded = DecodeShadeRequest(scaled, scene, ShadeLimits{});
+  ASSERT_FALSE(decoded.ok());
+  EXPECT_NE(decoded.error().message.find("not a rotation"), std::string::npos);
+}
+
+TEST(ShadePoseTest, SamplesOnAMovedObjectAreCheckedAtTheRequestsPose) {
+  const OccluderScene s = MakeOccluderScene();
+  const Scene& scene = s.t.scene;
+  const uint32_t triangle = scene.objects[0].firstTriangle;
+  ScenePose pose = ScenePose::Initial(scene);
+  pose.objectToWorld[0] = Translation(Vec3(-2.0f, 0.25f, 1.0f));
+  ShadeInput in;
+  in.triangle = triangle;
+  in.b1 = 0.2f;
+  in.b2 = 0.3f;
+  in.position = WorldPointAt(scene, pose, triangle, in.b1, in.b2);
+  in.normal = kUp;
+  wire::ShadeRequest r = OneSampleRequest(scene, in);
+  AddTransform(r, pose.objectToWorld[0]);
+  r.set_scene_epoch(1);
+  auto inputs = DecodeShadeRequest(r, scene, ShadeLimits{});
+  ASSERT_TRUE(inputs.ok()) << inputs.error().message;
+  // The same sample sent with the initial pose's transform is off its triangle.
+  wire::ShadeRequest stale = OneSampleRequest(scene, in);
+  AddTransform(stale, scene.objects[0].objectToWorld);
+  stale.set_scene_epoch(1);
+  auto refused = DecodeShadeRequest(stale, scene, ShadeLimits{});
+  ASSERT_FALSE(refused.ok());
+  EXPECT_NE(refused.error().message.find("away from triangle"), std::string::npos) << refused.error().message;
+}
+
+// --- Reference images of a moved scene ------------------------------------------------
+
+TEST(PlaceObjectTest, ReadsATransformOrATranslationAndRefusesTheRest) {
+  const OccluderScene s = MakeOccluderScene();
+  const Scene& scene = s.t.scene;
+  ScenePose pose = ScenePose::Initial(scene);
+  ASSERT_TRUE(PlaceObject(scene, "occluder=translate:3,+0.5,-1e-1", &pose).ok());
+  EXPECT_NEAR(glm::length(pose.objectToWorld[0].translation - Vec3(3.0f, 1.5f, -0.1f)), 0.0f, 1e-6f);
+  const Status full = PlaceObject(scene, "occluder=0,-1,0,4,1,0,0,5,0,0,1,6", &pose);
+  ASSERT_TRUE(full.ok()) << full.error().message;
+  EXPECT_NEAR(glm::length(pose.objectToWorld[0].ApplyPoint(Vec3(1, 0, 0)) - Vec3(4, 6, 6)), 0.0f, 1e-6f);
+
+  const auto errorOf = [&](const std::string& spec) {
+    ScenePose p = ScenePose::Initial(scene);
+    const Status st = PlaceObject(scene, spec, &p);
+    EXPECT_TRUE(p.SamePlaces(ScenePose::Initial(scene))) << spec << " changed the pose";
+    return st.ok() ? std::string() : st.error().message;
+  };
+  EXPECT_NE(errorOf("chair=translate:1,2,3").find("no movable object 'chair' (it has occluder)"), std::string::npos);
+  EXPECT_NE(errorOf("occluder").find("expected NAME="), std::string::npos);
+  EXPECT_NE(errorOf("occluder=translate:1,2").find("expected 3 numbers, got 2"), std::string::npos);
+  EXPECT_NE(errorOf("occluder=1,0,0,0,0,1,0,0,0,0,1").find("expected 12 numbers, got 11"), std::string::npos);
+  EXPECT_NE(errorOf("occluder=translate:1,x,3").find("'x' is not a number"), std::string::npos);
+  EXPECT_NE(errorOf("occluder=translate:1, 2,3").find("' 2' is not a number"), std::string::npos);
+  EXPECT_NE(errorOf("occluder=translate:1,nan,3").find("not finite"), std::string::npos);
+  EXPECT_NE(errorOf("occluder=2,0,0,0,0,2,0,0,0,0,2,0").find("not a rotation"), std::string::npos);
+  EXPECT_NE(errorOf("occluder=translate:1e30,0,0").find("beyond"), std::string::npos);
+}
+
+TEST(PosedReferenceTest, TheImageShowsTheShadowWhereThePosePutsTheOccluder) {
+  const OccluderScene s = MakeOccluderScene(0.5f);
+  ShadingSettings settings = DirectOnly();
+  settings.pathsPerSample = 64;
+  const Shader shader(s.t.scene, *s.t.rays, settings);
+  // Looking straight down at the floor around the origin from just under
+  // the occluder's first place (y = 1).
+  CameraView view;
+  view.pose.eye = Vec3(0.0f, 0.9f, 0.0f);
+  view.pose.target = Vec3(0.0f);
+  view.pose.up = Vec3(0.0f, 0.0f, -1.0f);
+  view.fovYDeg = 10.0f;
+  view.width = 4;
+  view.height = 4;
+  ASSERT_TRUE(ValidateCameraView(view).ok());
+  const auto meanRed = [](const Image& image) {
+    double sum = 0.0;
+    for (size_t i = 0; i < image.rgb.size(); i += 3) sum += image.rgb[i];
+    return sum / double(image.rgb.size() / 3);
+  };
+  // Initially the floor there is in the occluder's umbra.
+  const Image shadowed = RenderReference(shader, *s.t.rays->Initial(), view, 2, nullptr, PixelFilter::kCentre);
+  EXPECT_EQ(meanRed(shadowed), 0.0);
+  // With the occluder 3 to the side (as penumbra-reference --object places
+  // it), the floor reads albedo / pi times the light's irradiance.
+  ScenePose pose = ScenePose::Initial(s.t.scene);
+  ASSERT_TRUE(PlaceObject(s.t.scene, "occluder=translate:3,0,0", &pose).ok());
+  const auto posed = PoseOrFail(*s.t.rays, pose);
+  ASSERT_TRUE(posed);
+  const Image lit = RenderReference(shader, *posed, view, 2, nullptr, PixelFilter::kCentre);
+  const double expected = 0.5 / kPi * LightAt(Vec3(0.0f));
+  EXPECT_NEAR(meanRed(lit), expected, 0.1 * expected);
+}
+
+}  // namespace
+}  // namespace penumbra
