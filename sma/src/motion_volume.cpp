@@ -218,9 +218,11 @@ InvalidationVerdict MoveInvalidator::Judge(const VertexSample& v, bool complete)
 
   // Indirect light and the sky: whatever arrives through the boxes.
   float bound = (indirectRadiance_ + skyRadiance_) * omegaTotal;
+  const float indirectBound = indirectRadiance_ * omegaTotal;
   const auto decided = [&] { return !complete && bound > verdict.tolerance; };
   if (decided()) {
     verdict.changeBound = bound;
+    verdict.directBound = bound - indirectBound;
     verdict.invalidate = true;
     return verdict;
   }
@@ -246,6 +248,7 @@ InvalidationVerdict MoveInvalidator::Judge(const VertexSample& v, bool complete)
       bound += sunRadiance_ * std::min(sunSolidAngle_, omegaInCone);
       if (decided()) {
         verdict.changeBound = bound;
+        verdict.directBound = bound - indirectBound;
         verdict.invalidate = true;
         return verdict;
       }
@@ -284,11 +287,14 @@ InvalidationVerdict MoveInvalidator::Judge(const VertexSample& v, bool complete)
     }
   }
   verdict.changeBound = bound;
+  verdict.directBound = bound - indirectBound;
   verdict.invalidate = bound > verdict.tolerance;
   return verdict;
 }
 
-Expected<std::vector<uint32_t>> MoveInvalidator::InvalidatedVertices(const VertexSpans& vertices) const {
+namespace {
+
+Status CheckSpans(const VertexSpans& vertices) {
   const size_t count = vertices.positions.size();
   if (vertices.normals.size() != count || vertices.irradiance.size() != count ||
       vertices.irradianceStdErr.size() != count) {
@@ -298,21 +304,50 @@ Expected<std::vector<uint32_t>> MoveInvalidator::InvalidatedVertices(const Verte
                             vertices.irradianceStdErr.size()));
   }
   if (count > std::numeric_limits<uint32_t>::max()) return Fail("InvalidatedVertices: more than 2^32 vertices");
-  // One flag per vertex written in parallel, then gathered in order: the
-  // result does not depend on how TBB split the work.
-  std::vector<uint8_t> flagged(count, 0);
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, count, 4096), [&](const tbb::blocked_range<size_t>& range) {
+  return Status::Ok();
+}
+
+enum : uint8_t { kKept = 0, kIndirectOnly = 1, kDirect = 2 };
+
+// One flag per vertex written in parallel (then gathered in order by the
+// caller: the result does not depend on how TBB split the work).
+template <class Decide>
+std::vector<uint8_t> FlagAll(const VertexSpans& vertices, const Decide& decide) {
+  std::vector<uint8_t> flags(vertices.positions.size(), kKept);
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, flags.size(), 4096), [&](const tbb::blocked_range<size_t>& range) {
     for (size_t i = range.begin(); i != range.end(); ++i) {
-      const VertexSample sample{vertices.positions[i], vertices.normals[i], vertices.irradiance[i],
-                                vertices.irradianceStdErr[i]};
-      flagged[i] = MayChange(sample) ? 1 : 0;
+      flags[i] = decide(VertexSample{vertices.positions[i], vertices.normals[i], vertices.irradiance[i],
+                                     vertices.irradianceStdErr[i]});
     }
   });
+  return flags;
+}
+
+}  // namespace
+
+Expected<std::vector<uint32_t>> MoveInvalidator::InvalidatedVertices(const VertexSpans& vertices) const {
+  if (Status ok = CheckSpans(vertices); !ok) return ok.error();
+  const std::vector<uint8_t> flags =
+      FlagAll(vertices, [&](const VertexSample& v) { return MayChange(v) ? kDirect : kKept; });
   std::vector<uint32_t> indices;
-  for (size_t i = 0; i < count; ++i) {
-    if (flagged[i]) indices.push_back(static_cast<uint32_t>(i));
+  for (size_t i = 0; i < flags.size(); ++i) {
+    if (flags[i] != kKept) indices.push_back(static_cast<uint32_t>(i));
   }
   return indices;
+}
+
+Expected<InvalidatedSet> MoveInvalidator::ClassifyInvalidated(const VertexSpans& vertices) const {
+  if (Status ok = CheckSpans(vertices); !ok) return ok.error();
+  const std::vector<uint8_t> flags = FlagAll(vertices, [&](const VertexSample& v) -> uint8_t {
+    if (!MayChange(v)) return kKept;
+    return Judge(v, /*complete=*/true).DirectlyInvalidated() ? kDirect : kIndirectOnly;
+  });
+  InvalidatedSet set;
+  for (size_t i = 0; i < flags.size(); ++i) {
+    if (flags[i] == kDirect) set.direct.push_back(static_cast<uint32_t>(i));
+    if (flags[i] == kIndirectOnly) set.indirectOnly.push_back(static_cast<uint32_t>(i));
+  }
+  return set;
 }
 
 }  // namespace penumbra::sma

@@ -6,6 +6,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <random>
 
 namespace penumbra::sma {
@@ -324,7 +325,9 @@ TEST(MoveInvalidatorTest, AnyPointOfTheShaftInsideTheBoxPutsTheVertexInTheShaft)
 
 TEST(MoveInvalidatorTest, TheBulkHelperAgreesWithTheSingleTest) {
   const Scene scene = LitFloor();
-  const MoveInvalidator inv(scene, MotionVolumes(kBoxUnderLight, kBoxUnderLight), TestParams());
+  InvalidationParams params = TestParams();
+  params.indirectRadiance = 0.5f;  // reaches beyond the light's shaft
+  const MoveInvalidator inv(scene, MotionVolumes(kBoxUnderLight, kBoxUnderLight), params);
   std::vector<Vec3> positions, normals;
   std::vector<float> irradiance, stdErr;
   for (int i = 0; i <= 100; ++i) {
@@ -342,6 +345,16 @@ TEST(MoveInvalidatorTest, TheBulkHelperAgreesWithTheSingleTest) {
     if (inv.MayChange(VertexSample{positions[i], normals[i], irradiance[i], stdErr[i]})) one.push_back(i);
   }
   EXPECT_EQ(*bulk, one);
+  // Split by why: together the same set; the shaft under the box is direct.
+  const auto classified = inv.ClassifyInvalidated({positions, normals, irradiance, stdErr});
+  ASSERT_TRUE(classified.ok());
+  std::vector<uint32_t> merged = classified->direct;
+  merged.insert(merged.end(), classified->indirectOnly.begin(), classified->indirectOnly.end());
+  std::sort(merged.begin(), merged.end());
+  EXPECT_EQ(merged, one);
+  const uint32_t centre = 50 * 101 + 50;  // (0, 0, 0), facing up
+  EXPECT_TRUE(std::binary_search(classified->direct.begin(), classified->direct.end(), centre));
+  EXPECT_GT(classified->indirectOnly.size(), 0u);
   EXPECT_GT(one.size(), 0u);
   EXPECT_LT(one.size(), positions.size() / 2);
 

@@ -132,8 +132,23 @@ struct InvalidationVerdict {
   bool inLightShaft = false;  // some area light's shaft meets a box
   bool inSunCone = false;     // the sun's cone from the vertex meets a box
   float changeBound = 0.0f;   // upper bound on |delta Luminance(E)|, as far as computed
+  float directBound = 0.0f;   // of which direct light: area lights, sun and sky through the volume
   float tolerance = 0.0f;     // tau
   bool invalidate = false;    // changeBound > tolerance
+  /// Invalidated by direct light alone (directBound > tolerance): a shadow
+  /// or a sunlit patch moves here. The rest of the invalidated vertices
+  /// change by (a bound on) indirect light only, which is usually far below
+  /// the bound: an SMA may re-shade them after the direct ones.
+  bool DirectlyInvalidated() const { return directBound > tolerance; }
+};
+
+/// The invalidated vertices of a move in two classes (ascending indices
+/// each): `direct`, whose direct light may change beyond the tolerance, and
+/// `indirectOnly`, invalidated by the indirect bound alone.
+struct InvalidatedSet {
+  std::vector<uint32_t> direct;
+  std::vector<uint32_t> indirectOnly;
+  size_t Size() const { return direct.size() + indirectOnly.size(); }
 };
 
 /// The same vertices as parallel spans (structure of arrays): index i of
@@ -163,6 +178,9 @@ class MoveInvalidator {
   /// Runs in parallel (TBB) over large spans. An error for spans of unequal
   /// length.
   Expected<std::vector<uint32_t>> InvalidatedVertices(const VertexSpans& vertices) const;
+  /// The same vertices split by why (InvalidatedSet). Costs a complete
+  /// Judge for each invalidated vertex.
+  Expected<InvalidatedSet> ClassifyInvalidated(const VertexSpans& vertices) const;
 
   /// Area lights kept after the per-move cull (those whose front half-space
   /// the volume reaches), for tests and logs.
