@@ -218,11 +218,14 @@ InvalidationVerdict MoveInvalidator::Judge(const VertexSample& v, bool complete)
 
   // Indirect light and the sky: whatever arrives through the boxes.
   float bound = (indirectRadiance_ + skyRadiance_) * omegaTotal;
-  const float indirectBound = indirectRadiance_ * omegaTotal;
+  // The sky is bounded like indirect light (every direction through the
+  // boxes may reach it): only the area lights' and the sun's exact shaft
+  // tests make up the direct class.
+  const float solidAngleBound = bound;
   const auto decided = [&] { return !complete && bound > verdict.tolerance; };
   if (decided()) {
     verdict.changeBound = bound;
-    verdict.directBound = bound - indirectBound;
+    verdict.directBound = bound - solidAngleBound;
     verdict.invalidate = true;
     return verdict;
   }
@@ -248,7 +251,7 @@ InvalidationVerdict MoveInvalidator::Judge(const VertexSample& v, bool complete)
       bound += sunRadiance_ * std::min(sunSolidAngle_, omegaInCone);
       if (decided()) {
         verdict.changeBound = bound;
-        verdict.directBound = bound - indirectBound;
+        verdict.directBound = bound - solidAngleBound;
         verdict.invalidate = true;
         return verdict;
       }
@@ -287,7 +290,7 @@ InvalidationVerdict MoveInvalidator::Judge(const VertexSample& v, bool complete)
     }
   }
   verdict.changeBound = bound;
-  verdict.directBound = bound - indirectBound;
+  verdict.directBound = bound - solidAngleBound;
   verdict.invalidate = bound > verdict.tolerance;
   return verdict;
 }

@@ -132,19 +132,22 @@ struct InvalidationVerdict {
   bool inLightShaft = false;  // some area light's shaft meets a box
   bool inSunCone = false;     // the sun's cone from the vertex meets a box
   float changeBound = 0.0f;   // upper bound on |delta Luminance(E)|, as far as computed
-  float directBound = 0.0f;   // of which direct light: area lights, sun and sky through the volume
+  float directBound = 0.0f;   // of which area lights and the sun, whose shafts through the volume were tested exactly
   float tolerance = 0.0f;     // tau
   bool invalidate = false;    // changeBound > tolerance
-  /// Invalidated by direct light alone (directBound > tolerance): a shadow
-  /// or a sunlit patch moves here. The rest of the invalidated vertices
-  /// change by (a bound on) indirect light only, which is usually far below
-  /// the bound: an SMA may re-shade them after the direct ones.
+  /// Invalidated by the exact shaft tests alone (directBound > tolerance):
+  /// a shadow or a sunlit patch of an area light or the sun moves here. The
+  /// rest of the invalidated vertices are invalidated by the solid-angle
+  /// bound (indirect light and the sky), usually far above the real change:
+  /// an SMA may re-shade them after the direct ones.
   bool DirectlyInvalidated() const { return directBound > tolerance; }
 };
 
 /// The invalidated vertices of a move in two classes (ascending indices
-/// each): `direct`, whose direct light may change beyond the tolerance, and
-/// `indirectOnly`, invalidated by the indirect bound alone.
+/// each): `direct`, whose light from area lights or the sun may change
+/// beyond the tolerance (InvalidationVerdict::DirectlyInvalidated), and
+/// `indirectOnly`, invalidated only with the solid-angle bound of indirect
+/// light and the sky added.
 struct InvalidatedSet {
   std::vector<uint32_t> direct;
   std::vector<uint32_t> indirectOnly;
