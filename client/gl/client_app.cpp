@@ -721,6 +721,9 @@ void ClientApp::WriteStats(Clock::time_point now) {
   s.connection = ToString(status.state);
   s.connections = status.connections;
   s.sma = model_.LastSmaReport();
+  s.sceneEpoch = mesh.SceneEpoch();
+  s.movesSent = moveTracker_.SentCount();
+  s.movesPending = moveTracker_.Size();
   if (auto ok = stats_->Write(s); !ok) {
     log_->error("{}; no more statistics lines", ok.error().message);
     stats_.reset();

@@ -103,6 +103,7 @@ bool NearlyEqual(const RigidTransform& a, const RigidTransform& b, float toleran
 
 void MoveTracker::Sent(uint32_t object, const RigidTransform& t, uint64_t requestId) {
   pending_[object] = Entry{t, requestId};
+  ++sentCount_;
 }
 
 void MoveTracker::Confirm(const MeshStore& mesh) {

@@ -162,6 +162,8 @@ TEST_F(PickHeldTriangleTest, AMoveIsPendingUntilTheSmaConfirmsOrRefusesIt) {
   tracker.Sent(1, first, 101);
   tracker.Sent(1, second, 102);
   EXPECT_TRUE(tracker.Pending(1));
+  EXPECT_EQ(tracker.Size(), 1u) << "one object, two moves";
+  EXPECT_EQ(tracker.SentCount(), 2u);
   EXPECT_EQ(*tracker.LastSent(1), second);
   // The SMA's MOVED for the first move does not settle the second.
   DeltaBuilder movedFirst(2, 1, wire::DELTA_KIND_MOVED);

@@ -123,6 +123,10 @@ class MoveTracker {
   /// The last transform sent for `object`, while pending.
   std::optional<RigidTransform> LastSent(uint32_t object) const;
   bool Empty() const { return pending_.empty(); }
+  size_t Size() const { return pending_.size(); }
+  /// Moves sent since the start (Sent() calls).
+  uint64_t SentCount() const { return sentCount_; }
+  /// Forgets what is pending (a new connection); SentCount() goes on.
   void Clear() { pending_.clear(); }
 
  private:
@@ -131,6 +135,7 @@ class MoveTracker {
     uint64_t requestId = 0;
   };
   std::map<uint32_t, Entry> pending_;
+  uint64_t sentCount_ = 0;
 };
 
 /// Whether two transforms place things within `tolerance` of each other
