@@ -9,9 +9,12 @@
 
 #include <cstdlib>
 #include <fstream>
+#include <iterator>
 #include <thread>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
+#include <glm/trigonometric.hpp>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
@@ -651,6 +654,119 @@ TEST_F(ClientTest, AScriptedMoveOfAnObjectTheSceneLacksFailsTheRunWithItsReason)
                                   "box, fan)"),
             std::string::npos)
       << client.LogTail();
+}
+
+// Runs xdotool (DISPLAY from the environment) and returns its output.
+Expected<std::string> Xdotool(const std::string& exe, const std::string& dir, const std::vector<std::string>& args) {
+  const std::string log = dir + "/xdotool.out";
+  auto run = ChildProcess::Spawn(exe, args, log);
+  if (!run) return run.error();
+  const auto exit = run->WaitExit(30s);
+  std::ifstream in(log);
+  std::string output((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  if (!exit || *exit != 0) return Fail(fmt::format("xdotool {} failed: {}", fmt::join(args, " "), output));
+  return output;
+}
+
+// The window's pick-and-drag mode end to end, on a private Xvfb with the
+// mouse and keys driven by xdotool, against a fake SMA: M, a press on the
+// movable triangle, a drag, a release. The MoveObjects that arrive carry
+// the object's id, come at most ~30 a second, and the last one has the
+// object translated by the drag in the plane parallel to the image (at the
+// triangle's depth, one pixel is 2 tan(22.5 deg) * 2 / 720 scene units); the
+// SMA's MOVED then settles it (moves_pending 0).
+TEST_F(ClientTest, TheWindowPicksAndDragsAMovableObject) {
+  const auto xdotool = FindExecutable("xdotool");
+  if (!xdotool) GTEST_SKIP() << "no xdotool (scripts/install-deps.sh installs it)";
+  auto xvfb = XvfbServer::Start(dir_, 1280, 720);
+  ASSERT_TRUE(xvfb.ok()) << xvfb.error().message;
+  SetDisplay(xvfb->Display());
+  auto listener = WireListener::Listen();
+  ASSERT_TRUE(listener.ok()) << listener.error().message;
+  const std::string stats = dir_ + "/stats.jsonl";
+  ChildProcess client = StartClient({"--connect", fmt::format("127.0.0.1:{}", listener->Port()), "--camera", "front",
+                                     "--size", "1280x720", "--stats", stats},
+                                    dir_ + "/client.log");
+  auto sma = listener->Accept(30s);
+  ASSERT_TRUE(sma.ok()) << sma.error().message << client.LogTail();
+  ASSERT_TRUE(ServeClientHandshake(*sma, SquareWithMovableObjects()).ok());
+  auto view = ReceiveView(*sma);
+  ASSERT_TRUE(view.ok()) << view.error().message;
+  ASSERT_EQ(view->width(), 1280u) << "the drag's pixels assume the window's size";
+  ASSERT_EQ(view->height(), 720u);
+  DeltaBuilder first(1, view->view_id());
+  first.Vertex(1, Vec3(0, 0, 0), Rgb(0.5f)).Vertex(2, Vec3(1, 0, 0), Rgb(0.5f)).Vertex(3, Vec3(1, 1, 0), Rgb(0.5f));
+  first.Triangle(10, {1, 2, 3}).Converged();
+  for (int i = 0; i < 3; ++i) first.Mutable().add_vertex_objects(1);
+  ASSERT_TRUE(sma->Send(first.Envelope()));
+  ASSERT_TRUE(WaitForStats(client, stats, Converged, 60s, "the triangle drawn").ok());
+
+  // The pixel that sees world (0.8, 0.2, 0), inside the triangle and clear of the HUD panel.
+  const CameraView front{CameraPose{Vec3(0.5f, 0.5f, 2.0f), Vec3(0.5f, 0.5f, 0.0f), Vec3(0, 1, 0)}, 45.0f, 1280, 720};
+  const PinholeCamera camera(front);
+  int grabX = 0, grabY = 0;
+  float bestDistance = 1e9f;
+  for (int y = 0; y < 720; y += 1)
+    for (int x = 0; x < 1280; x += 1) {
+      const Vec3 d = camera.DirectionThrough(float(x) + 0.5f, float(y) + 0.5f);
+      const float distance = glm::length(front.pose.eye + d * (-front.pose.eye.z / d.z) - Vec3(0.8f, 0.2f, 0.0f));
+      if (distance < bestDistance) {
+        bestDistance = distance;
+        grabX = x;
+        grabY = y;
+      }
+    }
+  auto window = Xdotool(*xdotool, dir_, {"search", "--sync", "--name", "Penumbra"});
+  ASSERT_TRUE(window.ok()) << window.error().message;
+  const std::string id = window->substr(0, window->find('\n'));
+  ASSERT_TRUE(Xdotool(*xdotool, dir_, {"windowfocus", "--sync", id}).ok());
+  ASSERT_TRUE(Xdotool(*xdotool, dir_, {"key", "m"}).ok());
+  ASSERT_TRUE(Xdotool(*xdotool, dir_, {"mousemove", "--window", id, std::to_string(grabX), std::to_string(grabY)}).ok());
+  std::this_thread::sleep_for(300ms);
+  const auto pressed = Clock::now();
+  ASSERT_TRUE(Xdotool(*xdotool, dir_, {"mousedown", "1"}).ok());
+  constexpr int kSteps = 10, kDx = 100, kDy = -100;
+  for (int step = 1; step <= kSteps; ++step) {
+    std::this_thread::sleep_for(40ms);
+    ASSERT_TRUE(Xdotool(*xdotool, dir_,
+                        {"mousemove", "--window", id, std::to_string(grabX + kDx * step / kSteps),
+                         std::to_string(grabY + kDy * step / kSteps)})
+                    .ok());
+  }
+  std::this_thread::sleep_for(300ms);
+  ASSERT_TRUE(Xdotool(*xdotool, dir_, {"mouseup", "1"}).ok());
+  const double dragSeconds = std::chrono::duration<double>(Clock::now() - pressed).count();
+
+  std::vector<wire::MoveObject> moves;
+  while (true) {
+    auto move = ReceiveMove(*sma, 2s);
+    if (!move) break;
+    moves.push_back(*move);
+  }
+  ASSERT_FALSE(moves.empty()) << client.LogTail();
+  EXPECT_LE(double(moves.size()), dragSeconds * 31.0 + 2.0) << "coalesced to at most ~30 moves a second";
+  const float pixel = 2.0f * std::tan(glm::radians(22.5f)) * 2.0f / 720.0f;
+  for (const wire::MoveObject& m : moves) EXPECT_EQ(m.object(), 1u);
+  const wire::MoveObject& last = moves.back();
+  EXPECT_NEAR(last.object_to_world(3), kDx * pixel, 2.0f * pixel) << "x follows the mouse right";
+  EXPECT_NEAR(last.object_to_world(7), -kDy * pixel, 2.0f * pixel) << "y follows the mouse up";
+  EXPECT_NEAR(last.object_to_world(11), 0.0f, 1e-5f) << "in the plane parallel to the image";
+  EXPECT_FLOAT_EQ(last.object_to_world(0), 1.0f) << "a drag only translates";
+  EXPECT_NE(client.LogTail(20000).find("grabbed object 1 ('box')"), std::string::npos) << client.LogTail();
+
+  DeltaBuilder moved(2, view->view_id(), wire::DELTA_KIND_MOVED);
+  moved.Mutable().set_scene_epoch(1);
+  moved.Mutable().add_moved_objects(1);
+  for (float v : last.object_to_world()) moved.Mutable().add_moved_object_transforms(v);
+  moved.Converged();
+  ASSERT_TRUE(sma->Send(moved.Envelope()));
+  auto settled = WaitForStats(
+      client, stats, [](const Json& j) { return j["scene_epoch"] == 1 && j["moves_pending"] == 0; }, 30s,
+      "the drag settled by MOVED");
+  ASSERT_TRUE(settled.ok()) << settled.error().message;
+  EXPECT_EQ(settled->at("moves_sent").get<size_t>(), moves.size());
+  client.Signal(SIGTERM);
+  EXPECT_TRUE(client.WaitExit(10s).has_value());
 }
 
 // A hostile SMA's SceneInfo once made the client allocate per announced

@@ -365,6 +365,7 @@ void ClientApp::UpdateDrag(bool pressed, double scroll, Clock::time_point now) {
   const ClientScene* scene = model_.Scene();
   if (!scene || !sentView_ || !model_.Online()) {
     drag_.reset();
+    moveThrottle_ = MoveThrottle();  // nothing of a drag on a lost connection is sent
     return;
   }
   MeshStore& mesh = model_.Mesh();
@@ -420,6 +421,7 @@ void ClientApp::UpdateObjects(Clock::time_point now) {
     movesConnection_ = model_.ConnectionNumber();
     moveTracker_.Clear();
     drag_.reset();
+    moveThrottle_ = MoveThrottle();
   }
   for (const SmaErrorReceived& error : model_.TakeSmaErrors()) {
     notice_ = error.message;
@@ -563,6 +565,11 @@ void ClientApp::OnKey(const KeyPress& key) {
       moveMode_ = !moveMode_;
       // Dragging needs the cursor; looking around needs it captured.
       if (moveMode_) window_->SetCursorCaptured(false);
+      if (!moveMode_ && drag_) {
+        // Leaving the mode ends a drag where it is.
+        if (auto due = moveThrottle_.Due(Clock::now(), /*flush=*/true)) SendMove(due->object, due->transform);
+        drag_.reset();
+      }
       return;
     default:
       if (key.key >= GLFW_KEY_1 && key.key <= GLFW_KEY_9) ApplyPreset(key.key - GLFW_KEY_1);
