@@ -23,6 +23,8 @@ packages=(
   libgtest-dev libgmock-dev libbenchmark-dev
   # headless OpenGL (client tests, screenshots)
   xvfb xauth libgl1-mesa-dri libglx-mesa0
+  # the window client's drag test (tests/client_test.cpp) drives the mouse and keys
+  xdotool
   # multi-host tests and deployment checks
   iproute2 docker-compose yamllint
 )

@@ -9,9 +9,12 @@
 
 #include <cstdlib>
 #include <fstream>
+#include <iterator>
 #include <thread>
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
+#include <glm/trigonometric.hpp>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
@@ -515,6 +518,253 @@ TEST_F(ClientTest, AMalformedDeltaIsReportedAndTheClientReconnectsWithAnEmptyMes
   EXPECT_NE(log.find("[error]"), std::string::npos) << log;
   EXPECT_NE(log.find("triangle 11 uses vertex 99"), std::string::npos) << log;
   EXPECT_TRUE(client.Running());
+  client.Signal(SIGTERM);
+  EXPECT_TRUE(client.WaitExit(10s).has_value());
+}
+
+// Issue 14, the client's side against a scripted fake SMA: a --moves file is
+// played from the first converged view, each MoveObject carrying the
+// object's id and the whole transform the script gives (parts left out
+// kept); the run ends only once the SMA has confirmed the last move with a
+// MOVED delta (or refused it), and a name the scene lacks fails the run.
+wire::SceneInfo SquareWithMovableObjects() {
+  wire::SceneInfo info = UnitSquareSceneInfo();
+  for (const char* name : {"box", "fan"}) {
+    auto* o = info.add_objects();
+    o->set_object(uint32_t(info.objects_size()));
+    o->set_name(name);
+    auto* lo = o->mutable_bounds_min();
+    lo->set_x(0);
+    lo->set_y(0);
+    lo->set_z(0);
+    auto* hi = o->mutable_bounds_max();
+    hi->set_x(1);
+    hi->set_y(1);
+    hi->set_z(0);
+    for (float v : RigidTransform::Identity().ToRowMajor()) o->add_object_to_world(v);
+    o->set_animated(std::string(name) == "fan");
+  }
+  return info;
+}
+
+Expected<wire::MoveObject> ReceiveMove(WireClient& sma, std::chrono::milliseconds timeout = 30s) {
+  const auto deadline = Clock::now() + timeout;
+  while (Clock::now() < deadline) {
+    auto e = sma.Receive(std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now()));
+    if (!e) return e.error();
+    if (e->has_move_object()) return e->move_object();
+  }
+  return Fail("no MoveObject in time");
+}
+
+TEST_F(ClientTest, ScriptedMovesAreSentFromTheFirstConvergedViewAndTheRunWaitsForTheirMoved) {
+  SetDisplay("");
+  auto listener = WireListener::Listen();
+  ASSERT_TRUE(listener.ok()) << listener.error().message;
+  const std::string moves = dir_ + "/moves.txt";
+  std::ofstream(moves) << "# up, then turned where it is\n"
+                          "0 box translate 0.25 0 0\n"
+                          "0.4 box rotate 90 about 0 0 1\n";
+  const std::string screenshot = dir_ + "/moved.exr";
+  ChildProcess client = StartClient({"--connect", fmt::format("127.0.0.1:{}", listener->Port()), "--headless",
+                                     "--camera", "front", "--size", "64x48", "--moves", moves, "--screenshot",
+                                     screenshot, "--timeout", "120"},
+                                    dir_ + "/client.log");
+  auto sma = listener->Accept(30s);
+  ASSERT_TRUE(sma.ok()) << sma.error().message << client.LogTail();
+  ASSERT_TRUE(ServeClientHandshake(*sma, SquareWithMovableObjects()).ok());
+  auto view = ReceiveView(*sma);
+  ASSERT_TRUE(view.ok()) << view.error().message;
+  DeltaBuilder first(1, view->view_id());
+  first.Vertex(1, Vec3(0, 0, 0), Rgb(0.5f)).Vertex(2, Vec3(1, 0, 0), Rgb(0.5f)).Vertex(3, Vec3(1, 1, 0), Rgb(0.5f));
+  first.Triangle(10, {1, 2, 3}).Converged();
+  for (int i = 0; i < 3; ++i) first.Mutable().add_vertex_objects(1);
+  ASSERT_TRUE(sma->Send(first.Envelope()));
+
+  auto move1 = ReceiveMove(*sma);
+  ASSERT_TRUE(move1.ok()) << move1.error().message << client.LogTail();
+  const auto sentFirst = Clock::now();
+  EXPECT_EQ(move1->object(), 1u);
+  EXPECT_NE(move1->request_id(), 0u);
+  ASSERT_EQ(move1->object_to_world_size(), 12);
+  EXPECT_FLOAT_EQ(move1->object_to_world(3), 0.25f);  // translation x
+  EXPECT_FLOAT_EQ(move1->object_to_world(0), 1.0f);   // the SceneInfo's rotation kept
+  auto move2 = ReceiveMove(*sma);
+  ASSERT_TRUE(move2.ok()) << move2.error().message << client.LogTail();
+  EXPECT_GE(Clock::now() - sentFirst, 300ms) << "sent at its time, 0.4 s after the first";
+  EXPECT_FLOAT_EQ(move2->object_to_world(3), 0.25f) << "the translation left out is kept";
+  EXPECT_NEAR(move2->object_to_world(0), 0.0f, 1e-6f);  // 90 degrees about z
+  EXPECT_NEAR(move2->object_to_world(4), 1.0f, 1e-6f);
+
+  // Converged, but the last move is not confirmed: the run goes on.
+  std::this_thread::sleep_for(1s);
+  ASSERT_TRUE(client.Running()) << client.LogTail();
+  DeltaBuilder moved(2, view->view_id(), wire::DELTA_KIND_MOVED);
+  moved.Mutable().set_scene_epoch(2);
+  moved.Mutable().add_moved_objects(1);
+  for (float v : move2->object_to_world()) moved.Mutable().add_moved_object_transforms(v);
+  moved.Converged();
+  ASSERT_TRUE(sma->Send(moved.Envelope()));
+  const auto exit = client.WaitExit(60s);
+  ASSERT_TRUE(exit.has_value()) << client.LogTail();
+  EXPECT_EQ(*exit, 0) << client.LogTail();
+  // The screenshot shows the triangle where MOVED put it: (x, y) -> (0.25 - y, x).
+  auto image = ReadImage(screenshot);
+  ASSERT_TRUE(image.ok()) << image.error().message;
+  const CameraView front{CameraPose{Vec3(0.5f, 0.5f, 2.0f), Vec3(0.5f, 0.5f, 0.0f), Vec3(0, 1, 0)}, 45.0f, 64, 48};
+  const PinholeCamera camera(front);
+  auto radianceAt = [&](const Vec3& world) {
+    // The pixel whose ray passes closest to the point on z = 0.
+    int best = 0;
+    float bestDistance = 1e9f;
+    for (int y = 0; y < 48; ++y)
+      for (int x = 0; x < 64; ++x) {
+        const Vec3 d = camera.DirectionThrough(float(x) + 0.5f, float(y) + 0.5f);
+        const Vec3 hit = front.pose.eye + d * (-front.pose.eye.z / d.z);
+        if (glm::length(hit - world) < bestDistance) {
+          bestDistance = glm::length(hit - world);
+          best = y * 64 + x;
+        }
+      }
+    return image->rgb[3 * size_t(best)];
+  };
+  EXPECT_NEAR(radianceAt(Vec3(0.0f, 0.7f, 0.0f)), 0.5f, 1e-3f) << "inside the moved triangle";
+  EXPECT_EQ(radianceAt(Vec3(0.8f, 0.2f, 0.0f)), 0.0f) << "where it was";
+}
+
+TEST_F(ClientTest, AScriptedMoveOfAnObjectTheSceneLacksFailsTheRunWithItsReason) {
+  SetDisplay("");
+  auto listener = WireListener::Listen();
+  ASSERT_TRUE(listener.ok()) << listener.error().message;
+  const std::string moves = dir_ + "/moves.txt";
+  std::ofstream(moves) << "0 chair translate 1 0 0\n";
+  ChildProcess client = StartClient({"--connect", fmt::format("127.0.0.1:{}", listener->Port()), "--headless",
+                                     "--camera", "front", "--size", "64x48", "--moves", moves, "--timeout", "120"},
+                                    dir_ + "/client.log");
+  auto sma = listener->Accept(30s);
+  ASSERT_TRUE(sma.ok()) << sma.error().message << client.LogTail();
+  ASSERT_TRUE(ServeClientHandshake(*sma, SquareWithMovableObjects()).ok());
+  auto view = ReceiveView(*sma);
+  ASSERT_TRUE(view.ok()) << view.error().message;
+  ASSERT_TRUE(sma->Send(DeltaBuilder(1, view->view_id()).Converged().Envelope()));
+  const auto exit = client.WaitExit(60s);
+  ASSERT_TRUE(exit.has_value()) << client.LogTail();
+  EXPECT_EQ(*exit, 1);
+  EXPECT_NE(client.LogTail().find("--moves: line 1: the scene 'unit-square' has no movable object 'chair' (it has: "
+                                  "box, fan)"),
+            std::string::npos)
+      << client.LogTail();
+}
+
+// Runs xdotool (DISPLAY from the environment) and returns its output.
+Expected<std::string> Xdotool(const std::string& exe, const std::string& dir, const std::vector<std::string>& args) {
+  const std::string log = dir + "/xdotool.out";
+  auto run = ChildProcess::Spawn(exe, args, log);
+  if (!run) return run.error();
+  const auto exit = run->WaitExit(30s);
+  std::ifstream in(log);
+  std::string output((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  if (!exit || *exit != 0) return Fail(fmt::format("xdotool {} failed: {}", fmt::join(args, " "), output));
+  return output;
+}
+
+// The window's pick-and-drag mode end to end, on a private Xvfb with the
+// mouse and keys driven by xdotool, against a fake SMA: M, a press on the
+// movable triangle, a drag, a release. The MoveObjects that arrive carry
+// the object's id, come at most ~30 a second, and the last one has the
+// object translated by the drag in the plane parallel to the image (at the
+// triangle's depth, one pixel is 2 tan(22.5 deg) * 2 / 720 scene units); the
+// SMA's MOVED then settles it (moves_pending 0).
+TEST_F(ClientTest, TheWindowPicksAndDragsAMovableObject) {
+  const auto xdotool = FindExecutable("xdotool");
+  if (!xdotool) GTEST_SKIP() << "no xdotool (scripts/install-deps.sh installs it)";
+  auto xvfb = XvfbServer::Start(dir_, 1280, 720);
+  ASSERT_TRUE(xvfb.ok()) << xvfb.error().message;
+  SetDisplay(xvfb->Display());
+  auto listener = WireListener::Listen();
+  ASSERT_TRUE(listener.ok()) << listener.error().message;
+  const std::string stats = dir_ + "/stats.jsonl";
+  ChildProcess client = StartClient({"--connect", fmt::format("127.0.0.1:{}", listener->Port()), "--camera", "front",
+                                     "--size", "1280x720", "--stats", stats},
+                                    dir_ + "/client.log");
+  auto sma = listener->Accept(30s);
+  ASSERT_TRUE(sma.ok()) << sma.error().message << client.LogTail();
+  ASSERT_TRUE(ServeClientHandshake(*sma, SquareWithMovableObjects()).ok());
+  auto view = ReceiveView(*sma);
+  ASSERT_TRUE(view.ok()) << view.error().message;
+  ASSERT_EQ(view->width(), 1280u) << "the drag's pixels assume the window's size";
+  ASSERT_EQ(view->height(), 720u);
+  DeltaBuilder first(1, view->view_id());
+  first.Vertex(1, Vec3(0, 0, 0), Rgb(0.5f)).Vertex(2, Vec3(1, 0, 0), Rgb(0.5f)).Vertex(3, Vec3(1, 1, 0), Rgb(0.5f));
+  first.Triangle(10, {1, 2, 3}).Converged();
+  for (int i = 0; i < 3; ++i) first.Mutable().add_vertex_objects(1);
+  ASSERT_TRUE(sma->Send(first.Envelope()));
+  ASSERT_TRUE(WaitForStats(client, stats, Converged, 60s, "the triangle drawn").ok());
+
+  // The pixel that sees world (0.8, 0.2, 0), inside the triangle and clear of the HUD panel.
+  const CameraView front{CameraPose{Vec3(0.5f, 0.5f, 2.0f), Vec3(0.5f, 0.5f, 0.0f), Vec3(0, 1, 0)}, 45.0f, 1280, 720};
+  const PinholeCamera camera(front);
+  int grabX = 0, grabY = 0;
+  float bestDistance = 1e9f;
+  for (int y = 0; y < 720; y += 1)
+    for (int x = 0; x < 1280; x += 1) {
+      const Vec3 d = camera.DirectionThrough(float(x) + 0.5f, float(y) + 0.5f);
+      const float distance = glm::length(front.pose.eye + d * (-front.pose.eye.z / d.z) - Vec3(0.8f, 0.2f, 0.0f));
+      if (distance < bestDistance) {
+        bestDistance = distance;
+        grabX = x;
+        grabY = y;
+      }
+    }
+  auto window = Xdotool(*xdotool, dir_, {"search", "--sync", "--name", "Penumbra"});
+  ASSERT_TRUE(window.ok()) << window.error().message;
+  const std::string id = window->substr(0, window->find('\n'));
+  ASSERT_TRUE(Xdotool(*xdotool, dir_, {"windowfocus", "--sync", id}).ok());
+  ASSERT_TRUE(Xdotool(*xdotool, dir_, {"key", "m"}).ok());
+  ASSERT_TRUE(Xdotool(*xdotool, dir_, {"mousemove", "--window", id, std::to_string(grabX), std::to_string(grabY)}).ok());
+  std::this_thread::sleep_for(300ms);
+  const auto pressed = Clock::now();
+  ASSERT_TRUE(Xdotool(*xdotool, dir_, {"mousedown", "1"}).ok());
+  constexpr int kSteps = 10, kDx = 100, kDy = -100;
+  for (int step = 1; step <= kSteps; ++step) {
+    std::this_thread::sleep_for(40ms);
+    ASSERT_TRUE(Xdotool(*xdotool, dir_,
+                        {"mousemove", "--window", id, std::to_string(grabX + kDx * step / kSteps),
+                         std::to_string(grabY + kDy * step / kSteps)})
+                    .ok());
+  }
+  std::this_thread::sleep_for(300ms);
+  ASSERT_TRUE(Xdotool(*xdotool, dir_, {"mouseup", "1"}).ok());
+  const double dragSeconds = std::chrono::duration<double>(Clock::now() - pressed).count();
+
+  std::vector<wire::MoveObject> moves;
+  while (true) {
+    auto move = ReceiveMove(*sma, 2s);
+    if (!move) break;
+    moves.push_back(*move);
+  }
+  ASSERT_FALSE(moves.empty()) << client.LogTail();
+  EXPECT_LE(double(moves.size()), dragSeconds * 31.0 + 2.0) << "coalesced to at most ~30 moves a second";
+  const float pixel = 2.0f * std::tan(glm::radians(22.5f)) * 2.0f / 720.0f;
+  for (const wire::MoveObject& m : moves) EXPECT_EQ(m.object(), 1u);
+  const wire::MoveObject& last = moves.back();
+  EXPECT_NEAR(last.object_to_world(3), kDx * pixel, 2.0f * pixel) << "x follows the mouse right";
+  EXPECT_NEAR(last.object_to_world(7), -kDy * pixel, 2.0f * pixel) << "y follows the mouse up";
+  EXPECT_NEAR(last.object_to_world(11), 0.0f, 1e-5f) << "in the plane parallel to the image";
+  EXPECT_FLOAT_EQ(last.object_to_world(0), 1.0f) << "a drag only translates";
+  EXPECT_NE(client.LogTail(20000).find("grabbed object 1 ('box')"), std::string::npos) << client.LogTail();
+
+  DeltaBuilder moved(2, view->view_id(), wire::DELTA_KIND_MOVED);
+  moved.Mutable().set_scene_epoch(1);
+  moved.Mutable().add_moved_objects(1);
+  for (float v : last.object_to_world()) moved.Mutable().add_moved_object_transforms(v);
+  moved.Converged();
+  ASSERT_TRUE(sma->Send(moved.Envelope()));
+  auto settled = WaitForStats(
+      client, stats, [](const Json& j) { return j["scene_epoch"] == 1 && j["moves_pending"] == 0; }, 30s,
+      "the drag settled by MOVED");
+  ASSERT_TRUE(settled.ok()) << settled.error().message;
+  EXPECT_EQ(settled->at("moves_sent").get<size_t>(), moves.size());
   client.Signal(SIGTERM);
   EXPECT_TRUE(client.WaitExit(10s).has_value());
 }

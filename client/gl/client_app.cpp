@@ -18,6 +18,7 @@
 #include "gl/sky_renderer.h"
 #include "penumbra/client/client_model.h"
 #include "penumbra/client/fly_camera.h"
+#include "penumbra/client/object_moves.h"
 #include "penumbra/client/path_player.h"
 #include "penumbra/client/progress.h"
 #include "penumbra/client/projection.h"
@@ -48,6 +49,9 @@ constexpr auto kNoticeDuration = std::chrono::seconds(6);
 // close the window (and, under run.sh, the stack and its cache with it).
 constexpr auto kQuitConfirmWindow = std::chrono::seconds(2);
 const glm::vec4 kWireColour(1.0f, 0.75f, 0.2f, 0.55f);
+// A mouse-wheel step moves a dragged object this fraction of the scene's
+// diagonal along the view direction.
+constexpr float kDragDepthStepPerSceneSize = 0.02f;
 
 
 bool SameView(const CameraView& a, const CameraView& b) {
@@ -89,6 +93,11 @@ class ClientApp {
   // Per frame, in order.
   bool EnsureCamera();
   void HandleInput(double seconds);
+  void UpdateDrag(bool pressed, double scroll, Clock::time_point now);
+  void SendMove(uint32_t object, const RigidTransform& t);
+  void UpdateObjects(Clock::time_point now);
+  bool PlayMoves(Clock::time_point now);
+  std::string ObjectsLine() const;
   void OnKey(const KeyPress& key);
   std::optional<CameraView> CurrentView(Clock::time_point now) const;
   void UpdateAdaptation(double seconds);
@@ -133,6 +142,16 @@ class ClientApp {
   std::optional<Clock::time_point> pathStart_;  // when the first connection came up
   std::optional<CameraView> sentView_;
   uint64_t viewSerial_ = 0;
+
+  // Movable objects (object_moves.h): the window's drag, the headless script.
+  bool moveMode_ = false;
+  std::optional<ObjectDrag> drag_;
+  RigidTransform lastOffered_;  // the drag's last transform offered to the throttle
+  MoveThrottle moveThrottle_;
+  MoveTracker moveTracker_;
+  uint64_t movesConnection_ = 0;  // the connection moveTracker_ counts on
+  std::optional<MovesPlayer> movesPlayer_;
+  std::optional<Clock::time_point> movesStart_;
 
   // Display state.
   ToneSettings tone_;
@@ -232,6 +251,8 @@ int ClientApp::Run() {
       if (!options_.headless && window_->ShouldClose()) return permanentFailureLogged_ ? 1 : 0;
     }
     model_.Apply(session_->TakeEvents(), *session_);
+    UpdateObjects(now);
+    if (!PlayMoves(now)) return 1;
     if (auto ok = renderer_->Sync(model_); !ok) return Failed(ok.error().message);
     if (const std::string failure = session_->Status().permanentError; !failure.empty()) {
       // Retrying cannot fix it (another role, version or scene; a missing or
@@ -340,6 +361,121 @@ bool ClientApp::EnsureCamera() {
   return true;
 }
 
+void ClientApp::UpdateDrag(bool pressed, double scroll, Clock::time_point now) {
+  const ClientScene* scene = model_.Scene();
+  if (!scene || !sentView_ || !model_.Online()) {
+    drag_.reset();
+    moveThrottle_ = MoveThrottle();  // nothing of a drag on a lost connection is sent
+    return;
+  }
+  MeshStore& mesh = model_.Mesh();
+  const PinholeCamera camera(*sentView_);
+  const glm::vec2 cursor = window_->CursorPixel();
+  const Ray ray{camera.Origin(), camera.DirectionThrough(cursor.x, cursor.y)};
+  if (!drag_ && pressed) {
+    // The triangles the client holds, as drawn: the visible surface under
+    // the cursor decides (a wall in front of the box hides it).
+    const auto pick = PickHeldTriangle(ray, mesh);
+    if (!pick || pick->object == 0) {
+      notice_ = "No movable object under the cursor";
+      noticeUntil_ = now + std::chrono::seconds(2);
+      return;
+    }
+    const ClientObject& object = scene->objects[pick->object - 1];
+    if (object.animated) {
+      notice_ = fmt::format("'{}' follows its animation path and cannot be moved", object.name);
+      noticeUntil_ = now + std::chrono::seconds(3);
+      return;
+    }
+    drag_.emplace(pick->object, mesh.DisplayedTransform(pick->object), pick->point, camera.Forward());
+    lastOffered_ = mesh.DisplayedTransform(pick->object);
+    log_->info("grabbed object {} ('{}')", pick->object, object.name);
+  }
+  if (!drag_) return;
+  if (scroll != 0.0) drag_->Push(float(scroll) * kDragDepthStepPerSceneSize * glm::length(scene->bounds.Diagonal()));
+  const RigidTransform t = drag_->At(ray);
+  // Optimistic: drawn where the mouse put it at once (object_moves.h).
+  mesh.SetLocalTransform(drag_->Object(), t);
+  if (!(t == lastOffered_)) {
+    moveThrottle_.Offer(drag_->Object(), t);
+    lastOffered_ = t;
+  }
+  const bool released = !window_->LeftButtonHeld();
+  if (auto due = moveThrottle_.Due(now, /*flush=*/released)) SendMove(due->object, due->transform);
+  if (released) {
+    log_->info("released object {} at {}", drag_->Object(), Describe(t));
+    drag_.reset();
+  }
+}
+
+void ClientApp::SendMove(uint32_t object, const RigidTransform& t) {
+  const uint64_t requestId = session_->MoveObject(object, t);
+  moveTracker_.Sent(object, t, requestId);
+}
+
+void ClientApp::UpdateObjects(Clock::time_point now) {
+  MeshStore& mesh = model_.Mesh();
+  if (model_.ConnectionNumber() != movesConnection_) {
+    // A new connection emptied the mesh: nothing sent before is pending, and
+    // the SceneInfo says where everything is now.
+    movesConnection_ = model_.ConnectionNumber();
+    moveTracker_.Clear();
+    drag_.reset();
+    moveThrottle_ = MoveThrottle();
+  }
+  for (const SmaErrorReceived& error : model_.TakeSmaErrors()) {
+    notice_ = error.message;
+    noticeUntil_ = now + kNoticeDuration;
+    if (!error.move) continue;
+    // A refused move changed nothing: the object goes back where the SMA has it.
+    if (const uint32_t object = moveTracker_.Refused(error.requestId); object != 0)
+      log_->warn("move of object {} refused; it stays where the SMA has it", object);
+  }
+  moveTracker_.Confirm(mesh);
+  // Headless images show what the SMA confirmed, so that a snapshot after a
+  // scripted move is the SMA's state, not the script's.
+  if (options_.headless) return;
+  for (uint32_t id = 1; id <= mesh.ObjectCount(); ++id) {
+    if (drag_ && drag_->Object() == id) continue;
+    // Until the SMA confirms the last move sent, the object stays where it was sent.
+    mesh.SetLocalTransform(id, moveTracker_.LastSent(id));
+  }
+}
+
+bool ClientApp::PlayMoves(Clock::time_point now) {
+  if (options_.moves.empty() || !options_.headless) return true;
+  if (!movesPlayer_) {
+    // The script starts on a converged image, so what a move changes is not
+    // mixed up with the first view still arriving.
+    if (!model_.Scene() || !model_.Converged(viewSerial_)) return true;
+    auto bound = BindMoves(options_.moves, *model_.Scene());
+    if (!bound) {
+      Failed("--moves: " + bound.error().message);
+      return false;
+    }
+    log_->info("first view converged: playing {} scripted moves", bound->size());
+    movesPlayer_.emplace(std::move(*bound));
+    movesStart_ = now;
+  }
+  for (const BoundMove& move : movesPlayer_->Due(now - *movesStart_)) {
+    log_->info("scripted move (line {}) at {:.2f} s: object {} ('{}') to {}", move.line,
+               Seconds(now - *movesStart_).count(), move.object, model_.Scene()->objects[move.object - 1].name,
+               Describe(move.objectToWorld));
+    SendMove(move.object, move.objectToWorld);
+  }
+  return true;
+}
+
+std::string ClientApp::ObjectsLine() const {
+  const ClientScene* scene = model_.Scene();
+  if (!scene || scene->objects.empty()) return "";
+  if (drag_)
+    return fmt::format("Moving '{}' (wheel: farther / nearer)", scene->objects[drag_->Object() - 1].name);
+  if (moveMode_) return "Move mode (M): left-drag a movable object";
+  return fmt::format("{} movable object{}: M to move them", scene->objects.size(),
+                     scene->objects.size() == 1 ? "" : "s");
+}
+
 void ClientApp::ApplyPreset(int index) {
   const ClientScene* scene = model_.Scene();
   if (!scene || index < 0 || size_t(index) >= scene->cameras.size()) return;
@@ -352,11 +488,17 @@ void ClientApp::HandleInput(double seconds) {
   const bool hudHasKeyboard = hud_->WantsKeyboard();
   for (const KeyPress& key : window_->TakeKeyPresses())
     if (!hudHasKeyboard) OnKey(key);
-  // A click on the HUD is the HUD's; elsewhere it captures the mouse to look.
+  // A click on the HUD is the HUD's; elsewhere it captures the mouse to look,
+  // or, in move mode, grabs the object under the cursor.
   const bool hudHasMouse = hud_->WantsMouse() && !window_->CursorCaptured();
-  if (window_->TakeClick() && !window_->CursorCaptured() && !hudHasMouse) window_->SetCursorCaptured(true);
+  const bool click = window_->TakeClick() && !window_->CursorCaptured() && !hudHasMouse;
   const double scroll = window_->TakeScroll();
-  if (!hudHasMouse) speed_ *= std::pow(kSpeedStep, float(scroll));
+  if (moveMode_ && !window_->CursorCaptured()) {
+    UpdateDrag(click, hudHasMouse ? 0.0 : scroll, Clock::now());
+  } else {
+    if (click) window_->SetCursorCaptured(true);
+    if (!hudHasMouse) speed_ *= std::pow(kSpeedStep, float(scroll));
+  }
   const glm::vec2 motion = window_->TakeMouseMotion();
   if (!cameraReady_) return;
   camera_.Turn(motion.x, motion.y, kTurnRadiansPerPixel);
@@ -413,6 +555,22 @@ void ClientApp::OnKey(const KeyPress& key) {
     case GLFW_KEY_F12: screenshotRequested_ = true; return;
     case GLFW_KEY_H:
     case GLFW_KEY_F1: showHelp_ = !showHelp_; return;
+    case GLFW_KEY_M:
+      if (key.repeat) return;
+      if (!model_.Scene() || model_.Scene()->objects.empty()) {
+        notice_ = "This scene has no movable objects";
+        noticeUntil_ = Clock::now() + std::chrono::seconds(3);
+        return;
+      }
+      moveMode_ = !moveMode_;
+      // Dragging needs the cursor; looking around needs it captured.
+      if (moveMode_) window_->SetCursorCaptured(false);
+      if (!moveMode_ && drag_) {
+        // Leaving the mode ends a drag where it is.
+        if (auto due = moveThrottle_.Due(Clock::now(), /*flush=*/true)) SendMove(due->object, due->transform);
+        drag_.reset();
+      }
+      return;
     default:
       if (key.key >= GLFW_KEY_1 && key.key <= GLFW_KEY_9) ApplyPreset(key.key - GLFW_KEY_1);
   }
@@ -452,7 +610,10 @@ HeadlessObservation ClientApp::ObserveHeadless(Clock::time_point now) const {
   const auto& report = model_.LastSmaReport();
   HeadlessObservation seen;
   seen.framesDrawn = frames_;
-  seen.pathFinished = player_ && pathStart_ && player_->Finished(now - *pathStart_);
+  // Scripted moves are part of the path: done once all are sent and the SMA
+  // has confirmed (or refused) each.
+  const bool movesDone = options_.moves.empty() || (movesPlayer_ && movesPlayer_->Finished() && moveTracker_.Empty());
+  seen.pathFinished = player_ && pathStart_ && player_->Finished(now - *pathStart_) && movesDone;
   seen.converged = model_.Converged(viewSerial_);
   seen.countersCurrent = report && report->atSequence == mesh.LastSequence();
   seen.connection = status.state;
@@ -466,8 +627,18 @@ HeadlessObservation ClientApp::ObserveHeadless(Clock::time_point now) const {
 void ClientApp::Render() {
   if (targets_.Size().x == 0) return;
   const ClientScene* scene = model_.Scene();
+  // Depth range: the scene as loaded, and wherever its objects are now.
+  Bounds3 bounds = scene ? scene->bounds : Bounds3{};
+  if (scene)
+    for (uint32_t id = 1; id <= scene->objects.size(); ++id) {
+      const Bounds3 b = model_.Mesh().DisplayedTransform(id).ApplyBounds(scene->objects[id - 1].objectBounds);
+      if (!b.Empty()) {
+        bounds.Extend(b.min);
+        bounds.Extend(b.max);
+      }
+    }
   const std::optional<glm::mat4> worldToClip =
-      sentView_ && scene ? std::optional(WorldToClip(*sentView_, scene->bounds)) : std::nullopt;
+      sentView_ && scene ? std::optional(WorldToClip(*sentView_, bounds)) : std::nullopt;
   targets_.BeginRadiance();
   if (worldToClip && scene->sky) sky_->Draw(*worldToClip, *scene->sky);
   if (worldToClip) renderer_->DrawRadiance(*worldToClip);
@@ -503,6 +674,7 @@ void ClientApp::DrawHud() {
   hud.bytesPerSecond = bytesPerSecond_;
   hud.moveToFirstUpdateMs = status.viewToFirstDeltaMs;
   hud.walkSpeed = speed_;
+  hud.objects = ObjectsLine();
   if (quitArmedAt_ && now - *quitArmedAt_ < kQuitConfirmWindow)
     hud.notice = "Press Esc again to quit (the mouse is free)";
   else if (!notice_.empty() && now < noticeUntil_)
@@ -556,6 +728,9 @@ void ClientApp::WriteStats(Clock::time_point now) {
   s.connection = ToString(status.state);
   s.connections = status.connections;
   s.sma = model_.LastSmaReport();
+  s.sceneEpoch = mesh.SceneEpoch();
+  s.movesSent = moveTracker_.SentCount();
+  s.movesPending = moveTracker_.Size();
   if (auto ok = stats_->Write(s); !ok) {
     log_->error("{}; no more statistics lines", ok.error().message);
     stats_.reset();

@@ -11,6 +11,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <string>
+#include <vector>
 
 #include <optional>
 
@@ -19,6 +20,7 @@
 #include "gl/context.h"
 #include "gl/tone_mapper.h"
 #include "penumbra/client/headless_run.h"
+#include "penumbra/client/moves_file.h"
 #include "penumbra/common/camera.h"
 #include "penumbra/common/endpoint.h"
 #include "penumbra/common/refinement_params.h"
@@ -63,6 +65,10 @@ struct ClientOptions {
   /// compares these with references of the same poses). 0: none.
   double snapshotPathInterval = 0.0;
   std::filesystem::path snapshotPrefix;
+  /// Headless: object moves to send (--moves), timed from the first view's
+  /// convergence; their names are resolved against the SMA's scene, and one
+  /// it lacks fails the run (exit 1). Empty: none.
+  std::vector<ScriptedMove> moves;
   /// Refinement settings for the SMA session (criterion, S_req, ...); none:
   /// the SMA's defaults. In a window, C cycles the criterion.
   std::optional<RefinementRequest> refinement;

@@ -145,6 +145,19 @@ glm::vec2 Window::TakeMouseMotion() { return std::exchange(motion_, glm::vec2(0.
 double Window::TakeScroll() { return std::exchange(scroll_, 0.0); }
 bool Window::TakeClick() { return std::exchange(clicked_, false); }
 
+glm::vec2 Window::CursorPixel() const {
+  double x = 0.0, y = 0.0;
+  glfwGetCursorPos(window_, &x, &y);
+  // Cursor positions are in screen units; the framebuffer may be larger (HiDPI).
+  int windowWidth = 1, windowHeight = 1;
+  glfwGetWindowSize(window_, &windowWidth, &windowHeight);
+  const glm::ivec2 framebuffer = FramebufferSize();
+  return glm::vec2(float(x) * float(framebuffer.x) / float(std::max(windowWidth, 1)),
+                   float(y) * float(framebuffer.y) / float(std::max(windowHeight, 1)));
+}
+
+bool Window::LeftButtonHeld() const { return glfwGetMouseButton(window_, GLFW_MOUSE_BUTTON_LEFT) == GLFW_PRESS; }
+
 void Window::SetCursorCaptured(bool captured) {
   captured_ = captured;
   glfwSetInputMode(window_, GLFW_CURSOR, captured ? GLFW_CURSOR_DISABLED : GLFW_CURSOR_NORMAL);

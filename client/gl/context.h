@@ -74,6 +74,10 @@ class Window final : public Context {
   double TakeScroll();
   /// Whether the left button was pressed since the last call.
   bool TakeClick();
+  /// The cursor's position in framebuffer pixels from the top-left corner.
+  glm::vec2 CursorPixel() const;
+  /// Whether the left mouse button is down now.
+  bool LeftButtonHeld() const;
   /// A captured cursor is hidden and its motion turns the camera.
   void SetCursorCaptured(bool captured);
   bool CursorCaptured() const { return captured_; }

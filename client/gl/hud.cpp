@@ -46,6 +46,7 @@ const char* const kHelp[][2] = {
     {"- =", "exposure down / up (1/3 stop)"},
     {"G / Shift+G", "gamma up / down"},
     {"P / F12", "screenshot: tone-mapped PNG + linear EXR"},
+    {"M", "move mode: left-drag a movable object (wheel: farther / nearer)"},
     {"H / F1", "this help"},
 };
 
@@ -184,6 +185,7 @@ bool Hud::Draw(const HudState& s, HudControls& controls, bool showHelp) {
       changed |= ImGui::Checkbox("Wireframe", &controls.wireframe);
       ImGui::TextColored(kDim, "Paths per sample are set on the SMA (--first-paths, --paths)");
     }
+    if (!s.objects.empty()) ImGui::TextColored(kGood, "%s", s.objects.c_str());
     if (!s.notice.empty()) ImGui::TextWrapped("%s", s.notice.c_str());
     ImGui::TextColored(kDim, "H or F1: help");
   }

@@ -25,12 +25,14 @@ uint32_t GrownCapacity(uint32_t needed, uint32_t current) {
 constexpr GLint kVertexUnit = 0;
 constexpr GLint kMaterialUnit = 1;
 constexpr GLint kAlbedoUnit = 2;
+constexpr GLint kObjectUnit = 3;
 
 constexpr const char* kMeshVertexShader = R"(#version 330 core
 layout(location = 0) in uint aVertexSlot;
 layout(location = 1) in uint aMaterial;
 layout(location = 2) in vec2 aUv;
-uniform samplerBuffer uVertices;  // per vertex slot: position, radiance, irradiance
+uniform samplerBuffer uVertices;  // per vertex slot: position (w: object id), radiance, irradiance
+uniform samplerBuffer uObjects;   // per object id: object-to-world rows (0: identity, the static part)
 uniform mat4 uWorldToClip;
 out vec3 vRadiance;
 out vec3 vIrradiance;
@@ -48,7 +50,14 @@ void main() {
     return;
   }
   int texel = int(aVertexSlot) * 3;
-  gl_Position = uWorldToClip * vec4(texelFetch(uVertices, texel).xyz, 1.0);
+  vec4 stored = texelFetch(uVertices, texel);
+  // A movable object's vertices are in its space; a move changes only its
+  // row of uObjects (MeshStore, "Movable objects").
+  int object = int(stored.w + 0.5) * 3;
+  vec4 p = vec4(stored.xyz, 1.0);
+  vec3 world = vec3(dot(texelFetch(uObjects, object), p), dot(texelFetch(uObjects, object + 1), p),
+                    dot(texelFetch(uObjects, object + 2), p));
+  gl_Position = uWorldToClip * vec4(world, 1.0);
   vRadiance = texelFetch(uVertices, texel + 1).rgb;
   vIrradiance = texelFetch(uVertices, texel + 2).rgb;
 }
@@ -96,11 +105,14 @@ Expected<MeshRenderer> MeshRenderer::Create() {
   renderer.vertexTexture_ = MakeTexture();
   renderer.materialBuffer_ = MakeBuffer();
   renderer.materialTexture_ = MakeTexture();
+  renderer.objectBuffer_ = MakeBuffer();
+  renderer.objectTexture_ = MakeTexture();
   for (const Program* p : {&renderer.radiance_, &renderer.wire_}) {
     glUseProgram(p->id());
     glUniform1i(glGetUniformLocation(p->id(), "uVertices"), kVertexUnit);
     glUniform1i(glGetUniformLocation(p->id(), "uMaterials"), kMaterialUnit);
     glUniform1i(glGetUniformLocation(p->id(), "uAlbedo"), kAlbedoUnit);
+    glUniform1i(glGetUniformLocation(p->id(), "uObjects"), kObjectUnit);
   }
   glUseProgram(0);
   if (auto error = TakeGlError("creating the mesh renderer"); !error.empty()) return Fail(error);
@@ -118,6 +130,7 @@ Status MeshRenderer::Sync(ClientModel& model) {
   if (groups_.size() != store.Groups().size()) groups_.resize(store.Groups().size());
   for (const ReceivedTexture& texture : model.TakeTextures()) UploadTexture(texture);
   SyncVertices(store);
+  if (store.TakeObjectTransformsChanged()) UploadObjectTransforms(store);
   for (size_t g = 0; g < groups_.size(); ++g) SyncGroup(store.Groups()[g], groups_[g]);
   if (auto error = TakeGlError("uploading mesh changes"); !error.empty()) return Fail(error);
   return Status::Ok();
@@ -136,6 +149,20 @@ void MeshRenderer::UploadMaterials(const ClientScene& scene) {
   glBindTexture(GL_TEXTURE_BUFFER, materialTexture_.id());
   glTexBuffer(GL_TEXTURE_BUFFER, GL_RGBA32F, materialBuffer_.id());
   lastUploadBytes_ += texels.size() * sizeof(float);
+}
+
+void MeshRenderer::UploadObjectTransforms(const MeshStore& store) {
+  // The whole table (48 bytes per object, entry 0 the identity): a move of
+  // any size of object costs this, and no vertex upload.
+  const std::span<const GpuObjectTransform> table = store.ObjectTransforms();
+  GpuObjectTransform identity{{{1, 0, 0, 0}, {0, 1, 0, 0}, {0, 0, 1, 0}}};
+  const void* data = table.empty() ? &identity : table.data();
+  const size_t bytes = table.empty() ? sizeof identity : table.size_bytes();
+  glBindBuffer(GL_TEXTURE_BUFFER, objectBuffer_.id());
+  glBufferData(GL_TEXTURE_BUFFER, GLsizeiptr(bytes), data, GL_DYNAMIC_DRAW);
+  glBindTexture(GL_TEXTURE_BUFFER, objectTexture_.id());
+  glTexBuffer(GL_TEXTURE_BUFFER, GL_RGBA32F, objectBuffer_.id());
+  lastUploadBytes_ += bytes;
 }
 
 void MeshRenderer::UploadTexture(const ReceivedTexture& texture) {
@@ -226,6 +253,8 @@ void MeshRenderer::DrawGroups(const Program& program, const glm::mat4& worldToCl
   glBindTexture(GL_TEXTURE_BUFFER, vertexTexture_.id());
   glActiveTexture(GL_TEXTURE0 + kMaterialUnit);
   glBindTexture(GL_TEXTURE_BUFFER, materialTexture_.id());
+  glActiveTexture(GL_TEXTURE0 + kObjectUnit);
+  glBindTexture(GL_TEXTURE_BUFFER, objectTexture_.id());
   glActiveTexture(GL_TEXTURE0 + kAlbedoUnit);
   for (const GroupBuffers& group : groups_) {
     if (group.drawnSlots == 0) continue;

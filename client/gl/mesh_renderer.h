@@ -9,6 +9,11 @@
 // delta dirtied; a buffer is reallocated (and refilled) only when its slots
 // outgrow it, doubling, so that cost is amortised over many deltas.
 //
+// Movable objects: a vertex slot's position.w names its object; the vertex
+// shader applies that object's transform from a texture buffer of
+// transforms (MeshStore::ObjectTransforms, entry 0 the identity), so a move
+// uploads 48 bytes per object of the scene and no vertex.
+//
 // Shading: untextured triangles interpolate the vertices' radiance
 // (Gouraud); textured ones compute emission + Kd * texture / pi * E per
 // pixel from the interpolated irradiance E, so texture detail finer than the
@@ -60,6 +65,7 @@ class MeshRenderer {
   MeshRenderer(Program radiance, Program wire) : radiance_(std::move(radiance)), wire_(std::move(wire)) {}
   void UploadMaterials(const ClientScene& scene);
   void UploadTexture(const ReceivedTexture& texture);
+  void UploadObjectTransforms(const MeshStore& store);
   void SyncVertices(MeshStore& store);
   void SyncGroup(TriangleGroup& group, GroupBuffers& gpu);
   void DrawGroups(const Program& program, const glm::mat4& worldToClip, bool textures) const;
@@ -71,6 +77,8 @@ class MeshRenderer {
   uint32_t vertexCapacity_ = 0;
   Buffer materialBuffer_;
   Texture materialTexture_;
+  Buffer objectBuffer_;
+  Texture objectTexture_;  // texture-buffer view of objectBuffer_: 3 texels per object
   std::vector<GroupBuffers> groups_;
   uint64_t sceneGeneration_ = 0;
   size_t lastUploadBytes_ = 0;

@@ -16,6 +16,9 @@ void ClientModel::Apply(std::vector<SessionEvent> events, SessionRequests& reque
   for (SessionEvent& event : events) {
     if (auto* connected = std::get_if<Connected>(&event)) {
       OnConnected(std::move(*connected));
+    } else if (auto* error = std::get_if<SmaErrorReceived>(&event)) {
+      // Connection 0: a move that could not be sent at all.
+      if (error->connection == 0 || error->connection == connection_) smaErrors_.push_back(std::move(*error));
     } else if (const auto* disconnected = std::get_if<Disconnected>(&event)) {
       // The last image stays on screen until the next connection replaces it.
       if (disconnected->connection == connection_) online_ = false;
@@ -46,12 +49,26 @@ void ClientModel::OnConnected(Connected&& event) {
   smaReport_.reset();
   // Requests made on an earlier connection will not be answered.
   texturesRequested_ = texturesReceived_;
-  mesh_.Reset(scene_->MaterialTextures(), scene_->textureCount);
+  ResetMesh();
+}
+
+void ClientModel::ResetMesh() {
+  std::vector<RigidTransform> objectToWorld;
+  objectToWorld.reserve(scene_->objects.size());
+  for (const ClientObject& o : scene_->objects) objectToWorld.push_back(o.objectToWorld);
+  mesh_.Reset(scene_->MaterialTextures(), scene_->textureCount, objectToWorld, scene_->sceneEpoch);
 }
 
 void ClientModel::OnDelta(const DeltaReceived& event, SessionRequests& requests) {
   const wire::Delta& d = event.delta;
   if (auto ok = mesh_.Apply(d); !ok) return Abandon(ok.error().message, requests);
+  if (d.kind() == wire::DELTA_KIND_MOVED) {
+    // The scene's objects stay where the SMA says they are now.
+    for (uint32_t id : d.moved_objects()) scene_->objects[id - 1].objectToWorld = mesh_.ConfirmedTransform(id);
+    scene_->sceneEpoch = mesh_.SceneEpoch();
+    log_->debug("delta {}: {} object(s) moved, scene epoch {}", d.sequence(), d.moved_objects_size(),
+                mesh_.SceneEpoch());
+  }
   log_->debug("delta {} ({}) for view {}: -{} +{} triangles, +{} vertices; {} held, {} samples pending{}", d.sequence(),
               wire::DeltaKind_Name(d.kind()), d.view_id(), d.removed_triangles_size(), d.triangle_ids_size(),
               d.vertex_ids_size(), mesh_.TriangleCount(), d.pending_samples(), d.converged() ? ", converged" : "");
@@ -94,7 +111,7 @@ void ClientModel::Abandon(const std::string& reason, SessionRequests& requests) 
   log_->error("connection {}: {}; emptying the mesh and reconnecting", connection_, reason);
   requests.AbandonConnection(connection_, reason);
   online_ = false;
-  mesh_.Reset(scene_->MaterialTextures(), scene_->textureCount);
+  ResetMesh();
 }
 
 void ClientModel::RequestNeededTextures(SessionRequests& requests) {

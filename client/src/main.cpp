@@ -62,6 +62,7 @@ int main(int argc, char** argv) {
   int convergeTimeout = int(options.goal.convergeTimeout.count());
   std::string screenshot, stats, screenshotDir = DefaultScreenshotDir();
   std::string snapshotPrefix;
+  std::string movesFile;
   std::string authTokenFile, tlsCa;
   // Refinement settings for this client's SMA session; unset: the SMA's.
   std::string criterion;
@@ -136,6 +137,10 @@ int main(int argc, char** argv) {
                      "view's size, as offline references filter them")
           ->check(CLI::Range(1, 8))
           ->capture_default_str();
+  auto* movesOption = app.add_option(
+      "--moves", movesFile,
+      "Headless: play the object moves in FILE (lines '<t_seconds> <object> [translate X Y Z] [rotate DEG about AX AY "
+      "AZ]'), t counted from the first converged view (client/README.md)");
   auto* snapshotOption = app.add_option("--snapshot-every", options.snapshotEvery,
                                         "Headless: every S seconds, when the image changed, write the linear "
                                         "radiance to PREFIX_<frame>.exr (frame as in --stats)");
@@ -150,7 +155,7 @@ int main(int argc, char** argv) {
   pathSnapshotOption->needs(prefixOption);
   for (CLI::Option* o : {glOption, pathOption, screenshotOption, convergedFlag, framesOption, secondsOption,
                          connectTimeoutOption, timeoutOption, snapshotOption, pathSnapshotOption, prefixOption,
-                         supersampleOption})
+                         supersampleOption, movesOption})
     o->needs(headless);
 
   try {
@@ -207,6 +212,11 @@ int main(int argc, char** argv) {
     auto path = LoadCameraPathSpec(cameraPath);
     if (!path) return Usage("--camera-path: " + path.error().message);
     options.cameraPath = std::move(*path);
+  }
+  if (!movesFile.empty()) {
+    auto moves = LoadMovesFile(movesFile);
+    if (!moves) return Usage("--moves: " + moves.error().message);
+    options.moves = std::move(*moves);
   }
 
   const char* display = std::getenv("DISPLAY");

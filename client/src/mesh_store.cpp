@@ -1,6 +1,7 @@
 #include "penumbra/client/mesh_store.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 
 #include <fmt/format.h>
@@ -22,9 +23,18 @@ Rgb RgbAt(const google::protobuf::RepeatedField<float>& values, int index) {
 
 float SlotLuminance(const GpuVertex& v) { return Luminance(Rgb(v.radiance[0], v.radiance[1], v.radiance[2])); }
 
+// The object id a slot's position.w holds (exact: ids are at most kMaxClientSceneObjects).
+uint32_t SlotObject(const GpuVertex& v) { return uint32_t(v.position[3]); }
+
+bool IsTransformOnly(wire::DeltaKind kind) {
+  return kind == wire::DELTA_KIND_STATUS || kind == wire::DELTA_KIND_IMPROVED || kind == wire::DELTA_KIND_MOVED ||
+         kind == wire::DELTA_KIND_RESHADED;
+}
+
 }  // namespace
 
-void MeshStore::Reset(std::span<const int32_t> materialTextures, uint32_t textureCount) {
+void MeshStore::Reset(std::span<const int32_t> materialTextures, uint32_t textureCount,
+                      std::span<const RigidTransform> objectToWorld, uint64_t sceneEpoch) {
   materialTextures_.assign(materialTextures.begin(), materialTextures.end());
   for (int32_t t : materialTextures_)
     PENUMBRA_CHECK(t >= -1 && t < int64_t(textureCount), "material texture index checked with the SceneInfo");
@@ -46,6 +56,56 @@ void MeshStore::Reset(std::span<const int32_t> materialTextures, uint32_t textur
   logLuminanceSum_ = 0.0;
   maxLuminance_ = 0.0f;
   maxStale_ = false;
+  objectToWorld_.assign(objectToWorld.begin(), objectToWorld.end());
+  localTransform_.assign(objectToWorld_.size(), std::nullopt);
+  objectSlots_.assign(objectToWorld_.size() + 1, GpuObjectTransform{});
+  for (uint32_t id = 0; id <= ObjectCount(); ++id) WriteObjectSlot(id);
+  objectsChanged_ = true;
+  sceneEpoch_ = sceneEpoch;
+  movesApplied_ = 0;
+}
+
+RigidTransform MeshStore::ConfirmedTransform(uint32_t id) const {
+  if (id == 0 || id > ObjectCount()) return RigidTransform::Identity();
+  return objectToWorld_[id - 1];
+}
+
+RigidTransform MeshStore::DisplayedTransform(uint32_t id) const {
+  if (id == 0 || id > ObjectCount()) return RigidTransform::Identity();
+  return localTransform_[id - 1] ? *localTransform_[id - 1] : objectToWorld_[id - 1];
+}
+
+void MeshStore::SetLocalTransform(uint32_t id, const std::optional<RigidTransform>& t) {
+  if (id == 0 || id > ObjectCount() || localTransform_[id - 1] == t) return;  // unchanged: no upload
+  localTransform_[id - 1] = t;
+  WriteObjectSlot(id);
+}
+
+void MeshStore::WriteObjectSlot(uint32_t id) {
+  const std::array<float, 12> m = DisplayedTransform(id).ToRowMajor();
+  GpuObjectTransform& slot = objectSlots_[id];
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 4; ++c) slot.rows[r][c] = m[size_t(4 * r + c)];
+  objectsChanged_ = true;
+}
+
+std::optional<uint32_t> MeshStore::VertexObject(uint64_t id) const {
+  auto it = vertices_.find(id);
+  if (it == vertices_.end()) return std::nullopt;
+  return SlotObject(vertexSlots_[it->second.slot]);
+}
+
+std::optional<Vec3> MeshStore::WorldPosition(uint64_t id) const {
+  auto it = vertices_.find(id);
+  if (it == vertices_.end()) return std::nullopt;
+  return WorldPositionOfSlot(it->second.slot);
+}
+
+Vec3 MeshStore::WorldPositionOfSlot(uint32_t slot) const {
+  const GpuVertex& v = vertexSlots_[slot];
+  const Vec3 p(v.position[0], v.position[1], v.position[2]);
+  const uint32_t object = SlotObject(v);
+  return object == 0 ? p : DisplayedTransform(object).ApplyPoint(p);
 }
 
 std::optional<uint32_t> MeshStore::VertexRefs(uint64_t id) const {
@@ -62,8 +122,7 @@ Status MeshStore::CheckShape(const wire::Delta& d) const {
   const int nv = d.vertex_ids_size();
   const int nt = d.triangle_ids_size();
   const int nu = d.updated_vertex_ids_size();
-  if ((d.kind() == wire::DELTA_KIND_STATUS || d.kind() == wire::DELTA_KIND_IMPROVED) &&
-      (nv > 0 || nt > 0 || d.removed_triangles_size() > 0))
+  if (IsTransformOnly(d.kind()) && (nv > 0 || nt > 0 || d.removed_triangles_size() > 0))
     return Fail(fmt::format("delta {}: a {} delta carries triangles or new vertices", d.sequence(),
                             wire::DeltaKind_Name(d.kind())));
   if (d.updated_vertex_radiance_size() != 3 * nu || d.updated_vertex_irradiance_size() != 3 * nu)
@@ -94,12 +153,62 @@ Status MeshStore::CheckShape(const wire::Delta& d) const {
       !AllFinite(d.updated_vertex_irradiance()))
     return Fail(fmt::format("delta {}: a vertex position, radiance, irradiance or texture coordinate is not finite",
                             d.sequence()));
+  return CheckObjects(d);
+}
+
+Status MeshStore::CheckObjects(const wire::Delta& d) const {
+  const int nv = d.vertex_ids_size();
+  // A static scene's deltas may leave vertex_objects out; a scene with
+  // movable objects must say, for every new vertex, which space it is in.
+  if (ObjectCount() > 0 ? d.vertex_objects_size() != nv : d.vertex_objects_size() != 0 && d.vertex_objects_size() != nv)
+    return Fail(fmt::format("delta {}: {} vertex objects for {} new vertices (one each, in a scene with {} movable "
+                            "objects)",
+                            d.sequence(), d.vertex_objects_size(), nv, ObjectCount()));
+  for (int i = 0; i < d.vertex_objects_size(); ++i)
+    if (d.vertex_objects(i) > ObjectCount())
+      return Fail(fmt::format("delta {}: vertex {} belongs to object {}, but the scene has {} movable objects",
+                              d.sequence(), d.vertex_ids(i), d.vertex_objects(i), ObjectCount()));
+  if (d.kind() != wire::DELTA_KIND_MOVED) {
+    if (d.moved_objects_size() > 0 || d.moved_object_transforms_size() > 0)
+      return Fail(fmt::format("delta {}: a {} delta carries moved objects (only MOVED does)", d.sequence(),
+                              wire::DeltaKind_Name(d.kind())));
+    return Status::Ok();
+  }
+  if (d.updated_vertex_ids_size() > 0)
+    return Fail(fmt::format("delta {}: a MOVED delta carries radiance updates (RESHADED does)", d.sequence()));
+  if (d.moved_object_transforms_size() != 12 * d.moved_objects_size())
+    return Fail(fmt::format("delta {}: {} moved objects but {} transform values (12 each)", d.sequence(),
+                            d.moved_objects_size(), d.moved_object_transforms_size()));
+  if (d.scene_epoch() < sceneEpoch_)
+    return Fail(fmt::format("delta {}: MOVED to scene epoch {}, older than the epoch {} already shown", d.sequence(),
+                            d.scene_epoch(), sceneEpoch_));
+  for (int i = 0; i < d.moved_objects_size(); ++i) {
+    const uint32_t id = d.moved_objects(i);
+    if (id == 0 || id > ObjectCount())
+      return Fail(fmt::format("delta {}: moves object {}, but the scene's movable objects are 1..{}", d.sequence(), id,
+                              ObjectCount()));
+    auto t = RigidTransform::FromRowMajor(std::span<const float>(d.moved_object_transforms().data() + 12 * i, 12));
+    if (!t) return Fail(fmt::format("delta {}: object {}'s new transform: {}", d.sequence(), id, t.error().message));
+  }
   return Status::Ok();
+}
+
+void MeshStore::ApplyMoves(const wire::Delta& d) {
+  // CheckObjects accepted every transform.
+  for (int i = 0; i < d.moved_objects_size(); ++i) {
+    const uint32_t id = d.moved_objects(i);
+    objectToWorld_[id - 1] =
+        *RigidTransform::FromRowMajor(std::span<const float>(d.moved_object_transforms().data() + 12 * i, 12));
+    WriteObjectSlot(id);
+  }
+  sceneEpoch_ = d.scene_epoch();
+  ++movesApplied_;
 }
 
 Status MeshStore::Apply(const wire::Delta& d) {
   if (auto ok = CheckShape(d); !ok) return ok;
   sequence_ = d.sequence();
+  if (d.kind() == wire::DELTA_KIND_MOVED) ApplyMoves(d);
 
   for (uint64_t id : d.removed_triangles())
     if (auto ok = RemoveTriangle(id); !ok) return Fail(fmt::format("delta {}: {}", d.sequence(), ok.error().message));
@@ -171,7 +280,8 @@ Status MeshStore::AddVertex(const wire::Delta& d, int i) {
   const Rgb position = RgbAt(d.vertex_positions(), i);
   const Rgb radiance = RgbAt(d.vertex_radiance(), i);
   const Rgb irradiance = RgbAt(d.vertex_irradiance(), i);
-  v = GpuVertex{{position.x, position.y, position.z, 1.0f},
+  const uint32_t object = d.vertex_objects_size() > 0 ? d.vertex_objects(i) : 0;
+  v = GpuVertex{{position.x, position.y, position.z, float(object)},
                 {radiance.r, radiance.g, radiance.b, 0.0f},
                 {irradiance.r, irradiance.g, irradiance.b, 0.0f}};
   vertexSlotIds_[slot] = id;
@@ -209,6 +319,12 @@ Status MeshStore::AddTriangle(const wire::Delta& d, int i, int uvIndex) {
       return Fail(fmt::format("triangle {} uses vertex {}, which is neither held nor sent", id, vertexId));
     corners[c] = &it->second;
   }
+  // An object's triangles use only its own vertices (their positions are in
+  // its space); a triangle across two spaces would be torn apart by a move.
+  const uint32_t object = SlotObject(vertexSlots_[corners[0]->slot]);
+  if (SlotObject(vertexSlots_[corners[1]->slot]) != object || SlotObject(vertexSlots_[corners[2]->slot]) != object)
+    return Fail(fmt::format("triangle {} joins vertices of different objects ({}, {}, {})", id, object,
+                            SlotObject(vertexSlots_[corners[1]->slot]), SlotObject(vertexSlots_[corners[2]->slot])));
   const uint32_t material = d.triangle_materials(i);
   const uint32_t groupIndex = uint32_t(materialTextures_[material] + 1);
   TriangleGroup& group = groups_[groupIndex];

@@ -93,6 +93,23 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
     });
   }
 
+  uint64_t MoveObject(uint32_t object, const RigidTransform& objectToWorld) {
+    const uint64_t requestId = kMoveRequestBit | ++lastMoveSerial_;
+    wire::Envelope e;
+    auto* move = e.mutable_move_object();
+    move->set_request_id(requestId);
+    move->set_object(object);
+    ToWire(objectToWorld, move->mutable_object_to_world());
+    asio::post(io_, [self = shared_from_this(), e = std::move(e), requestId, object] {
+      if (self->ready_ && self->connection_->Send(e)) return;
+      const std::string text = fmt::format("move of object {} not sent: no connection to SMA {}", object,
+                                           self->address_);
+      self->log_->warn("{}", text);
+      self->Push(SmaErrorReceived{0, requestId, true, text});
+    });
+    return requestId;
+  }
+
   std::vector<SessionEvent> TakeEvents() {
     std::vector<SessionEvent> taken;
     bool resume = false;
@@ -321,6 +338,9 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
       }
     } else {
       log_->warn("{}", text);
+      // The render thread shows it (a refused move snaps the object back).
+      if (ready_)
+        Push(SmaErrorReceived{connectionNumber_, error.request_id(), (error.request_id() & kMoveRequestBit) != 0, text});
     }
   }
 
@@ -447,6 +467,7 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
   const std::string address_;
   std::thread thread_;
   std::atomic<uint64_t> lastSerial_{0};
+  std::atomic<uint64_t> lastMoveSerial_{0};
 
   // Network-thread state.
   bool stopping_ = false;
@@ -483,6 +504,9 @@ void SmaSession::Start() { impl_->Start(); }
 void SmaSession::Stop() { impl_->Stop(); }
 uint64_t SmaSession::SetView(const CameraView& view) { return impl_->SetView(view); }
 void SmaSession::SetSessionOptions(const RefinementRequest& request) { impl_->SetSessionOptions(request); }
+uint64_t SmaSession::MoveObject(uint32_t object, const RigidTransform& objectToWorld) {
+  return impl_->MoveObject(object, objectToWorld);
+}
 std::vector<SessionEvent> SmaSession::TakeEvents() { return impl_->TakeEvents(); }
 SessionStatus SmaSession::Status() const { return impl_->Status(); }
 void SmaSession::RequestTexture(uint64_t connection, uint32_t texture) { impl_->RequestTexture(connection, texture); }

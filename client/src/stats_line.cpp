@@ -40,6 +40,9 @@ std::string FormatStatsLine(const FrameStats& s) {
   j["sma_triangles_held"] = s.sma ? nlohmann::json(s.sma->trianglesHeld) : nlohmann::json();
   j["sma_vertices_held"] = s.sma ? nlohmann::json(s.sma->verticesHeld) : nlohmann::json();
   j["sma_agrees"] = s.sma ? nlohmann::json(s.sma->agrees) : nlohmann::json();
+  j["scene_epoch"] = s.sceneEpoch;
+  j["moves_sent"] = s.movesSent;
+  j["moves_pending"] = s.movesPending;
   return j.dump();
 }
 

@@ -169,5 +169,54 @@ TEST(ClientModelTest, ComparesTheSmaCountersWithWhatItHolds) {
   EXPECT_FALSE(model.LastSmaReport()->agrees);
 }
 
+// Issue 14: a scene with a movable object. A MOVED delta moves it in the
+// scene and the mesh, a bad one abandons the connection like any bad delta
+// (and the mesh is emptied with the object where the SMA last had it), and
+// a refused move passes through for the HUD.
+TEST(ClientModelTest, MovedDeltasKeepTheScenesObjectsWhereTheSmaHasThem) {
+  ClientModel model;
+  RecordedRequests requests;
+  Connected connected = MakeConnected(1);
+  connected.scene.objects.push_back(ClientObject{"box", Bounds3{}, RigidTransform::Identity(), false});
+  connected.scene.sceneEpoch = 2;
+  DeltaBuilder d(1, 1);
+  d.Vertex(1, Vec3(0), Rgb(1)).Vertex(2, Vec3(1, 0, 0), Rgb(1)).Vertex(3, Vec3(0, 1, 0), Rgb(1));
+  d.Triangle(10, {1, 2, 3}, 0);
+  for (int i = 0; i < 3; ++i) d.Mutable().add_vertex_objects(1);
+  model.Apply(Events(std::move(connected), DeltaReceived{1, 1, d.Delta()}), requests);
+  ASSERT_EQ(model.Mesh().TriangleCount(), 1u);
+  EXPECT_EQ(model.Mesh().SceneEpoch(), 2u);
+
+  const RigidTransform moved = RigidTransform::FromAxisAngle(Vec3(0, 1, 0), 0.5f, Vec3(4, 5, 6));
+  DeltaBuilder move(2, 1, wire::DELTA_KIND_MOVED);
+  move.Mutable().set_scene_epoch(3);
+  move.Mutable().add_moved_objects(1);
+  for (float v : moved.ToRowMajor()) move.Mutable().add_moved_object_transforms(v);
+  model.Apply(Events(DeltaReceived{1, 1, move.Delta()},
+                     SmaErrorReceived{1, kMoveRequestBit | 4, true, "SMA x reports INVALID_REQUEST: animated"}),
+              requests);
+  EXPECT_TRUE(requests.abandoned.empty());
+  EXPECT_EQ(model.Scene()->sceneEpoch, 3u);
+  EXPECT_EQ(model.Scene()->objects[0].objectToWorld.translation, Vec3(4, 5, 6));
+  const Vec3 world = *model.Mesh().WorldPosition(2);
+  const Vec3 expected = moved.ApplyPoint(Vec3(1, 0, 0));
+  EXPECT_NEAR(glm::length(world - expected), 0.0f, 1e-5f);
+  const auto errors = model.TakeSmaErrors();
+  ASSERT_EQ(errors.size(), 1u);
+  EXPECT_TRUE(errors[0].move);
+  EXPECT_TRUE(model.TakeSmaErrors().empty());
+
+  // A MOVED naming an object the scene lacks is a protocol violation.
+  DeltaBuilder unknown(3, 1, wire::DELTA_KIND_MOVED);
+  unknown.Mutable().set_scene_epoch(3);
+  unknown.Mutable().add_moved_objects(2);
+  for (float v : moved.ToRowMajor()) unknown.Mutable().add_moved_object_transforms(v);
+  model.Apply(Events(DeltaReceived{1, 1, unknown.Delta()}), requests);
+  ASSERT_EQ(requests.abandoned.size(), 1u);
+  EXPECT_NE(requests.abandoned[0].second.find("moves object 2"), std::string::npos) << requests.abandoned[0].second;
+  EXPECT_EQ(model.Mesh().TriangleCount(), 0u);
+  EXPECT_EQ(model.Mesh().ConfirmedTransform(1).translation, Vec3(4, 5, 6)) << "emptied, the object stays moved";
+}
+
 }  // namespace
 }  // namespace penumbra::client

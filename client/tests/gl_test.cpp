@@ -257,6 +257,46 @@ TEST_F(MeshRendererTest, TexturedTrianglesShowTextureTimesIrradianceOnceItArrive
   ExpectRgbNear(PixelAt(Draw(), kSize, kLowerRightX, kLowerRightY), expected, 2e-3f, "textured");
 }
 
+// Issue 14: a movable object's vertices are in its space and the vertex
+// shader places them with its transform; a MOVED delta moves the triangle on
+// screen while uploading only the transform table (48 bytes per entry).
+TEST_F(MeshRendererTest, AMovedObjectIsDrawnAtItsNewPlaceWithoutAVertexUpload) {
+  Connected connected;
+  connected.connection = 2;
+  connected.scene = testing::UnitSquareScene(2);
+  connected.scene.objects.push_back(ClientObject{"box", Bounds3{}, RigidTransform::Identity(), false});
+  Apply(std::move(connected));
+  const Rgb grey(0.5f, 0.25f, 0.125f);
+  DeltaBuilder d(1, 1);
+  d.Vertex(1, Vec3(0, 0, 0), grey).Vertex(2, Vec3(1, 0, 0), grey).Vertex(3, Vec3(1, 1, 0), grey);
+  d.Triangle(10, {1, 2, 3});
+  for (int i = 0; i < 3; ++i) d.Mutable().add_vertex_objects(1);
+  Apply(DeltaReceived{2, 1, d.Delta()});
+  std::vector<float> image = Draw();
+  ExpectRgbNear(PixelAt(image, kSize, kLowerRightX, kLowerRightY), grey, 1e-6f, "the object where it was");
+  ExpectRgbNear(PixelAt(image, kSize, kUpperLeftX, kUpperLeftY), Rgb(0.0f), 0.0f, "nothing there yet");
+
+  // Half a turn about z, then (1, 1, 0): the lower-right triangle lands on the upper-left half.
+  const RigidTransform turned = RigidTransform::FromAxisAngle(Vec3(0, 0, 1), kPi, Vec3(1, 1, 0));
+  DeltaBuilder moved(2, 1, wire::DELTA_KIND_MOVED);
+  moved.Mutable().set_scene_epoch(1);
+  moved.Mutable().add_moved_objects(1);
+  for (float v : turned.ToRowMajor()) moved.Mutable().add_moved_object_transforms(v);
+  Apply(DeltaReceived{2, 1, moved.Delta()});
+  EXPECT_EQ(renderer_->LastUploadBytes(), 2 * sizeof(GpuObjectTransform)) << "the table only";
+  image = Draw();
+  ExpectRgbNear(PixelAt(image, kSize, kLowerRightX, kLowerRightY), Rgb(0.0f), 0.0f, "moved away");
+  ExpectRgbNear(PixelAt(image, kSize, kUpperLeftX, kUpperLeftY), grey, 1e-6f, "moved here");
+
+  // A local (dragged) transform is drawn the same way, and dropping it goes back.
+  model_.Mesh().SetLocalTransform(1, RigidTransform::Identity());
+  ASSERT_TRUE(renderer_->Sync(model_).ok());
+  ExpectRgbNear(PixelAt(Draw(), kSize, kLowerRightX, kLowerRightY), grey, 1e-6f, "dragged back");
+  model_.Mesh().SetLocalTransform(1, std::nullopt);
+  ASSERT_TRUE(renderer_->Sync(model_).ok());
+  ExpectRgbNear(PixelAt(Draw(), kSize, kUpperLeftX, kUpperLeftY), grey, 1e-6f, "where the SMA has it");
+}
+
 // --- The HUD (Dear ImGui), in a real GLFW window under a private Xvfb ---------
 
 class HudTest : public ::testing::Test {

@@ -3,6 +3,9 @@
 
 #include "penumbra/client/mesh_store.h"
 
+#include <cmath>
+#include <functional>
+#include <string>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -254,6 +257,210 @@ TEST_F(MeshStoreTest, HeldLuminanceIsMeasureLuminanceOfTheHeldVertices) {
   expectMatches({Rgb(1.0f), Rgb(2.0f), Rgb(3.0f)});
   ASSERT_TRUE(store_.Apply(DeltaBuilder(3, 1, wire::DELTA_KIND_REMOVED).Remove(10).Delta()).ok());
   expectMatches({});
+}
+
+// --- Movable objects (issue 14) ---------------------------------------------
+
+void ExpectNear(const Vec3& got, const Vec3& expected) {
+  EXPECT_NEAR(got.x, expected.x, 1e-5f);
+  EXPECT_NEAR(got.y, expected.y, 1e-5f);
+  EXPECT_NEAR(got.z, expected.z, 1e-5f);
+}
+
+void AddTransform(wire::Delta& d, uint32_t object, const RigidTransform& t) {
+  d.add_moved_objects(object);
+  for (float v : t.ToRowMajor()) d.add_moved_object_transforms(v);
+}
+
+// A scene with two movable objects: a static triangle (vertices 1-3), one of
+// object 1 (4-6) and one of object 2 (7-9), object-space positions equal.
+class MeshStoreObjectsTest : public MeshStoreTest {
+ protected:
+  void SetUp() override {
+    const std::vector<int32_t> materialTextures = {-1, 0};
+    const std::vector<RigidTransform> objects = {box_, panel_};
+    store_.Reset(materialTextures, 1, objects, 3);
+  }
+
+  static DeltaBuilder ThreeParts() {
+    DeltaBuilder d(1, 1);
+    for (uint64_t first : {1, 4, 7}) {
+      d.Vertex(first, Vec3(0, 0, 0), Rgb(1.0f)).Vertex(first + 1, Vec3(1, 0, 0), Rgb(1.0f));
+      d.Vertex(first + 2, Vec3(0, 1, 0), Rgb(1.0f));
+      d.Triangle(first * 10, {first, first + 1, first + 2}, kGrey);
+    }
+    for (uint32_t object : {0u, 0u, 0u, 1u, 1u, 1u, 2u, 2u, 2u}) d.Mutable().add_vertex_objects(object);
+    return d;
+  }
+
+  const RigidTransform box_ = RigidTransform::FromAxisAngle(Vec3(0, 1, 0), 0.5f, Vec3(2, 0, 0));
+  const RigidTransform panel_ = RigidTransform::FromAxisAngle(Vec3(1, 0, 0), -0.3f, Vec3(0, 0, 5));
+};
+
+TEST_F(MeshStoreObjectsTest, AnObjectsVertexIsPlacedByItsTransform) {
+  ASSERT_TRUE(store_.Apply(ThreeParts().Delta()).ok());
+  EXPECT_EQ(store_.ObjectCount(), 2u);
+  EXPECT_EQ(store_.SceneEpoch(), 3u);
+  EXPECT_EQ(store_.VertexObject(2), 0u);
+  EXPECT_EQ(store_.VertexObject(5), 1u);
+  EXPECT_EQ(store_.VertexObject(8), 2u);
+  ExpectNear(*store_.WorldPosition(2), Vec3(1, 0, 0));  // static: as sent
+  ExpectNear(*store_.WorldPosition(5), box_.ApplyPoint(Vec3(1, 0, 0)));
+  ExpectNear(*store_.WorldPosition(9), panel_.ApplyPoint(Vec3(0, 1, 0)));
+  EXPECT_FALSE(store_.WorldPosition(99).has_value());
+  // The GPU table: entry 0 the identity, entry id the object's rows.
+  ASSERT_EQ(store_.ObjectTransforms().size(), 3u);
+  EXPECT_EQ(store_.ObjectTransforms()[0].rows[0][0], 1.0f);
+  EXPECT_EQ(store_.ObjectTransforms()[0].rows[1][3], 0.0f);
+  EXPECT_EQ(store_.ObjectTransforms()[1].rows[0][3], 2.0f);  // the box's translation x
+  EXPECT_EQ(store_.ObjectTransforms()[2].rows[2][3], 5.0f);
+}
+
+TEST_F(MeshStoreObjectsTest, MovedChangesOnlyThatObjectAndUploadsNoVertex) {
+  ASSERT_TRUE(store_.Apply(ThreeParts().Delta()).ok());
+  store_.DirtyVertices().Clear();
+  (void)store_.TakeObjectTransformsChanged();
+  const Vec3 staticBefore = *store_.WorldPosition(2), panelBefore = *store_.WorldPosition(8);
+
+  const RigidTransform moved = RigidTransform::FromAxisAngle(Vec3(0, 0, 1), 1.0f, Vec3(-1, 3, 0.5f));
+  DeltaBuilder d(2, 1, wire::DELTA_KIND_MOVED);
+  d.Mutable().set_scene_epoch(4);
+  AddTransform(d.Mutable(), 1, moved);
+  ASSERT_TRUE(store_.Apply(d.Delta()).ok());
+
+  EXPECT_EQ(store_.SceneEpoch(), 4u);
+  EXPECT_EQ(store_.MovesApplied(), 1u);
+  ExpectNear(*store_.WorldPosition(4), moved.ApplyPoint(Vec3(0, 0, 0)));
+  ExpectNear(*store_.WorldPosition(5), moved.ApplyPoint(Vec3(1, 0, 0)));
+  ExpectNear(*store_.WorldPosition(6), moved.ApplyPoint(Vec3(0, 1, 0)));
+  EXPECT_EQ(*store_.WorldPosition(2), staticBefore);
+  EXPECT_EQ(*store_.WorldPosition(8), panelBefore);
+  // Nothing re-sent, nothing re-uploaded but the transform table.
+  EXPECT_TRUE(store_.DirtyVertices().Empty());
+  EXPECT_TRUE(store_.TakeObjectTransformsChanged());
+  EXPECT_FALSE(store_.TakeObjectTransformsChanged());
+  EXPECT_EQ(store_.VertexCount(), 9u);
+  EXPECT_EQ(store_.TriangleCount(), 3u);
+  ExpectNear(store_.ConfirmedTransform(1).ApplyPoint(Vec3(1, 2, 3)), moved.ApplyPoint(Vec3(1, 2, 3)));
+  EXPECT_EQ(store_.ConfirmedTransform(2), panel_);
+  EXPECT_EQ(store_.ObjectTransforms()[1].rows[1][3], 3.0f);
+}
+
+TEST_F(MeshStoreObjectsTest, ReshadedUpdatesRadianceInPlace) {
+  ASSERT_TRUE(store_.Apply(ThreeParts().Delta()).ok());
+  store_.DirtyVertices().Clear();
+  DeltaBuilder d(2, 1, wire::DELTA_KIND_RESHADED);
+  d.Update(2, Rgb(0.25f), Rgb(0.5f)).Update(5, Rgb(7.0f));
+  ASSERT_TRUE(store_.Apply(d.Delta()).ok());
+  for (const GpuVertex& v : store_.VertexSlots()) {
+    if (v.position[3] == 0.0f && v.position[0] == 1.0f) {
+      EXPECT_EQ(v.radiance[0], 0.25f);
+      EXPECT_EQ(v.irradiance[0], 0.5f);
+    }
+    if (v.position[3] == 1.0f && v.position[0] == 1.0f) {
+      EXPECT_EQ(v.radiance[1], 7.0f);
+    }
+  }
+  EXPECT_EQ(store_.DirtyVertices().Take(), (std::vector<SlotRange>{{1, 1}, {4, 1}}));
+  EXPECT_FLOAT_EQ(store_.HeldLuminance().max, 7.0f);
+  // RESHADED carries no geometry, and no moves.
+  DeltaBuilder withTriangle = ThreeParts();
+  withTriangle.Mutable().set_sequence(3);
+  withTriangle.Mutable().set_kind(wire::DELTA_KIND_RESHADED);
+  ExpectRefused(withTriangle.Delta(), "RESHADED delta carries triangles");
+  DeltaBuilder withMove(3, 1, wire::DELTA_KIND_RESHADED);
+  AddTransform(withMove.Mutable(), 1, box_);
+  ExpectRefused(withMove.Delta(), "a DELTA_KIND_RESHADED delta carries moved objects");
+}
+
+TEST_F(MeshStoreObjectsTest, LocalTransformIsDrawnUntilCleared) {
+  ASSERT_TRUE(store_.Apply(ThreeParts().Delta()).ok());
+  (void)store_.TakeObjectTransformsChanged();
+  const RigidTransform dragged = RigidTransform::FromAxisAngle(Vec3(0, 1, 0), 0.0f, Vec3(9, 9, 9));
+  store_.SetLocalTransform(1, dragged);
+  EXPECT_TRUE(store_.TakeObjectTransformsChanged());
+  ExpectNear(*store_.WorldPosition(4), Vec3(9, 9, 9));
+  EXPECT_EQ(store_.ConfirmedTransform(1), box_);
+  store_.SetLocalTransform(1, dragged);
+  EXPECT_FALSE(store_.TakeObjectTransformsChanged()) << "the same transform again needs no upload";
+  store_.SetLocalTransform(1, std::nullopt);
+  EXPECT_TRUE(store_.TakeObjectTransformsChanged());
+  ExpectNear(*store_.WorldPosition(4), box_.ApplyPoint(Vec3(0)));
+  store_.SetLocalTransform(7, dragged);  // no such object: ignored
+  EXPECT_FALSE(store_.TakeObjectTransformsChanged());
+}
+
+TEST_F(MeshStoreObjectsTest, BadObjectFieldsAreRefused) {
+  // vertex_objects: one per new vertex, ids in range.
+  DeltaBuilder missing = ThreeParts();
+  missing.Mutable().clear_vertex_objects();
+  ExpectRefused(missing.Delta(), "0 vertex objects for 9 new vertices");
+  DeltaBuilder outOfRange = ThreeParts();
+  outOfRange.Mutable().set_vertex_objects(4, 3);
+  ExpectRefused(outOfRange.Delta(), "vertex 5 belongs to object 3, but the scene has 2 movable objects");
+  EXPECT_EQ(store_.VertexCount(), 0u);
+  DeltaBuilder mixed = ThreeParts();
+  mixed.Mutable().set_vertex_objects(4, 2);  // vertex 5 of object 2 in object 1's triangle
+  store_.Reset(std::vector<int32_t>{-1, 0}, 1, std::vector<RigidTransform>{box_, panel_}, 3);
+  ExpectRefused(mixed.Delta(), "triangle 40 joins vertices of different objects (1, 2, 1)");
+
+  store_.Reset(std::vector<int32_t>{-1, 0}, 1, std::vector<RigidTransform>{box_, panel_}, 3);
+  ASSERT_TRUE(store_.Apply(ThreeParts().Delta()).ok());
+  auto moved = [](uint64_t sequence) {
+    DeltaBuilder d(sequence, 1, wire::DELTA_KIND_MOVED);
+    d.Mutable().set_scene_epoch(5);
+    return d;
+  };
+  DeltaBuilder unknown = moved(2);
+  AddTransform(unknown.Mutable(), 3, RigidTransform::Identity());
+  ExpectRefused(unknown.Delta(), "moves object 3, but the scene's movable objects are 1..2");
+  store_.Reset(std::vector<int32_t>{-1, 0}, 1, std::vector<RigidTransform>{box_, panel_}, 3);
+  ASSERT_TRUE(store_.Apply(ThreeParts().Delta()).ok());
+  DeltaBuilder staticPart = moved(2);
+  AddTransform(staticPart.Mutable(), 0, RigidTransform::Identity());
+  ExpectRefused(staticPart.Delta(), "moves object 0");
+
+  struct Case {
+    std::function<void(wire::Delta&)> breakIt;
+    std::string fragment;
+  };
+  const std::vector<Case> cases = {
+      {[](wire::Delta& d) { d.mutable_moved_object_transforms()->RemoveLast(); }, "1 moved objects but 11 transform"},
+      {[](wire::Delta& d) { d.set_moved_object_transforms(2, std::nanf("")); }, "transform entry 2 is not finite"},
+      {[](wire::Delta& d) { d.set_moved_object_transforms(0, 3.0f); }, "not a rotation"},
+      {[](wire::Delta& d) { d.set_scene_epoch(2); }, "MOVED to scene epoch 2, older than the epoch 3"},
+      {[](wire::Delta& d) {
+         d.add_updated_vertex_ids(1);
+         for (int i = 0; i < 3; ++i) {
+           d.add_updated_vertex_radiance(1.0f);
+           d.add_updated_vertex_irradiance(1.0f);
+         }
+       },
+       "MOVED delta carries radiance updates"},
+  };
+  for (const Case& c : cases) {
+    store_.Reset(std::vector<int32_t>{-1, 0}, 1, std::vector<RigidTransform>{box_, panel_}, 3);
+    ASSERT_TRUE(store_.Apply(ThreeParts().Delta()).ok());
+    DeltaBuilder d = moved(2);
+    AddTransform(d.Mutable(), 1, RigidTransform::FromAxisAngle(Vec3(0, 1, 0), 0.1f, Vec3(1, 1, 1)));
+    c.breakIt(d.Mutable());
+    ExpectRefused(d.Delta(), c.fragment);
+    EXPECT_EQ(store_.ConfirmedTransform(1), box_) << "a refused move changes nothing: " << c.fragment;
+  }
+}
+
+TEST_F(MeshStoreTest, AStaticScenesDeltasNeedNoVertexObjects) {
+  ASSERT_TRUE(store_.Apply(Quad().Delta()).ok());  // none given
+  EXPECT_EQ(store_.VertexObject(1), 0u);
+  EXPECT_EQ(store_.ObjectCount(), 0u);
+  ASSERT_EQ(store_.ObjectTransforms().size(), 1u);  // the identity
+  DeltaBuilder d(2, 1, wire::DELTA_KIND_SHADED);
+  d.Vertex(5, Vec3(2, 0, 0), Rgb(5.0f)).Triangle(12, {1, 5, 3}, kGrey);
+  d.Mutable().add_vertex_objects(1);
+  ExpectRefused(d.Delta(), "vertex 5 belongs to object 1, but the scene has 0 movable objects");
+  DeltaBuilder move(2, 1, wire::DELTA_KIND_MOVED);
+  AddTransform(move.Mutable(), 1, RigidTransform::Identity());
+  ExpectRefused(move.Delta(), "moves object 1, but the scene's movable objects are 1..0");
 }
 
 }  // namespace

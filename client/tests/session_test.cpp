@@ -284,5 +284,51 @@ TEST(SessionPermanentTest, AWelcomeFromAnotherRoleStopsTheSession) {
   }
 }
 
+// Issue 14: MoveObject goes out with its object, its 12 row-major floats and
+// a request id marked as a move; the SMA's non-fatal refusal comes back as
+// an event (the connection stays); a move without a connection is reported,
+// not queued.
+TEST_F(SessionTest, MovesAreSentAndTheirRefusalsSurfaceWithoutEndingTheConnection) {
+  const RigidTransform t = RigidTransform::FromAxisAngle(Vec3(0, 0, 1), 0.5f, Vec3(1, 2, 3));
+  const uint64_t early = session_->MoveObject(1, t);
+  EXPECT_NE(early & kMoveRequestBit, 0u);
+  auto notSent = WaitForEvent<SmaErrorReceived>();
+  ASSERT_TRUE(notSent.has_value());
+  EXPECT_EQ(notSent->requestId, early);
+  EXPECT_TRUE(notSent->move);
+  EXPECT_NE(notSent->message.find("not sent: no connection"), std::string::npos) << notSent->message;
+
+  WireClient sma = AcceptClient();
+  ASSERT_TRUE(WaitForEvent<Connected>().has_value());
+  const uint64_t requestId = session_->MoveObject(2, t);
+  EXPECT_NE(requestId, early);
+  std::optional<wire::MoveObject> move;
+  for (int i = 0; i < 10 && !move; ++i) {
+    auto e = sma.Receive(2s);
+    ASSERT_TRUE(e.ok()) << e.error().message;
+    if (e->has_move_object()) move = e->move_object();
+  }
+  ASSERT_TRUE(move.has_value());
+  EXPECT_EQ(move->request_id(), requestId);
+  EXPECT_EQ(move->object(), 2u);
+  ASSERT_EQ(move->object_to_world_size(), 12);
+  const auto m = t.ToRowMajor();
+  for (int i = 0; i < 12; ++i) EXPECT_EQ(move->object_to_world(i), m[size_t(i)]);
+
+  ASSERT_TRUE(sma.Send(MakeError(requestId, wire::ERROR_CODE_INVALID_REQUEST, "object 2 is animated", false)));
+  auto refused = WaitForEvent<SmaErrorReceived>();
+  ASSERT_TRUE(refused.has_value());
+  EXPECT_EQ(refused->connection, 1u);
+  EXPECT_EQ(refused->requestId, requestId);
+  EXPECT_TRUE(refused->move);
+  EXPECT_NE(refused->message.find("object 2 is animated"), std::string::npos) << refused->message;
+  // Still connected: a delta still arrives.
+  session_->SetView(FrontView());
+  ASSERT_TRUE(testing::ReceiveView(sma).ok());
+  ASSERT_TRUE(sma.Send(DeltaBuilder(1, 1).Converged().Envelope()));
+  EXPECT_TRUE(WaitForEvent<DeltaReceived>().has_value());
+  EXPECT_EQ(session_->Status().connections, 1u);
+}
+
 }  // namespace
 }  // namespace penumbra::client

@@ -27,6 +27,9 @@ TEST(StatsLineTest, WritesOneJsonObjectPerLine) {
   second.viewToFirstDeltaMs = 12.5;
   second.sma = SmaReport{36, 30, true, 4};
   second.memory = ReadProcessMemory();
+  second.sceneEpoch = 4;
+  second.movesSent = 3;
+  second.movesPending = 1;
   ASSERT_TRUE(writer->Write(second).ok());
 
   std::ifstream in(path);
@@ -36,13 +39,17 @@ TEST(StatsLineTest, WritesOneJsonObjectPerLine) {
   ASSERT_EQ(lines.size(), 2u);
   for (const char* field : {"frame", "time_s", "triangles_held", "vertices_held", "bytes_received", "samples_pending",
                             "converged", "view_to_first_delta_ms", "fps", "rss_bytes", "peak_rss_bytes", "connection",
-                            "connections", "sma_triangles_held", "sma_vertices_held", "sma_agrees"})
+                            "connections", "sma_triangles_held", "sma_vertices_held", "sma_agrees", "scene_epoch",
+                            "moves_sent", "moves_pending"})
     EXPECT_TRUE(lines[0].contains(field)) << field;
   EXPECT_TRUE(lines[0]["view_to_first_delta_ms"].is_null());
   EXPECT_TRUE(lines[0]["sma_agrees"].is_null());
   EXPECT_EQ(lines[1]["view_to_first_delta_ms"].get<double>(), 12.5);
   EXPECT_EQ(lines[1]["sma_vertices_held"].get<int>(), 30);
   EXPECT_TRUE(lines[1]["converged"].get<bool>());
+  EXPECT_EQ(lines[1]["scene_epoch"].get<int>(), 4);
+  EXPECT_EQ(lines[1]["moves_sent"].get<int>(), 3);
+  EXPECT_EQ(lines[1]["moves_pending"].get<int>(), 1);
   EXPECT_GT(lines[1]["rss_bytes"].get<uint64_t>(), 0u);
   EXPECT_GE(lines[1]["peak_rss_bytes"].get<uint64_t>(), lines[1]["rss_bytes"].get<uint64_t>());
 }

@@ -15,7 +15,17 @@ int ClientScene::FindCamera(std::string_view presetName) const {
   return -1;
 }
 
+uint32_t ClientScene::FindObject(std::string_view objectName) const {
+  for (size_t i = 0; i < objects.size(); ++i)
+    if (objects[i].name == objectName) return uint32_t(i + 1);
+  return 0;
+}
+
 ClientScene MakeClientScene(const Scene& scene, const DragoParams& toneMapping) {
+  return MakeClientScene(scene, toneMapping, ScenePose::Initial(scene));
+}
+
+ClientScene MakeClientScene(const Scene& scene, const DragoParams& toneMapping, const ScenePose& pose) {
   ClientScene out;
   out.name = scene.name;
   out.identity = scene.identity;
@@ -26,6 +36,14 @@ ClientScene MakeClientScene(const Scene& scene, const DragoParams& toneMapping) 
   out.textureCount = uint32_t(scene.textures.size());
   out.sky = scene.sky;
   out.toneMapping = toneMapping;
+  out.objects.reserve(scene.objects.size());
+  for (size_t i = 0; i < scene.objects.size(); ++i) {
+    const MovableObject& o = scene.objects[i];
+    out.objects.push_back(ClientObject{o.name, o.objectBounds,
+                                       i < pose.objectToWorld.size() ? pose.objectToWorld[i] : o.objectToWorld,
+                                       o.animation.has_value()});
+  }
+  out.sceneEpoch = pose.epoch;
   return out;
 }
 

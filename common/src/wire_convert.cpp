@@ -1,8 +1,12 @@
 #include "penumbra/common/wire_convert.h"
 
+#include <array>
 #include <cmath>
+#include <span>
 
 #include <fmt/format.h>
+
+#include "penumbra/common/logging.h"
 
 namespace penumbra {
 
@@ -66,6 +70,27 @@ void ToWire(const ClientScene& scene, wire::SceneInfo* info) {
     ToWire(scene.sky->horizon, sky->mutable_horizon());
     ToWire(scene.sky->ground, sky->mutable_ground());
   }
+  for (size_t i = 0; i < scene.objects.size(); ++i) {
+    const ClientObject& o = scene.objects[i];
+    auto* oi = info->add_objects();
+    oi->set_object(uint32_t(i + 1));
+    oi->set_name(o.name);
+    ToWire(o.objectBounds.min, oi->mutable_bounds_min());
+    ToWire(o.objectBounds.max, oi->mutable_bounds_max());
+    ToWire(o.objectToWorld, oi->mutable_object_to_world());
+    oi->set_animated(o.animated);
+  }
+  info->set_scene_epoch(scene.sceneEpoch);
+}
+
+void ToWire(const RigidTransform& t, google::protobuf::RepeatedField<float>* out) {
+  const std::array<float, 12> m = t.ToRowMajor();
+  out->Clear();
+  out->Add(m.begin(), m.end());
+}
+
+Expected<RigidTransform> RigidTransformFromWire(const google::protobuf::RepeatedField<float>& m12) {
+  return RigidTransform::FromRowMajor(std::span<const float>(m12.data(), size_t(m12.size())));
 }
 
 Expected<ClientScene> ClientSceneFromWire(const wire::SceneInfo& info, uint64_t identity) {
@@ -113,6 +138,33 @@ Expected<ClientScene> ClientSceneFromWire(const wire::SceneInfo& info, uint64_t 
   auto toneMapping = ToneMappingFromWire(info.tone_mapping());
   if (!toneMapping) return Fail("scene_info: " + toneMapping.error().message);
   scene.toneMapping = *toneMapping;
+  if (uint32_t(info.objects_size()) > kMaxClientSceneObjects)
+    return Fail(fmt::format("scene_info: {} movable objects; at most {} are supported", info.objects_size(),
+                            kMaxClientSceneObjects));
+  scene.objects.reserve(size_t(info.objects_size()));
+  for (int i = 0; i < info.objects_size(); ++i) {
+    const auto& o = info.objects(i);
+    // Ids are positions: Delta.vertex_objects and MoveObject index by them.
+    if (o.object() != uint32_t(i + 1))
+      return Fail(fmt::format("scene_info: movable object {} ('{}') has id {}; ids are 1, 2, ... in order", i,
+                              Printable(o.name(), 64), o.object()));
+    if (!IsFinite(o.bounds_min()) || !IsFinite(o.bounds_max()))
+      return Fail(fmt::format("scene_info: movable object {} ('{}') has bounds that are not finite", o.object(),
+                              Printable(o.name(), 64)));
+    const Vec3 lo = FromWire(o.bounds_min()), hi = FromWire(o.bounds_max());
+    if (lo.x > hi.x || lo.y > hi.y || lo.z > hi.z)
+      return Fail(fmt::format("scene_info: movable object {} ('{}') has bounds with min above max", o.object(),
+                              Printable(o.name(), 64)));
+    auto transform = RigidTransformFromWire(o.object_to_world());
+    if (!transform)
+      return Fail(fmt::format("scene_info: movable object {} ('{}'): {}", o.object(), Printable(o.name(), 64),
+                              transform.error().message));
+    Bounds3 bounds;
+    bounds.Extend(lo);
+    bounds.Extend(hi);
+    scene.objects.push_back(ClientObject{o.name(), bounds, *transform, o.animated()});
+  }
+  scene.sceneEpoch = info.scene_epoch();
   return scene;
 }
 

@@ -9,6 +9,8 @@
 #include <limits>
 #include <string>
 
+#include <fmt/format.h>
+#include <glm/trigonometric.hpp>
 #include <gtest/gtest.h>
 
 namespace penumbra {
@@ -158,6 +160,142 @@ TEST(WireConvertTest, ASceneInfoThatCannotBeDrawnIsRefusedWithItsReason) {
   // An empty message (what a foreign peer's bytes often decode to) has no
   // usable tone mapping.
   EXPECT_NE(Refusal(wire::SceneInfo()).find("tone mapping"), std::string::npos);
+}
+
+// A static floor with two movable objects: a box lifted above it and an
+// animated panel (issue 14).
+Scene SceneWithObjects() {
+  SceneBuilder builder;
+  Material grey;
+  grey.albedo = Rgb(0.5f);
+  Material lamp;
+  lamp.emission = Rgb(1.0f);
+  const uint32_t g = builder.AddMaterial(grey);
+  const uint32_t l = builder.AddMaterial(lamp);
+  builder.AddQuad(Vec3(-2, 0, -2), Vec3(4, 0, 0), Vec3(0, 0, 4), g);
+  builder.AddQuad(Vec3(-0.5f, 3, -0.5f), Vec3(1, 0, 0), Vec3(0, 0, 1), l);
+  MovableObject box;
+  box.name = "box";
+  box.objectToWorld = RigidTransform::FromAxisAngle(Vec3(0, 1, 0), glm::radians(30.0f), Vec3(0.5f, 1.0f, 0.0f));
+  builder.BeginObject(box);
+  builder.AddQuad(Vec3(-0.25f, 0, -0.25f), Vec3(0.5f, 0, 0), Vec3(0, 0.5f, 0), g);
+  MovableObject panel;
+  panel.name = "swinging panel";
+  ObjectAnimation swing;
+  swing.keys = {ObjectKeyframe{0.0f, RigidTransform::Identity()},
+                ObjectKeyframe{2.0f, RigidTransform::FromAxisAngle(Vec3(0, 0, 1), 0.5f, Vec3(0, 0.5f, 0))}};
+  panel.animation = swing;
+  builder.BeginObject(panel);
+  builder.AddQuad(Vec3(1, 0, 1), Vec3(0.2f, 0, 0), Vec3(0, 0.4f, 0), g);
+  builder.EndObject();
+  Scene scene;
+  scene.name = "objects";
+  EXPECT_TRUE(builder.BuildInto(scene).ok());
+  return scene;
+}
+
+wire::SceneInfo InfoWithObjects() {
+  wire::SceneInfo info;
+  ToWire(MakeClientScene(SceneWithObjects(), DragoParams{}), &info);
+  return info;
+}
+
+TEST(WireConvertTest, MovableObjectsArriveWithTheirIdsBoundsAndPlaces) {
+  const Scene scene = SceneWithObjects();
+  ASSERT_EQ(scene.objects.size(), 2u);
+  ScenePose pose = ScenePose::Initial(scene);
+  pose.epoch = 7;
+  pose.objectToWorld[0] = RigidTransform::FromAxisAngle(Vec3(1, 0, 0), 0.25f, Vec3(1, 2, 3));
+  const ClientScene sent = MakeClientScene(scene, DragoParams{}, pose);
+  ASSERT_EQ(sent.objects.size(), 2u);
+  EXPECT_EQ(sent.sceneEpoch, 7u);
+
+  wire::SceneInfo info;
+  ToWire(sent, &info);
+  ASSERT_EQ(info.objects_size(), 2);
+  EXPECT_EQ(info.objects(0).object(), 1u);  // id = index + 1; 0 is the static part
+  EXPECT_EQ(info.objects(1).object(), 2u);
+  EXPECT_EQ(info.objects(0).object_to_world_size(), 12);
+  auto received = ClientSceneFromWire(ThroughBytes(info), scene.identity);
+  ASSERT_TRUE(received.ok()) << received.error().message;
+  ASSERT_EQ(received->objects.size(), 2u);
+  EXPECT_EQ(received->sceneEpoch, 7u);
+  EXPECT_EQ(received->objects[0].name, "box");
+  EXPECT_FALSE(received->objects[0].animated);
+  EXPECT_EQ(received->objects[1].name, "swinging panel");
+  EXPECT_TRUE(received->objects[1].animated);
+  EXPECT_EQ(received->objects[0].objectBounds.min, scene.objects[0].objectBounds.min);
+  EXPECT_EQ(received->objects[0].objectBounds.max, scene.objects[0].objectBounds.max);
+  EXPECT_EQ(received->FindObject("box"), 1u);
+  EXPECT_EQ(received->FindObject("swinging panel"), 2u);
+  EXPECT_EQ(received->FindObject("chair"), 0u);
+  // The pose's transform, not the scene's initial one, within the rounding
+  // of re-orthonormalisation.
+  const Vec3 p(0.1f, 0.2f, 0.3f);
+  const Vec3 expected = pose.objectToWorld[0].ApplyPoint(p);
+  const Vec3 got = received->objects[0].objectToWorld.ApplyPoint(p);
+  EXPECT_NEAR(got.x, expected.x, 1e-5f);
+  EXPECT_NEAR(got.y, expected.y, 1e-5f);
+  EXPECT_NEAR(got.z, expected.z, 1e-5f);
+  // World bounds enclose the object where it is.
+  const Bounds3 world = received->objects[0].WorldBounds();
+  const Vec3 corner = pose.objectToWorld[0].ApplyPoint(scene.objects[0].objectBounds.max);
+  EXPECT_LE(world.min.x, corner.x + 1e-5f);
+  EXPECT_GE(world.max.x, corner.x - 1e-5f);
+
+  // Without a pose: the initial places, epoch 0; a static scene has no objects.
+  EXPECT_EQ(MakeClientScene(scene, DragoParams{}).sceneEpoch, 0u);
+  EXPECT_EQ(MakeClientScene(scene, DragoParams{}).objects[0].objectToWorld, scene.objects[0].objectToWorld);
+  EXPECT_TRUE(ClientSceneFromWire(ValidInfo(), 1)->objects.empty());
+}
+
+TEST(WireConvertTest, AMovableObjectThatCannotBePlacedIsRefusedWithItsReason) {
+  ASSERT_EQ(Refusal(InfoWithObjects()), "accepted");
+  const float nan = std::nanf("");
+
+  wire::SceneInfo outOfOrder = InfoWithObjects();
+  outOfOrder.mutable_objects(1)->set_object(5);
+  EXPECT_EQ(Refusal(outOfOrder),
+            "scene_info: movable object 1 ('swinging panel') has id 5; ids are 1, 2, ... in order");
+  wire::SceneInfo zeroId = InfoWithObjects();
+  zeroId.mutable_objects(0)->set_object(0);
+  EXPECT_EQ(Refusal(zeroId), "scene_info: movable object 0 ('box') has id 0; ids are 1, 2, ... in order");
+
+  wire::SceneInfo nanBounds = InfoWithObjects();
+  Set(nanBounds.mutable_objects(0)->mutable_bounds_min(), nan, 0, 0);
+  EXPECT_EQ(Refusal(nanBounds), "scene_info: movable object 1 ('box') has bounds that are not finite");
+  wire::SceneInfo inverted = InfoWithObjects();
+  Set(inverted.mutable_objects(0)->mutable_bounds_min(), 5, 5, 5);
+  EXPECT_EQ(Refusal(inverted), "scene_info: movable object 1 ('box') has bounds with min above max");
+
+  wire::SceneInfo shortTransform = InfoWithObjects();
+  shortTransform.mutable_objects(0)->mutable_object_to_world()->RemoveLast();
+  EXPECT_EQ(Refusal(shortTransform),
+            "scene_info: movable object 1 ('box'): a transform has 12 numbers (3x4, row-major), not 11");
+  wire::SceneInfo nanTransform = InfoWithObjects();
+  nanTransform.mutable_objects(1)->set_object_to_world(3, nan);
+  EXPECT_EQ(Refusal(nanTransform), "scene_info: movable object 2 ('swinging panel'): transform entry 3 is not finite");
+  wire::SceneInfo scaled = InfoWithObjects();
+  for (int i : {0, 5, 10}) scaled.mutable_objects(0)->set_object_to_world(i, 2.0f);  // not a rotation
+  EXPECT_NE(Refusal(scaled).find("scene_info: movable object 1 ('box'): the 3x3 part is not a rotation"),
+            std::string::npos)
+      << Refusal(scaled);
+  wire::SceneInfo mirrored = InfoWithObjects();
+  for (int i : {0, 1, 2}) mirrored.mutable_objects(0)->set_object_to_world(i, -mirrored.objects(0).object_to_world(i));
+  EXPECT_NE(Refusal(mirrored).find("not a rotation"), std::string::npos) << Refusal(mirrored);
+
+  // A count that would allocate without bound: a transform per object.
+  wire::SceneInfo tooMany = InfoWithObjects();
+  const wire::MovableObjectInfo first = tooMany.objects(0);
+  for (uint32_t i = 2; i <= kMaxClientSceneObjects; ++i) {
+    auto* o = i == 2 ? tooMany.mutable_objects(1) : tooMany.add_objects();
+    *o = first;
+    o->set_object(i);
+  }
+  EXPECT_EQ(Refusal(tooMany), "accepted");  // exactly the limit
+  *tooMany.add_objects() = first;
+  EXPECT_EQ(Refusal(tooMany), fmt::format("scene_info: {} movable objects; at most {} are supported",
+                                          kMaxClientSceneObjects + 1, kMaxClientSceneObjects));
 }
 
 TEST(WireConvertTest, ToneMappingIsOneTypeOnBothSides) {

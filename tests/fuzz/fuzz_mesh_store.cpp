@@ -1,7 +1,9 @@
 // The client's delta application (client/src/mesh_store.cpp) on its own:
 // deltas applied in order to a mesh store set up for the Cornell box's eight
 // materials, two of them textured, so that the fuzzer spends its time on
-// the store rather than on reaching it through a handshake. A refused delta
+// the store rather than on reaching it through a handshake. The scene has
+// two movable objects (issue 14), so vertex_objects and MOVED deltas are
+// exercised too. A refused delta
 // resets the store, as the client does when it drops the connection.
 // After every delta the store's own view must be consistent: the vertex
 // slots cover every held vertex, and every triangle slot in use names a
@@ -17,12 +19,14 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   (void)quiet;
   // Materials 0..7; 6 and 7 use textures 0 and 1.
   const std::vector<int32_t> materialTextures{-1, -1, -1, -1, -1, -1, 0, 1};
+  const std::vector<RigidTransform> objects{RigidTransform::Identity(),
+                                            RigidTransform::FromAxisAngle(Vec3(0, 1, 0), 0.5f, Vec3(1, 0, 0))};
   client::MeshStore store;
-  store.Reset(materialTextures, 2);
+  store.Reset(materialTextures, 2, objects);
   for (const wire::Envelope& envelope : fuzz::DecodeFrameStream(data, size)) {
     if (!envelope.has_delta()) continue;
     if (!store.Apply(envelope.delta())) {
-      store.Reset(materialTextures, 2);
+      store.Reset(materialTextures, 2, objects);
       continue;
     }
     const auto vertexSlots = store.VertexSlots();
@@ -44,6 +48,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     for (const client::SlotRange& r : store.DirtyVertices().Take())
       PENUMBRA_CHECK(uint64_t(r.first) + r.count <= vertexSlots.size(), "a dirty vertex range beyond the slots in use");
     (void)store.HeldLuminance();
+    PENUMBRA_CHECK(store.ObjectTransforms().size() == objects.size() + 1, "the transform table lost its size");
   }
   return 0;
 }

@@ -13,6 +13,7 @@
 #include <optional>
 #include <set>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "penumbra/client/mesh_store.h"
@@ -52,6 +53,8 @@ class ClientModel {
 
   /// True between a Connected event and the end (or abandonment) of that connection.
   bool Online() const { return online_; }
+  /// The latest connection's number (0 before the first); the mesh was emptied when it changed.
+  uint64_t ConnectionNumber() const { return connection_; }
   /// The latest connection's scene; null before the first connection.
   const ClientScene* Scene() const { return scene_ ? &*scene_ : nullptr; }
   /// Changes whenever a connection serves another scene identity (or the
@@ -59,6 +62,10 @@ class ClientModel {
   uint64_t SceneGeneration() const { return sceneGeneration_; }
   MeshStore& Mesh() { return mesh_; }
   const MeshStore& Mesh() const { return mesh_; }
+
+  /// The SMA's non-fatal error replies (refused moves) since the last call,
+  /// for the HUD; each is logged by the session already.
+  std::vector<SmaErrorReceived> TakeSmaErrors() { return std::exchange(smaErrors_, {}); }
 
   /// Textures received since the last call, for upload. The model keeps no copy.
   std::vector<ReceivedTexture> TakeTextures();
@@ -78,6 +85,7 @@ class ClientModel {
   void OnTexture(TextureReceived&& event, SessionRequests& requests);
   void OnCounters(const SmaCountersReceived& event);
   void Abandon(const std::string& reason, SessionRequests& requests);
+  void ResetMesh();
   void RequestNeededTextures(SessionRequests& requests);
   bool NeededTexturesArrived() const;
 
@@ -93,6 +101,7 @@ class ClientModel {
   std::vector<ReceivedTexture> texturesToUpload_;
   std::optional<SmaReport> smaReport_;
   uint64_t protocolErrors_ = 0;
+  std::vector<SmaErrorReceived> smaErrors_;
 };
 
 }  // namespace penumbra::client

@@ -37,6 +37,7 @@ struct HudState {
   std::optional<double> moveToFirstUpdateMs;  // last camera move -> first answer from the SMA
   float walkSpeed = 0.0f;                     // scene units per second
   std::string notice;                         // e.g. where a screenshot went; empty: none
+  std::string objects;  // movable objects: the move mode, the object grabbed; empty: a static scene
 };
 
 /// The progress part of the HUD.

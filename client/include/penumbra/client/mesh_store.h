@@ -11,16 +11,28 @@
 // and reused by later additions, and the touched slots are recorded as
 // dirty ranges for the renderer to upload. No GL here.
 //
+// Movable objects (issue 14): a vertex of a movable object is kept in its
+// object's space, with the object's id, and the vertex shader places it
+// with the object's transform from a small table (one entry per object,
+// entry 0 the identity for the static part). A MOVED delta changes only
+// that table: no vertex slot is rewritten or re-uploaded, however large the
+// object, and the geometry is never re-sent. (The alternative, world
+// positions re-computed on the CPU, would re-upload every vertex of the
+// object on each move: 30 moves/s of a 100k-vertex chair is 144 MB/s.)
+//
 // Threads: owned by the render thread; not thread-safe.
 
 #include <cstdint>
 #include <optional>
 #include <span>
 #include <unordered_map>
+#include <utility>
 #include <vector>
 
 #include "penumbra/client/slots.h"
 #include "penumbra/common/expected.h"
+#include "penumbra/common/math.h"
+#include "penumbra/common/rigid_transform.h"
 #include "penumbra/common/tonemap.h"
 #include "penumbra/wire.pb.h"
 
@@ -28,11 +40,18 @@ namespace penumbra::client {
 
 /// One vertex slot as the vertex shader fetches it: three RGBA32F texels.
 struct GpuVertex {
-  float position[4];    // world space; w unused
+  float position[4];    // xyz: world space (static), object space (movable); w: object id, 0 static
   float radiance[4];    // linear RGB leaving the surface toward the viewer side; a unused
   float irradiance[4];  // linear RGB irradiance E (textured materials); a unused
 };
 static_assert(sizeof(GpuVertex) == 48, "the shader reads three vec4 texels per vertex");
+
+/// One entry of the object transform table the vertex shader reads: the
+/// object-to-world transform's three rows (r0 r1 r2 t), one RGBA32F texel each.
+struct GpuObjectTransform {
+  float rows[3][4];
+};
+static_assert(sizeof(GpuObjectTransform) == 48, "three vec4 texels per object");
 
 /// Material index of a triangle slot that holds no triangle; the vertex
 /// shader places such corners outside the clip volume.
@@ -74,7 +93,10 @@ class MeshStore {
   /// Empties the store and sets the scene's materials: the texture index of
   /// each material (-1: none), each below `textureCount`. Called on every
   /// (re)connection, so the mesh always starts empty.
-  void Reset(std::span<const int32_t> materialTextures, uint32_t textureCount);
+  /// `objectToWorld` has the scene's movable objects' transforms (object id
+  /// i + 1 at index i) at `sceneEpoch`; empty for a static scene.
+  void Reset(std::span<const int32_t> materialTextures, uint32_t textureCount,
+             std::span<const RigidTransform> objectToWorld = {}, uint64_t sceneEpoch = 0);
 
   /// Applies one delta in the protocol's order: removals, then vertices, then
   /// triangles. Fails with a message naming the delta's sequence and the
@@ -82,6 +104,11 @@ class MeshStore {
   /// length, a value that is not finite, an unknown material, a removal of a
   /// triangle not held, a vertex sent while held, a triangle added while held
   /// or using a vertex not held, a vertex sent but used by no triangle. After
+  /// With movable objects: vertex_objects (one per new vertex, ids in
+  /// range, corners of a triangle all of one object) is checked too; a
+  /// MOVED delta carries only valid ids and rigid transforms (12 floats
+  /// each) and no epoch older than the store's; MOVED and RESHADED carry no
+  /// triangles or new vertices. After
   /// a failure the store is consistent (every held triangle's vertices are
   /// held and counted) but holds part of the delta; the caller drops the
   /// connection and calls Reset().
@@ -92,6 +119,30 @@ class MeshStore {
   bool HoldsTriangle(uint64_t id) const { return triangles_.contains(id); }
   /// How many held triangles use vertex `id`; nullopt when it is not held.
   std::optional<uint32_t> VertexRefs(uint64_t id) const;
+
+  // --- Movable objects
+  /// Movable objects of the scene (ids 1..ObjectCount()).
+  uint32_t ObjectCount() const { return uint32_t(objectToWorld_.size()); }
+  /// The scene epoch of the last MOVED delta (or of the SceneInfo).
+  uint64_t SceneEpoch() const { return sceneEpoch_; }
+  /// MOVED deltas applied since the last reset.
+  uint64_t MovesApplied() const { return movesApplied_; }
+  /// Object `id`'s transform as the SMA last said (id in 1..ObjectCount();
+  /// 0 or out of range: the identity).
+  RigidTransform ConfirmedTransform(uint32_t id) const;
+  /// The transform object `id` is drawn with: a local one (SetLocalTransform)
+  /// if set, else the confirmed one.
+  RigidTransform DisplayedTransform(uint32_t id) const;
+  /// Draws object `id` at `t` instead of where the SMA put it (a drag shown
+  /// before the SMA confirms it); nullopt: back to the confirmed transform.
+  /// Ignored for ids out of range.
+  void SetLocalTransform(uint32_t id, const std::optional<RigidTransform>& t);
+  /// The object id of held vertex `id` (0: static); nullopt when not held.
+  std::optional<uint32_t> VertexObject(uint64_t id) const;
+  /// World position of held vertex `id` as drawn; nullopt when not held.
+  std::optional<Vec3> WorldPosition(uint64_t id) const;
+  /// World position of vertex slot `slot` (< VertexSlots().size()) as drawn.
+  Vec3 WorldPositionOfSlot(uint32_t slot) const;
 
   /// From the last applied delta (0 / false before the first).
   uint64_t LastSequence() const { return sequence_; }
@@ -116,6 +167,11 @@ class MeshStore {
   /// Vertex slots [0, HighWater); free slots hold zeros.
   std::span<const GpuVertex> VertexSlots() const { return {vertexSlots_.data(), vertexAllocator_.HighWater()}; }
   DirtyRanges& DirtyVertices() { return dirtyVertices_; }
+  /// The transform table: entry 0 the identity, entry i object i's displayed transform.
+  std::span<const GpuObjectTransform> ObjectTransforms() const { return objectSlots_; }
+  /// Whether the table changed since the last call (the renderer then uploads it whole: at most
+  /// kMaxClientSceneObjects * 48 bytes).
+  bool TakeObjectTransformsChanged() { return std::exchange(objectsChanged_, false); }
   std::span<TriangleGroup> Groups() { return groups_; }
   std::span<const TriangleGroup> Groups() const { return groups_; }
 
@@ -130,6 +186,9 @@ class MeshStore {
   };
 
   Status CheckShape(const wire::Delta& d) const;
+  Status CheckObjects(const wire::Delta& d) const;
+  void ApplyMoves(const wire::Delta& d);
+  void WriteObjectSlot(uint32_t id);
   Status RemoveTriangle(uint64_t id);
   Status AddVertex(const wire::Delta& d, int index);
   Status AddTriangle(const wire::Delta& d, int index, int uvIndex);
@@ -148,6 +207,12 @@ class MeshStore {
   SlotAllocator vertexAllocator_;
   DirtyRanges dirtyVertices_;
   std::vector<TriangleGroup> groups_;
+  std::vector<RigidTransform> objectToWorld_;  // confirmed; id i + 1 at index i
+  std::vector<std::optional<RigidTransform>> localTransform_;  // same indices
+  std::vector<GpuObjectTransform> objectSlots_;  // 1 + ObjectCount(): the displayed transforms
+  bool objectsChanged_ = true;
+  uint64_t sceneEpoch_ = 0;
+  uint64_t movesApplied_ = 0;
 
   uint64_t sequence_ = 0;
   uint64_t viewId_ = 0;

@@ -26,6 +26,7 @@
 #include "penumbra/common/connection.h"
 #include "penumbra/common/endpoint.h"
 #include "penumbra/common/refinement_params.h"
+#include "penumbra/common/rigid_transform.h"
 #include "penumbra/wire.pb.h"
 
 namespace penumbra::client {
@@ -68,7 +69,22 @@ struct SmaCountersReceived {
   std::map<std::string, double> counters;
 };
 
-using SessionEvent = std::variant<Connected, Disconnected, DeltaReceived, TextureReceived, SmaCountersReceived>;
+/// A non-fatal ErrorReply from the SMA: a request of this client was
+/// refused and nothing changed (a MoveObject on an animated object, say);
+/// the connection goes on.
+struct SmaErrorReceived {
+  uint64_t connection = 0;
+  uint64_t requestId = 0;  // the refused request's; a MoveObject's has kMoveRequestBit
+  bool move = false;       // it answers a MoveObject (or a move that could not be sent: connection 0)
+  std::string message;     // "SMA host:port reports CODE: text", printable
+};
+
+using SessionEvent =
+    std::variant<Connected, Disconnected, DeltaReceived, TextureReceived, SmaCountersReceived, SmaErrorReceived>;
+
+/// MoveObject request ids have this bit set, so that an ErrorReply tells
+/// which kind of request it answers.
+inline constexpr uint64_t kMoveRequestBit = uint64_t(1) << 62;
 
 /// What the render thread's model asks of the network side. Calls name the
 /// connection they concern and are ignored once it has ended.
@@ -151,6 +167,15 @@ class SmaSession final : public SessionRequests {
   /// paper §4). Sent at once when connected, and again after every
   /// reconnection, before the view.
   void SetSessionOptions(const RefinementRequest& request);
+
+  /// Asks the SMA to move object `object` (ClientObject id, 1..N) to
+  /// `objectToWorld` (issue 14); every client of the scene, this one
+  /// included, then receives a MOVED delta. Sent at once when connected;
+  /// without a connection it is dropped (a move is not replayed on a later
+  /// connection, where the scene may have moved on) and an
+  /// SmaErrorReceived says so. A refusal arrives as an SmaErrorReceived.
+  /// Returns the request id (kMoveRequestBit set). Any thread.
+  uint64_t MoveObject(uint32_t object, const RigidTransform& objectToWorld);
 
   /// Every event since the last call, in arrival order. Never blocks.
   std::vector<SessionEvent> TakeEvents();

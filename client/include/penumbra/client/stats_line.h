@@ -38,6 +38,9 @@ struct FrameStats {
   std::string connection;      // ToString(ConnectionState)
   uint64_t connections = 0;    // handshakes so far
   std::optional<SmaReport> sma;
+  uint64_t sceneEpoch = 0;     // of the last MOVED applied (or the SceneInfo): movable objects' places
+  uint64_t movesSent = 0;      // MoveObject requests sent (a drag, or --moves)
+  uint64_t movesPending = 0;   // objects whose last move the SMA has neither confirmed nor refused
 };
 
 /// The JSON object for one frame, without a newline. Absent optionals are null.

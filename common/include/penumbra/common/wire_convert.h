@@ -15,6 +15,7 @@
 #include "penumbra/common/expected.h"
 #include "penumbra/common/math.h"
 #include "penumbra/common/refinement_params.h"
+#include "penumbra/common/rigid_transform.h"
 #include "penumbra/common/tonemap.h"
 #include "penumbra/wire.pb.h"
 
@@ -28,13 +29,23 @@ void ToWire(const DragoParams& params, wire::ToneMapping* out);
 /// finite and positive.
 Expected<DragoParams> ToneMappingFromWire(const wire::ToneMapping& tm);
 
+/// A transform as 12 row-major floats (MovableObjectInfo.object_to_world,
+/// MoveObject, Delta.moved_object_transforms, ShadeRequest.object_transforms).
+void ToWire(const RigidTransform& t, google::protobuf::RepeatedField<float>* out);
+/// RigidTransform::FromRowMajor of the field: refused unless it has 12
+/// finite numbers forming a rigid transform.
+Expected<RigidTransform> RigidTransformFromWire(const google::protobuf::RepeatedField<float>& m12);
+
 /// Everything but `identity` (the Welcome carries it).
 void ToWire(const ClientScene& scene, wire::SceneInfo* out);
 /// The SceneInfo as a ClientScene with `identity` (the Welcome's
 /// scene_hash), or why it cannot be drawn: bounds, presets or colours that
 /// are not finite; more than kMaxSceneTextures textures; a material naming
 /// a texture that does not exist; a sky whose up is not a unit vector or
-/// whose radiance is negative; tone mapping out of range. Messages start
+/// whose radiance is negative; tone mapping out of range; more than
+/// kMaxClientSceneObjects movable objects, an object whose id is not its
+/// position (1, 2, ...), whose bounds are not finite or whose transform is
+/// not rigid (RigidTransform::FromRowMajor). Messages start
 /// with "scene_info: ". What is allocated is bounded by the textures'
 /// count and the message's own size (cameras, materials).
 Expected<ClientScene> ClientSceneFromWire(const wire::SceneInfo& info, uint64_t identity);
