@@ -6,6 +6,7 @@
 
 #include <gtest/gtest.h>
 
+#include <array>
 #include <filesystem>
 #include <string>
 #include <vector>
@@ -171,6 +172,56 @@ TEST(ShadeCodecMalformed, RefusesEachBadReplyWithAReason) {
       EXPECT_LT(decoded->size(), 2u) << "cut at " << cut;
     }
   }
+}
+
+
+// Movable objects (issue 14): a batch carries its pose -- epoch and one
+// transform per object -- and world positions and normals at it, for the
+// object's samples as for the static part's.
+TEST(ShadeCodecPose, ObjectSamplesGoInWorldSpaceAtTheBatchsPose) {
+  SceneBuilder b;
+  const uint32_t m = b.AddMaterial(Material{});
+  b.AddQuad(Vec3(-2.0f, 0.0f, -2.0f), Vec3(0, 0, 4), Vec3(4, 0, 0), m);
+  MovableObject box;
+  box.name = "box";
+  b.BeginObject(box);
+  b.AddQuad(Vec3(-0.5f, 0.0f, -0.5f), Vec3(0, 0, 1), Vec3(1, 0, 0), m);
+  b.EndObject();
+  Scene scene;
+  ASSERT_TRUE(b.BuildInto(scene).ok());
+  sma::Hierarchy hierarchy(scene);
+  std::vector<sma::SampleRequest> requests;
+  for (sma::VertexId v = 0; v < hierarchy.VertexCount(); ++v) requests.push_back(sma::MakeSampleRequest(hierarchy, v));
+
+  ScenePose pose = ScenePose::Initial(scene);
+  pose.epoch = 9;
+  pose.objectToWorld[0] = RigidTransform::FromAxisAngle(Vec3(1, 0, 0), 0.5f, Vec3(0.0f, 1.5f, 0.25f));
+  const wire::Envelope envelope = FromFrame(*sma::EncodeShadeRequestFrame(3, 0, requests, &pose));
+  const wire::ShadeRequest& r = envelope.shade_request();
+  EXPECT_EQ(r.scene_epoch(), 9u);
+  ASSERT_EQ(r.object_transforms_size(), 12);
+  const std::array<float, 12> m12 = pose.objectToWorld[0].ToRowMajor();
+  for (int i = 0; i < 12; ++i) EXPECT_EQ(r.object_transforms(i), m12[size_t(i)]);
+  ASSERT_EQ(r.positions_size(), int(3 * requests.size()));
+  size_t objectSamples = 0;
+  for (size_t i = 0; i < requests.size(); ++i) {
+    const sma::SampleVertex& sv = hierarchy.GetVertex(requests[i].vertex);
+    const uint32_t object = scene.ObjectOfTriangle(sv.baseTriangle);
+    EXPECT_EQ(requests[i].object, object);
+    objectSamples += object != kStaticObject;
+    const Vec3 world = WorldPointAt(scene, pose, sv.baseTriangle, sv.bary.x, sv.bary.y);
+    const Vec3 worldNormal = pose.Of(object).ApplyVector(sv.normal);
+    for (int k = 0; k < 3; ++k) {
+      EXPECT_NEAR(r.positions(int(3 * i) + k), world[k], 1e-5f) << "sample " << i;
+      EXPECT_NEAR(r.normals(int(3 * i) + k), worldNormal[k], 1e-5f) << "sample " << i;
+    }
+  }
+  EXPECT_GT(objectSamples, 0u);
+
+  // A static scene's batches carry epoch 0 and no transforms, as before.
+  const wire::Envelope plain = FromFrame(*sma::EncodeShadeRequestFrame(4, 0, requests));
+  EXPECT_EQ(plain.shade_request().scene_epoch(), 0u);
+  EXPECT_EQ(plain.shade_request().object_transforms_size(), 0);
 }
 
 }  // namespace

@@ -16,6 +16,12 @@ void AddVec3(google::protobuf::RepeatedField<float>* out, const Vec3& v) {
   out->Add(v.z);
 }
 
+// Delta.vertex_objects: 0 for the static part, else the object's index + 1.
+uint32_t WireObjectOf(const Scene& scene, uint32_t baseTriangle) {
+  const uint32_t object = scene.ObjectOfTriangle(baseTriangle);
+  return object == kStaticObject ? 0 : object + 1;
+}
+
 }  // namespace
 
 size_t ClientMirror::AppendChanges(std::span<const NodeId> removals, std::span<const NodeId> additions,
@@ -29,6 +35,7 @@ size_t ClientMirror::AppendChanges(std::span<const NodeId> removals, std::span<c
     }
   }
   const Scene& scene = hierarchy.GetScene();
+  const bool objects = !scene.objects.empty();
   size_t added = 0;
   for (NodeId id : additions) {
     if (!held_.insert(id).second) continue;
@@ -37,7 +44,11 @@ size_t ClientMirror::AppendChanges(std::span<const NodeId> removals, std::span<c
     for (VertexId v : node.v) {
       if (vertexRefs_[v]++ > 0) continue;
       delta.add_vertex_ids(v);
-      AddVec3(delta.mutable_vertex_positions(), hierarchy.GetVertex(v).position);
+      // Object space for a movable object's vertex: the client places it
+      // with the object's transform, so a move re-sends no geometry.
+      const SampleVertex& sv = hierarchy.GetVertex(v);
+      AddVec3(delta.mutable_vertex_positions(), sv.position);
+      if (objects) delta.add_vertex_objects(WireObjectOf(scene, sv.baseTriangle));
       const CachedSample sample = cache.Read(v).value_or(CachedSample{});  // one version of both
       AddVec3(delta.mutable_vertex_radiance(), sample.radiance);
       AddVec3(delta.mutable_vertex_irradiance(), sample.irradiance);
@@ -62,10 +73,13 @@ size_t ClientMirror::AppendUpdates(std::span<const VertexId> vertices, const Sam
   size_t n = 0;
   for (VertexId v : vertices) {
     if (!HoldsVertex(v)) continue;
+    // A sample invalidated by a move since the update was owed: its reshade
+    // comes as its own update, never a black one now.
+    const std::optional<CachedSample> sample = cache.Read(v);
+    if (!sample) continue;
     delta.add_updated_vertex_ids(v);
-    const CachedSample sample = cache.Read(v).value_or(CachedSample{});
-    AddVec3(delta.mutable_updated_vertex_radiance(), sample.radiance);
-    AddVec3(delta.mutable_updated_vertex_irradiance(), sample.irradiance);
+    AddVec3(delta.mutable_updated_vertex_radiance(), sample->radiance);
+    AddVec3(delta.mutable_updated_vertex_irradiance(), sample->irradiance);
     ++n;
   }
   return n;

@@ -53,6 +53,9 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.0001f, 1.0f))->capture_default_str();
   app.add_option("--improve-max-paths", options.improveMaxPaths, "... or until they average this many paths")
       ->check(CLI::Range(1u, 1u << 24))->capture_default_str();
+  app.add_option("--animation-hz", options.animationHz,
+                 "Moves per second the SMA makes of each animated object along its path (0: paths not played)")
+      ->check(CLI::Range(0.0, 1000.0))->capture_default_str();
   app.add_option("--credits", options.pool.creditsPerRenderer, "Batches in flight per renderer")
       ->check(CLI::Range(1u, 1024u))->capture_default_str();
   app.add_option("--max-batch", options.pool.maxBatchSamples, "Largest batch sent to a renderer")

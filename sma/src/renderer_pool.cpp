@@ -271,18 +271,36 @@ void RendererPool::Complete(std::span<const ShadedSample> samples) {
   scheduler_.Complete(samples);
 }
 
+void RendererPool::Retry(std::span<const VertexId> vertices) {
+  {
+    std::lock_guard lock(mutex_);
+    scheduler_.Retry(vertices);
+  }
+  PostDispatch();
+}
+
+void RendererPool::SetPose(std::shared_ptr<const ScenePose> pose) {
+  std::lock_guard lock(mutex_);
+  scheduler_.SetEpoch(pose ? pose->epoch : 0);
+  pose_ = std::move(pose);
+}
+
 void RendererPool::Dispatch() {
   std::vector<std::pair<std::shared_ptr<RendererLink>, AssignedBatch>> batches;
+  std::shared_ptr<const ScenePose> pose;
   {
     std::lock_guard lock(mutex_);
     if (stopped_ || scheduler_.Queued() == 0) return;
+    // The pose and the batches' epoch are read under one lock: a batch is
+    // encoded at the epoch the scheduler expects in its reply.
+    pose = pose_;
     for (AssignedBatch& batch : scheduler_.Assemble()) batches.emplace_back(FindLinkLocked(batch.renderer), std::move(batch));
   }
   // Encoded and sent without the pool's lock: a large batch's encoding must
   // not hold up replies, requests and statistics.
   for (auto& [link, batch] : batches) {
     if (!link) continue;  // cannot happen: a renderer leaves the scheduler when its link goes
-    if (!link->Send(EncodeShadeRequestFrame(batch.id, batch.pathsPerSample, batch.samples)))
+    if (!link->Send(EncodeShadeRequestFrame(batch.id, batch.pathsPerSample, batch.samples, pose.get())))
       link->Drop("cannot queue a batch");  // closing requeues it (OnLinkClosed)
   }
 }
@@ -314,6 +332,7 @@ RendererPoolStats RendererPool::Stats() const {
   s.requeued = c.requeued;
   s.failed = c.failed;
   s.rejected = c.rejected;
+  s.retried = c.retried;
   for (const auto& link : links_) {
     const RendererLoad load = scheduler_.Load(link->Index());
     RendererStatus r;

@@ -86,6 +86,7 @@ void SampleCache::WriteValues(Slot& s, const ShadedSample& sample, uint16_t roun
   s.irradianceStdErr.store(sample.irradianceStdErr, kRelaxed);
   s.paths.store(sample.paths, kRelaxed);
   s.rounds.store(rounds, kRelaxed);
+  s.epoch.store(sample.epoch, kRelaxed);
 }
 
 template <typename F>
@@ -108,7 +109,8 @@ std::optional<CachedSample> SampleCache::Read(VertexId v) const {
   return ReadConsistent(v, [](const Slot& s) -> std::optional<CachedSample> {
     if (!s.shaded.load(kRelaxed)) return std::nullopt;
     return CachedSample{LoadRgb(s.radiance), LoadRgb(s.irradiance), s.irradianceStdErr.load(kRelaxed),
-                        s.paths.load(kRelaxed), s.rounds.load(kRelaxed), s.generation.load(kRelaxed)};
+                        s.paths.load(kRelaxed), s.rounds.load(kRelaxed), s.generation.load(kRelaxed),
+                        s.epoch.load(kRelaxed)};
   });
 }
 
@@ -134,6 +136,10 @@ uint32_t SampleCache::Generation(VertexId v) const {
   const Slot* s = Find(v);
   return s ? s->generation.load(std::memory_order_acquire) : 0;
 }
+uint64_t SampleCache::ValidFrom(VertexId v) const {
+  const Slot* s = Find(v);
+  return s ? s->validFrom.load(std::memory_order_acquire) : 0;
+}
 
 float SampleCache::RelativeError(VertexId v) const {
   const auto sample = Read(v);
@@ -144,7 +150,7 @@ float SampleCache::RelativeError(VertexId v) const {
   return e > 0.0f ? err / e : std::numeric_limits<float>::infinity();
 }
 
-std::vector<VertexId> SampleCache::Improve(std::span<const ShadedSample> samples) {
+std::vector<VertexId> SampleCache::Improve(std::span<const ShadedSample> samples, std::vector<VertexId>* stale) {
   std::vector<VertexId> changed;
   changed.reserve(samples.size());
   for (const ShadedSample& sample : samples) {
@@ -152,7 +158,11 @@ std::vector<VertexId> SampleCache::Improve(std::span<const ShadedSample> samples
     Slot& s = SlotFor(sample.vertex);
     const uint32_t sequence = BeginWrite(s);
     const uint16_t rounds = s.rounds.load(kRelaxed);
-    if (s.shaded.load(kRelaxed) && sample.round == rounds + 1) {
+    if (sample.epoch < s.validFrom.load(kRelaxed) || s.awaitingReshade.load(kRelaxed)) {
+      // Shaded at a pose a move has since changed, or of a vertex whose
+      // sample was invalidated: it needs a first estimate again.
+      if (stale) stale->push_back(sample.vertex);
+    } else if (s.shaded.load(kRelaxed) && sample.round == rounds + 1) {
       const uint32_t paths = s.paths.load(kRelaxed);
       const double n1 = std::max<uint32_t>(1, paths), n2 = std::max<uint32_t>(1, sample.paths), n = n1 + n2;
       const float w1 = float(n1 / n), w2 = float(n2 / n);
@@ -164,6 +174,7 @@ std::vector<VertexId> SampleCache::Improve(std::span<const ShadedSample> samples
       mixed.irradianceStdErr =
           std::sqrt(w1 * w1 * err * err + w2 * w2 * sample.irradianceStdErr * sample.irradianceStdErr);
       mixed.paths = uint32_t(std::min<double>(n, std::numeric_limits<uint32_t>::max()));
+      mixed.epoch = std::min(sample.epoch, s.epoch.load(kRelaxed));  // the older pose it still mixes
       WriteValues(s, mixed, sample.round);
       changed.push_back(sample.vertex);
     }
@@ -173,14 +184,19 @@ std::vector<VertexId> SampleCache::Improve(std::span<const ShadedSample> samples
   return changed;
 }
 
-size_t SampleCache::Put(std::span<const ShadedSample> samples, bool keepRounds) {
+size_t SampleCache::Put(std::span<const ShadedSample> samples, bool keepRounds, std::vector<VertexId>* stale) {
   size_t added = 0;
   for (const ShadedSample& sample : samples) {
     if (sample.vertex == kNoVertex) continue;
     Slot& s = SlotFor(sample.vertex);
     const uint32_t sequence = BeginWrite(s);
-    if (!s.shaded.load(kRelaxed)) {
+    // The epoch check is inside the slot's sequence, like Invalidate's
+    // write of validFrom: whichever comes second sees the other.
+    if (sample.epoch < s.validFrom.load(kRelaxed)) {
+      if (stale) stale->push_back(sample.vertex);
+    } else if (!s.shaded.load(kRelaxed)) {
       WriteValues(s, sample, keepRounds ? sample.round : 0);
+      if (s.awaitingReshade.exchange(0, kRelaxed)) ++reshaded_;
       // Release: IsShaded()'s acquire load then sees the values (and
       // EndWrite publishes them to Read()).
       s.shaded.store(1, std::memory_order_release);
@@ -193,8 +209,10 @@ size_t SampleCache::Put(std::span<const ShadedSample> samples, bool keepRounds) 
   return added;
 }
 
-size_t SampleCache::Store(std::span<const ShadedSample> samples) { return Put(samples, false); }
-size_t SampleCache::Restore(std::span<const ShadedSample> samples) { return Put(samples, true); }
+size_t SampleCache::Store(std::span<const ShadedSample> samples, std::vector<VertexId>* stale) {
+  return Put(samples, false, stale);
+}
+size_t SampleCache::Restore(std::span<const ShadedSample> samples) { return Put(samples, true, nullptr); }
 
 bool SampleCache::Evict(VertexId v) {
   if (v >= Size()) return false;
@@ -212,6 +230,27 @@ bool SampleCache::Evict(VertexId v) {
     ++changes_;
   }
   return wasShaded;
+}
+
+bool SampleCache::Invalidate(VertexId v, uint64_t epoch) {
+  Slot& s = SlotFor(v);
+  const uint32_t sequence = BeginWrite(s);
+  if (s.validFrom.load(kRelaxed) < epoch) s.validFrom.store(epoch, std::memory_order_release);
+  // A sample already shaded at this pose (dispatched after the move was
+  // published, stored before it was applied here) is kept.
+  const bool evict = s.shaded.load(kRelaxed) != 0 && s.epoch.load(kRelaxed) < epoch;
+  if (evict) {
+    s.shaded.store(0, std::memory_order_release);
+    s.awaitingReshade.store(1, std::memory_order_release);
+    WriteValues(s, ShadedSample{v, Rgb(0.0f), Rgb(0.0f), 0.0f, 0, 0, 0}, 0);
+    s.generation.fetch_add(1, std::memory_order_release);
+  }
+  EndWrite(s, sequence);
+  if (evict) {
+    --shadedCount_;
+    ++changes_;
+  }
+  return evict;
 }
 
 }  // namespace penumbra::sma

@@ -72,6 +72,28 @@ void SampleScheduler::Complete(std::span<const ShadedSample> samples) {
   }
 }
 
+void SampleScheduler::Retry(std::span<const VertexId> vertices) {
+  for (VertexId v : vertices) {
+    auto it = entries_.find(v);
+    if (it == entries_.end() || it->second.state != EntryState::kAnswered) continue;
+    Entry& e = it->second;
+    e.state = EntryState::kQueued;
+    e.improve = false;
+    e.request.round = 0;
+    e.invalidReplies = 0;
+    ++queuedTotal_;
+    ++retried_;
+    if (e.interest > 0) {
+      e.inVisibleQueue = true;
+      ++queuedVisible_;
+      visibleQueue_.push_front(v);
+    } else {
+      e.inVisibleQueue = false;
+      backgroundQueue_.push_front(v);
+    }
+  }
+}
+
 // --- Renderers ------------------------------------------------------------------
 
 void SampleScheduler::RendererReady(RendererId renderer, const RendererCapacity& capacity) {
@@ -166,8 +188,14 @@ ReplyOutcome SampleScheduler::OnReply(RendererId id, const wire::ShadeReply& rep
   // The whole part is checked before any of it is taken: a bad sample after
   // good ones drops the renderer, and every sample of the batch (the good
   // ones too) must then still be in flight so that it is requeued, not lost.
+  if (reply.scene_epoch() != batch.epoch)
+    return Reject(renderer, id,
+                  fmt::format("reply for batch {} was shaded at scene epoch {}, but the batch asked for epoch {} "
+                              "(a renderer without movable-object support?)",
+                              batchId, reply.scene_epoch(), batch.epoch));
   auto decoded = DecodeShadeReply(reply, batch.paths);
   if (!decoded) return Reject(renderer, id, fmt::format("reply for batch {}: {}", batchId, decoded.error().message));
+  for (ShadedSample& sample : *decoded) sample.epoch = batch.epoch;
   for (const ShadedSample& sample : *decoded) {
     auto e = entries_.find(sample.vertex);
     if (e == entries_.end() || e->second.state != EntryState::kInFlight || e->second.batch != batchId ||
@@ -318,9 +346,10 @@ std::vector<AssignedBatch> SampleScheduler::Assemble() {
       const uint32_t paths = priority == Priority::kImprove                               ? options_.improvePaths
                              : priority == Priority::kVisible && options_.firstPaths > 0 ? options_.firstPaths
                                                                                           : options_.pathsPerSample;
-      AssignedBatch assigned{id, nextBatchId_++, paths, {}};
+      AssignedBatch assigned{id, nextBatchId_++, epoch_, paths, {}};
       Batch batch;
       batch.paths = paths > 0 ? paths : r.capacity.defaultPaths;
+      batch.epoch = epoch_;
       batch.sentAt = now;
       for (bool first = true; first || (batch.vertices.size() < size && TakeNext(priority, v)); first = false) {
         Entry& e = entries_.at(v);
@@ -362,6 +391,7 @@ SchedulerCounters SampleScheduler::Counters() const {
   c.requeued = requeued_;
   c.failed = failed_;
   c.rejected = rejected_;
+  c.retried = retried_;
   return c;
 }
 

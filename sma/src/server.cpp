@@ -10,6 +10,7 @@
 #include <fmt/format.h>
 
 #include "penumbra/common/auth.h"
+#include "penumbra/common/embree_scene.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
 #include "penumbra/common/server_skeleton.h"
@@ -22,6 +23,7 @@
 #include "penumbra/sma/refinement.h"
 #include "penumbra/sma/sample_cache.h"
 #include "penumbra/sma/refinement_driver.h"
+#include "penumbra/sma/scene_moves.h"
 #include "penumbra/sma/texture_frames.h"
 #include "penumbra/sma/view_session.h"
 #include "penumbra/sma/visibility.h"
@@ -38,12 +40,24 @@ double Ms(Clock::duration d) { return std::chrono::duration<double, std::milli>(
 
 // Descend into a node's children once every vertex its split added is
 // shaded: a parent is replaced by its children only when they can be drawn.
+// A midpoint whose sample a move invalidated still counts (its reshade is
+// on its way): clients keep the children they hold, with the old radiance,
+// until the RESHADED update, instead of losing them to a coarser parent.
 bool ChildrenShaded(const Node& node, const void* context) {
   const auto& cache = *static_cast<const SampleCache*>(context);
   for (VertexId m : node.mid)
-    if (m != kNoVertex && !cache.IsShaded(m)) return false;
+    if (m != kNoVertex && !cache.IsShaded(m) && !cache.AwaitingReshade(m)) return false;
   return true;
 }
+
+// What every session hears about one applied move (posted to its strand).
+struct MoveNotice {
+  std::shared_ptr<const ScenePose> pose;  // the new pose
+  std::vector<uint32_t> movedObjects;     // indices into Scene::objects whose place changed
+};
+
+// A job of its own in the JobSchedulers' round-robin (not a client's).
+constexpr uint64_t kMoveJobSession = ~uint64_t(0);
 
 }  // namespace
 
@@ -84,6 +98,9 @@ class SmaServer::Impl {
     pool_ = RendererPool::Create(
         io_, options_.pool, [this](std::vector<ShadedSample>&& samples) { OnResults(std::move(samples)); },
         [this](VertexId v) { return cache_.IsShaded(v); });
+    pose_ = std::make_shared<const ScenePose>(ScenePose::Initial(scene));
+    posed_ = tracer_->Initial();
+    pool_->SetPose(pose_);
     if (restored) {
       std::vector<SampleRequest> requests;
       for (VertexId v : UnshadedMidpoints(hierarchy_, cache_)) requests.push_back(MakeSampleRequest(hierarchy_, v));
@@ -98,6 +115,7 @@ class SmaServer::Impl {
     pool_->Start();
     if (snapshots_) snapshots_->Start(stateMutex_, hierarchy_, cache_);
     ArmRendererWatch();
+    StartAnimation();
     skeleton_.RunIo(options_.ioThreads);
     if (snapshots_) snapshots_->Stop();  // the final snapshot
     log_->info("{}: stopped", options_.name);
@@ -121,17 +139,27 @@ class SmaServer::Impl {
     // No state lock: the cache is safe to write while views read it
     // (sample_cache.h), so this I/O thread never waits on a view's mapping.
     // Stored before Complete: a vertex is always in the cache or in the pool.
-    std::vector<VertexId> changed;
-    if (!samples.empty()) cache_.Store(samples);
-    if (!improvements.empty()) changed = cache_.Improve(improvements);
+    // A sample shaded at a pose a move has since changed (its epoch is
+    // before its vertex's invalidation) is refused by the cache and asked
+    // again -- before Complete, so the vertex stays alive in the pool.
+    std::vector<VertexId> changed, stale;
+    if (!samples.empty()) cache_.Store(samples, &stale);
+    if (!improvements.empty()) changed = cache_.Improve(improvements, &stale);
+    if (!stale.empty()) {
+      pool_->Retry(stale);
+      samplesStale_ += stale.size();
+      std::sort(stale.begin(), stale.end());
+    }
     pool_->Complete(samples);
     pool_->Complete(improvements);
     samplesImproved_ += changed.size();
     if (!samples.empty()) {
       auto vertices = std::make_shared<std::vector<VertexId>>();
       vertices->reserve(samples.size());
-      for (const ShadedSample& s : samples) vertices->push_back(s.vertex);
-      for (auto& session : Sessions()) NotifyArrived(session, vertices);
+      for (const ShadedSample& s : samples)
+        if (!std::binary_search(stale.begin(), stale.end(), s.vertex)) vertices->push_back(s.vertex);
+      if (!vertices->empty())
+        for (auto& session : Sessions()) NotifyArrived(session, vertices);
     }
     if (!improvements.empty()) {
       auto answered = std::make_shared<std::vector<VertexId>>();
@@ -150,6 +178,25 @@ class SmaServer::Impl {
   void NotifyImproved(const std::shared_ptr<Session>& session, std::shared_ptr<const std::vector<VertexId>> answered,
                       std::shared_ptr<const std::vector<VertexId>> improved);
   std::atomic<uint64_t> samplesImproved_{0};
+  std::atomic<uint64_t> samplesStale_{0};  // refused as shaded before their vertex's invalidation
+
+  // --- Moving objects (issue 14; scene_moves.h) ---
+  /// The current pose and the visibility scene at it. Thread-safe copies.
+  std::shared_ptr<const ScenePose> CurrentPose() {
+    std::lock_guard lock(poseMutex_);
+    return pose_;
+  }
+  std::shared_ptr<const PosedEmbreeScene> CurrentPosed() {
+    std::lock_guard lock(poseMutex_);
+    return posed_;
+  }
+  /// Any thread: queues a checked move; the job that applies moves (one at a
+  /// time, coalescing those that arrive meanwhile) is posted if none is.
+  void SubmitMove(const ObjectMove& move) {
+    if (shuttingDown_) return;
+    if (moveQueue_.Add(move)) jobs_.Post(kMoveJobSession, JobClass::kNewView, [this] { ApplyMoves(); });
+  }
+  std::atomic<uint64_t> movesRefused_{0};
 
   void AddGlobalCounters(wire::StatsReply* reply);
   // Timings of the views answered since the last stats line (any session).
@@ -190,6 +237,15 @@ class SmaServer::Impl {
 
  private:
   void LogStats();
+  // Job thread: applies the waiting moves until none is left.
+  void ApplyMoves();
+  void ApplyMoveStep(std::span<const ObjectMove> moves);
+  // The animation clock: every 1/animationHz, each animated object's place
+  // on its path is submitted as a move.
+  void StartAnimation();
+  void ArmAnimation();
+  asio::steady_timer animationTimer_{io_};
+  Clock::time_point animationStart_;
   // Shutdown, on an I/O thread: abandon the work (a running trace or
   // refinement step stops at its next tile or split; it took 7 s to finish
   // them): nobody will see it.
@@ -205,6 +261,18 @@ class SmaServer::Impl {
   RendererPoolStats lastStats_;
   std::mutex viewTimesMutex_;
   std::vector<std::array<double, 3>> viewTimes_;  // trace, map, view -> first delta (ms)
+  // Pose: replaced (never changed in place) by the move job; readers copy
+  // the pointers under poseMutex_ (a leaf: nothing else is taken under it).
+  std::mutex poseMutex_;
+  std::shared_ptr<const ScenePose> pose_;
+  std::shared_ptr<const PosedEmbreeScene> posed_;
+  MoveCoalescer moveQueue_;
+  std::atomic<uint64_t> moves_{0};             // moves applied (scene epochs after 0)
+  std::atomic<uint64_t> samplesInvalidated_{0};  // cached samples evicted by moves
+  std::atomic<uint64_t> lastMoveInvalidated_{0};
+  std::atomic<uint64_t> lastMoveCached_{0};    // samples cached just before the last move
+  std::atomic<uint64_t> lastMoveReshadedBase_{0};  // cache_.Reshaded() when the last move was applied
+  std::atomic<double> lastMoveApplyMs_{0.0};
   net::ServerSkeleton<Session> skeleton_;  // listener, sessions, signals, stats timer, drain
   // Last member: stopped (its thread joined) before the state it reads goes.
   std::unique_ptr<CacheSnapshotter> snapshots_;
@@ -237,6 +305,9 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   void OnSamplesArrived(const std::vector<VertexId>& vertices);
   // Strand: improvements came back; `improved` changed the cache.
   void OnSamplesImproved(const std::vector<VertexId>& answered, const std::vector<VertexId>& improved);
+  /// Strand: a move was applied: MOVED to the client, held vertices it
+  /// invalidated asked again, the view re-traced at the new pose.
+  void OnMoved(const MoveNotice& notice);
   /// Strand: `renderers` are connected now; tell the client if it was told otherwise.
   void OnRendererCount(size_t renderers) {
     if (state_.RenderersOutdated(renderers)) SendStatus();
@@ -255,6 +326,7 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   void OnStatsRequest(const wire::StatsRequest& request);
   void OnTextureRequest(const wire::TextureRequest& request);
   void OnSessionOptions(const wire::SessionOptions& options);
+  void OnMoveObject(const wire::MoveObject& move);
   void OnClosed(const std::string& reason);
   void Fatal(wire::ErrorCode code, const std::string& message) {
     log_->warn("{}: {} (closing)", connection_->Id(), message);
@@ -295,6 +367,7 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   /// Encodes and sends the outbox -- never under the state lock.
   void Flush();
   void FillStatus(wire::Delta& delta, bool last) {
+    delta.set_scene_epoch(epochSent_);  // the epoch of the transforms the client was last told
     if (auto ms = state_.FillStatus(delta, last, server_.pool_->ReadyRenderers(), Clock::now()))
       server_.latencies_.toConverged.Observe(*ms / 1000.0);
   }
@@ -336,6 +409,13 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   // improved), sent when its queue allows.
   std::unordered_set<VertexId> updatesOwed_;
   uint64_t updatesSent_ = 0;
+  // Moves (issue 14): the scene epoch whose transforms the client has
+  // (SceneInfo, then each MOVED), and the held vertices whose reshade
+  // arrived and is owed as RESHADED.
+  uint64_t epochSent_ = 0;
+  std::unordered_set<VertexId> reshadesOwed_;
+  uint64_t reshadesSent_ = 0;
+  uint64_t movesSent_ = 0;
   uint64_t improvementsAsked_ = 0;
 
   // Resource limits (issue 12). Visibility: this client's reservation in
@@ -379,6 +459,8 @@ void SmaServer::Impl::Session::OnMessage(wire::Envelope&& envelope) {
       return OnTextureRequest(envelope.texture_request());
     case wire::Envelope::kSessionOptions:
       return OnSessionOptions(envelope.session_options());
+    case wire::Envelope::kMoveObject:
+      return OnMoveObject(envelope.move_object());
     case wire::Envelope::kError:
       log_->warn("{}: client reports {}: {}", connection_->Id(), wire::ErrorCode_Name(envelope.error().code()),
                  envelope.error().message());
@@ -408,6 +490,10 @@ void SmaServer::Impl::Session::OnHello(const wire::Hello& hello) {
 
   wire::Envelope infoEnvelope;
   ToWire(MakeClientScene(scene, server_.options_.toneMapping), infoEnvelope.mutable_scene_info());
+  // The objects where they are now: moves after this one come as MOVED.
+  const std::shared_ptr<const ScenePose> pose = server_.CurrentPose();
+  FillSceneInfoObjects(scene, *pose, infoEnvelope.mutable_scene_info());
+  epochSent_ = pose->epoch;
   connection_->Send(infoEnvelope);
   connection_->MarkHandshakeDone();
   log_->info("{}: client '{}' joined", connection_->Id(), Printable(hello.peer_name()));
@@ -475,9 +561,12 @@ void SmaServer::Impl::Session::StartJob() {
     Impl& server = self->server_;
     JobTimings t;
     auto t0 = Clock::now();
-    if (!hits) {
+    // A re-map of hits traced before a move traces again: the object may
+    // now hide or reveal triangles.
+    const std::shared_ptr<const PosedEmbreeScene> posed = server.CurrentPosed();
+    if (!hits || hits->epoch != posed->Pose().epoch) {
       hits = std::make_shared<HitBuffer>();
-      server.tracer_->Trace(view, *hits, &server.shuttingDown_);
+      server.tracer_->Trace(view, *hits, &server.shuttingDown_, posed.get());
       ++server.viewTraces_;
     }
     auto t1 = Clock::now();
@@ -527,6 +616,8 @@ void SmaServer::Impl::Session::OnJobDone(uint64_t viewId, bool newView, std::sha
     StartJob();
     return;
   }
+  // Traced at a pose a move has since replaced: re-map (and re-trace) soon.
+  if (hits_->epoch != server_.CurrentPose()->epoch) state_.WantRemap();
   if (state_.RemapWanted()) ScheduleRefresh();
   NoteStage1();
   MaybeRefine();
@@ -548,6 +639,7 @@ void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
   server.pool_->Request(requests, Priority::kVisible);
   server.pool_->ReleaseInterest(interest_);
   interest_ = plan.missing;
+  state_.PruneReshades([this](VertexId v) { return mirror_.HoldsVertex(v); });
   for (NodeId id : state_.BeginShading(plan.pending, server.hierarchy_, server.cache_, newView))
     plan.addCached.push_back(id);
 
@@ -613,11 +705,28 @@ void SmaServer::Impl::Session::Flush() {
 void SmaServer::Impl::Session::OnSamplesArrived(const std::vector<VertexId>& vertices) {
   if (!state_.HasVisible() || !connection_->IsOpen()) return;
   const ViewSession::Arrived arrived = state_.OnSamplesArrived(vertices, server_.hierarchy_.BaseVertexCount());
+  // A first estimate of a vertex the client already holds can only be the
+  // reshade of a sample a move invalidated (added nodes' corners are always
+  // shaded): it goes as RESHADED.
+  bool reshaded = false;
+  for (VertexId v : vertices) {
+    if (!mirror_.HoldsVertex(v)) continue;
+    reshadesOwed_.insert(v);
+    updatesOwed_.erase(v);
+    reshaded = true;
+  }
   if (arrived.remapWanted) {
     state_.WantRemap();
     ScheduleRefresh();
   }
-  if (arrived.candidates.empty()) return;
+  if (arrived.candidates.empty()) {
+    if (reshaded) {
+      SendUpdates();
+      SyncStatus();
+      MaybeImprove();
+    }
+    return;
+  }
   std::shared_lock lock(server_.stateMutex_);
   const std::vector<NodeId> ready = state_.TakeReady(arrived.candidates, server_.hierarchy_, server_.cache_);
   if (Blocked()) {
@@ -628,6 +737,7 @@ void SmaServer::Impl::Session::OnSamplesArrived(const std::vector<VertexId>& ver
   QueueChanges(wire::DELTA_KIND_SHADED, {}, ready, /*alwaysSend=*/state_.Converged(), /*last=*/true);
   lock.unlock();
   Flush();
+  if (reshaded) SendUpdates();
   NoteStage1();
   MaybeRefine();
   MaybeImprove();
@@ -678,35 +788,43 @@ void SmaServer::Impl::Session::OnSamplesImproved(const std::vector<VertexId>& an
   state_.OnImprovementsAnswered(answered);
   if (!state_.HasVisible() || !connection_->IsOpen()) return;
   for (VertexId v : improved)
-    if (mirror_.HoldsVertex(v)) updatesOwed_.insert(v);
+    if (mirror_.HoldsVertex(v) && !reshadesOwed_.contains(v)) updatesOwed_.insert(v);
   SendUpdates();
   MaybeImprove();
 }
 
 void SmaServer::Impl::Session::SendUpdates() {
-  if (updatesOwed_.empty()) return;
+  if (updatesOwed_.empty() && reshadesOwed_.empty()) return;
   if (Blocked()) {
     WaitUntilUnblocked();  // its refresh sends them
     return;
   }
-  std::vector<VertexId> owed(updatesOwed_.begin(), updatesOwed_.end());
-  updatesOwed_.clear();
-  std::sort(owed.begin(), owed.end());
-  {
-    std::shared_lock lock(server_.stateMutex_);
+  // RESHADED (a move changed them) and IMPROVED (better estimates) carry
+  // the same fields; a client may treat them alike, but they are told apart.
+  const auto queue = [this](std::unordered_set<VertexId>& owedSet, wire::DeltaKind kind, bool lastKind,
+                            uint64_t& sent) {
+    std::vector<VertexId> owed(owedSet.begin(), owedSet.end());
+    owedSet.clear();
+    std::sort(owed.begin(), owed.end());
     const size_t chunk = std::max<size_t>(1, server_.options_.maxTrianglesPerDelta);
     for (size_t offset = 0; offset < owed.size(); offset += chunk) {
       wire::Envelope envelope;
       wire::Delta& delta = *envelope.mutable_delta();
-      delta.set_kind(wire::DELTA_KIND_IMPROVED);
+      delta.set_kind(kind);
       const size_t n = mirror_.AppendUpdates(std::span(owed).subspan(offset, std::min(chunk, owed.size() - offset)),
                                              server_.cache_, delta);
       if (n == 0) continue;
       delta.set_sequence(++sequence_);
-      FillStatus(delta, /*last=*/offset + chunk >= owed.size());
+      FillStatus(delta, /*last=*/lastKind && offset + chunk >= owed.size());
       outbox_.push_back(std::move(envelope));
-      updatesSent_ += n;
+      sent += n;
     }
+  };
+  {
+    std::shared_lock lock(server_.stateMutex_);
+    const bool improvedFollow = !updatesOwed_.empty();
+    queue(reshadesOwed_, wire::DELTA_KIND_RESHADED, !improvedFollow, reshadesSent_);
+    queue(updatesOwed_, wire::DELTA_KIND_IMPROVED, true, updatesSent_);
   }
   Flush();
 }
@@ -801,6 +919,59 @@ void SmaServer::Impl::Session::SendStatus() {
   Flush();
 }
 
+void SmaServer::Impl::Session::OnMoveObject(const wire::MoveObject& move) {
+  // Checked here (cheap); applied on a job thread, never on this I/O thread.
+  auto checked = CheckMoveObject(move, server_.scene_);
+  if (!checked) {
+    ++server_.movesRefused_;
+    log_->info("{}: {} (refused)", connection_->Id(), checked.error().message);
+    connection_->Send(MakeError(move.request_id(), wire::ERROR_CODE_INVALID_REQUEST, checked.error().message, false));
+    return;
+  }
+  server_.SubmitMove(*checked);
+}
+
+void SmaServer::Impl::Session::OnMoved(const MoveNotice& notice) {
+  if (!state_.Handshook() || !connection_->IsOpen()) return;
+  const uint64_t epoch = notice.pose->epoch;
+  // Held vertices the move invalidated (a held vertex was shaded when it
+  // was sent, so an unshaded one now was invalidated): asked again with
+  // this view's interest -- visible priority -- and awaited.
+  std::vector<VertexId> reshade;
+  mirror_.ForEachVertex([&](VertexId v) {
+    if (!server_.cache_.IsShaded(v)) reshade.push_back(v);
+  });
+  if (!reshade.empty()) {
+    std::sort(reshade.begin(), reshade.end());
+    std::vector<SampleRequest> requests;
+    requests.reserve(reshade.size());
+    {
+      std::shared_lock lock(server_.stateMutex_);
+      for (VertexId v : reshade) requests.push_back(MakeSampleRequest(server_.hierarchy_, v));
+      server_.pool_->Request(requests, Priority::kVisible);
+    }
+    interest_.insert(interest_.end(), reshade.begin(), reshade.end());  // released with the view's next plan
+  }
+  state_.OnSceneMoved(reshade);
+  if (epoch > epochSent_) {
+    epochSent_ = epoch;
+    wire::Envelope envelope;
+    wire::Delta& delta = *envelope.mutable_delta();
+    FillMovedDelta(*notice.pose, notice.movedObjects, &delta);
+    delta.set_sequence(++sequence_);
+    FillStatus(delta, /*last=*/true);
+    // Sent even to a client that is behind: it is small, and later deltas'
+    // places depend on it.
+    outbox_.push_back(std::move(envelope));
+    Flush();
+    ++movesSent_;
+  }
+  if (!state_.HasVisible()) return;
+  // The object may now hide or reveal triangles: re-trace at the new pose.
+  state_.WantRemap();
+  ScheduleRefresh();
+}
+
 void SmaServer::Impl::Session::OnSessionOptions(const wire::SessionOptions& o) {
   auto checked = ApplySessionOptions(params_, o);
   if (!checked) {
@@ -882,6 +1053,10 @@ void SmaServer::Impl::Session::OnStatsRequest(const wire::StatsRequest& request)
   AddCounter(reply, "client_improvements_pending", double(state_.ImprovementsPending()));
   AddCounter(reply, "client_improvements_asked", double(improvementsAsked_));
   AddCounter(reply, "client_vertex_updates_sent", double(updatesSent_));
+  AddCounter(reply, "client_reshades_sent", double(reshadesSent_));
+  AddCounter(reply, "client_reshades_awaited", double(state_.ReshadesAwaited()));
+  AddCounter(reply, "client_moves_sent", double(movesSent_));
+  AddCounter(reply, "client_scene_epoch", double(epochSent_));
   AddCounter(reply, "client_bytes_sent", double(connection_->BytesSent()));
   AddCounter(reply, "client_bytes_received", double(connection_->BytesReceived()));
   AddCounter(reply, "client_last_trace_ms", lastTimings_.traceMs);
@@ -994,6 +1169,17 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
   AddCounter(reply, "hierarchy_vertices", double(vertices));
   AddCounter(reply, "cache_shaded", double(shaded));
   AddCounter(reply, "samples_improved", double(samplesImproved_.load()));
+  AddCounter(reply, "scene_epoch", double(CurrentPose()->epoch));
+  AddCounter(reply, "moves", double(moves_.load()));
+  AddCounter(reply, "moves_refused", double(movesRefused_.load()));
+  AddCounter(reply, "moves_coalesced", double(moveQueue_.Coalesced()));
+  AddCounter(reply, "samples_invalidated", double(samplesInvalidated_.load()));
+  AddCounter(reply, "samples_reshaded_after_move", double(cache_.Reshaded()));
+  AddCounter(reply, "samples_stale_refused", double(samplesStale_.load()));
+  AddCounter(reply, "last_move_invalidated", double(lastMoveInvalidated_.load()));
+  AddCounter(reply, "last_move_cached", double(lastMoveCached_.load()));
+  AddCounter(reply, "last_move_reshaded", double(cache_.Reshaded() - lastMoveReshadedBase_.load()));
+  AddCounter(reply, "last_move_apply_ms", lastMoveApplyMs_.load());
   AddCounter(reply, "cache_hits", double(hits));
   AddCounter(reply, "cache_misses", double(misses));
   AddCounter(reply, "cache_hit_rate", hits + misses > 0 ? double(hits) / double(hits + misses) : 0.0);
@@ -1105,9 +1291,94 @@ void SmaServer::Impl::ArmRendererWatch() {
   });
 }
 
+void SmaServer::Impl::ApplyMoves() {
+  for (std::vector<ObjectMove> moves = moveQueue_.Take(); !moves.empty(); moves = moveQueue_.Take())
+    if (!shuttingDown_) ApplyMoveStep(moves);
+}
+
+void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
+  const auto start = Clock::now();
+  const std::shared_ptr<const ScenePose> oldPose = CurrentPose();  // only this job replaces it
+  std::optional<ScenePose> next = NextPose(*oldPose, moves);
+  if (!next) return;  // nothing changes place: no new epoch
+  auto newPose = std::make_shared<const ScenePose>(std::move(*next));
+  auto posed = tracer_->AtPose(*newPose);
+  if (!posed) {
+    log_->error("move to scene epoch {} not applied: {}", newPose->epoch, posed.error().message);
+    return;
+  }
+  // 1. Publish: batches dispatched from now on are shaded at the new pose,
+  //    views traced from now on see it.
+  pool_->SetPose(newPose);
+  {
+    std::lock_guard lock(poseMutex_);
+    pose_ = newPose;
+    posed_ = *posed;
+  }
+  // 2. What the move invalidates (reads the hierarchy and the cache).
+  Invalidation invalidation;
+  const size_t cachedBefore = cache_.ShadedCount();
+  {
+    std::shared_lock lock(stateMutex_);
+    invalidation = PlanInvalidation(hierarchy_, cache_, *oldPose, *newPose);
+  }
+  // 3. Invalidate under the exclusive lock: a delta is planned and built
+  //    under the shared lock, so it sees each sample either before (then
+  //    the client gets it and, holding it, its reshade) or after (then the
+  //    vertex is unshaded and the node waits) -- never a sample evicted
+  //    between the plan and the delta. Samples shaded before the new epoch
+  //    that arrive later are refused by the cache (validFrom).
+  size_t evicted = 0;
+  {
+    std::unique_lock lock(stateMutex_);
+    for (VertexId v : invalidation.vertices) evicted += cache_.Invalidate(v, newPose->epoch);
+  }
+  ++moves_;
+  samplesInvalidated_ += evicted;
+  lastMoveInvalidated_ = evicted;
+  lastMoveCached_ = cachedBefore;
+  lastMoveReshadedBase_ = cache_.Reshaded();
+  const double ms = Ms(Clock::now() - start);
+  lastMoveApplyMs_ = ms;
+  // 4. Tell every session: MOVED, held vertices asked again, views re-traced.
+  auto notice = std::make_shared<MoveNotice>();
+  notice->pose = newPose;
+  for (uint32_t o = 0; o < newPose->objectToWorld.size(); ++o)
+    if (!(oldPose->objectToWorld[o] == newPose->objectToWorld[o])) notice->movedObjects.push_back(o);
+  for (auto& session : Sessions())
+    asio::post(session->Connection().Strand(), [session, notice] { session->OnMoved(*notice); });
+  log_->debug("scene epoch {}: {} object(s) moved; {} vertices invalidated ({} of the objects'), {} of {} cached "
+              "samples evicted; applied in {:.1f} ms",
+              newPose->epoch, notice->movedObjects.size(), invalidation.vertices.size(),
+              invalidation.objectVertices, evicted, cachedBefore, ms);
+}
+
+void SmaServer::Impl::StartAnimation() {
+  bool animated = false;
+  for (const MovableObject& o : scene_.objects) animated |= o.animation.has_value();
+  if (!animated || !(options_.animationHz > 0.0)) return;
+  animationStart_ = Clock::now();
+  log_->info("animating the scene's paths at {} Hz", options_.animationHz);
+  ArmAnimation();
+}
+
+void SmaServer::Impl::ArmAnimation() {
+  const auto period = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / options_.animationHz));
+  animationTimer_.expires_after(period);
+  animationTimer_.async_wait([this](const error_code& ec) {
+    if (ec || shuttingDown_) return;
+    // Cheap here (a few interpolations); the move itself is a job.
+    const double t = std::chrono::duration<double>(Clock::now() - animationStart_).count();
+    for (uint32_t i = 0; i < scene_.objects.size(); ++i)
+      if (const auto& animation = scene_.objects[i].animation) SubmitMove(ObjectMove{i, animation->At(t)});
+    ArmAnimation();
+  });
+}
+
 void SmaServer::Impl::StopWork() {
   shuttingDown_ = true;
   rendererWatchTimer_.cancel();
+  animationTimer_.cancel();
   jobs_.Stop();
   backgroundJobs_.Stop();
   pool_->Stop();

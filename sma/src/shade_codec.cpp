@@ -1,5 +1,6 @@
 #include "penumbra/sma/shade_codec.h"
 
+#include <array>
 #include <unordered_set>
 
 #include <fmt/format.h>
@@ -10,11 +11,23 @@ namespace penumbra::sma {
 
 SampleRequest MakeSampleRequest(const Hierarchy& hierarchy, VertexId v) {
   const SampleVertex& sv = hierarchy.GetVertex(v);
-  return SampleRequest{v, sv.position, sv.normal, sv.baseTriangle, sv.bary};
+  return SampleRequest{v, sv.position, sv.normal, sv.baseTriangle, sv.bary, 0,
+                       hierarchy.GetScene().ObjectOfTriangle(sv.baseTriangle)};
+}
+
+void FillShadeRequestPose(const ScenePose* pose, wire::ShadeRequest* request) {
+  if (!pose) return;
+  request->set_scene_epoch(pose->epoch);
+  request->mutable_object_transforms()->Reserve(int(12 * pose->objectToWorld.size()));
+  for (const RigidTransform& t : pose->objectToWorld) {
+    const std::array<float, 12> m = t.ToRowMajor();
+    request->mutable_object_transforms()->Add(m.begin(), m.end());
+  }
 }
 
 void FillShadeRequest(uint64_t batchId, uint32_t pathsPerSample, std::span<const SampleRequest> samples,
-                      wire::ShadeRequest* request) {
+                      wire::ShadeRequest* request, const ScenePose* pose) {
+  FillShadeRequestPose(pose, request);
   request->set_batch_id(batchId);
   request->set_paths_per_sample(pathsPerSample);
   const int n = int(samples.size());
@@ -25,8 +38,14 @@ void FillShadeRequest(uint64_t batchId, uint32_t pathsPerSample, std::span<const
   request->mutable_barycentrics()->Reserve(2 * n);
   for (const SampleRequest& r : samples) {
     request->add_sample_ids(WireSampleId(r.vertex, r.round));
-    for (int k = 0; k < 3; ++k) request->add_positions(r.position[k]);
-    for (int k = 0; k < 3; ++k) request->add_normals(r.normal[k]);
+    Vec3 position = r.position, normal = r.normal;
+    if (pose && r.object != kStaticObject && r.object < pose->objectToWorld.size()) {
+      const RigidTransform& t = pose->objectToWorld[r.object];
+      position = t.ApplyPoint(position);
+      normal = t.ApplyVector(normal);
+    }
+    for (int k = 0; k < 3; ++k) request->add_positions(position[k]);
+    for (int k = 0; k < 3; ++k) request->add_normals(normal[k]);
     request->add_triangle_ids(r.triangle);
     request->add_barycentrics(r.bary.x);
     request->add_barycentrics(r.bary.y);
@@ -34,9 +53,10 @@ void FillShadeRequest(uint64_t batchId, uint32_t pathsPerSample, std::span<const
 }
 
 std::shared_ptr<const std::string> EncodeShadeRequestFrame(uint64_t batchId, uint32_t pathsPerSample,
-                                                           std::span<const SampleRequest> samples) {
+                                                           std::span<const SampleRequest> samples,
+                                                           const ScenePose* pose) {
   wire::Envelope envelope;
-  FillShadeRequest(batchId, pathsPerSample, samples, envelope.mutable_shade_request());
+  FillShadeRequest(batchId, pathsPerSample, samples, envelope.mutable_shade_request(), pose);
   return std::make_shared<const std::string>(EncodeEnvelopeFrame(envelope));
 }
 

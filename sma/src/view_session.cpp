@@ -106,6 +106,7 @@ ViewSession::Arrived ViewSession::OnSamplesArrived(std::span<const VertexId> ver
   std::unordered_set<NodeId> candidates;
   for (VertexId v : vertices) {
     driver_.OnSampleArrived(v);
+    reshadesAwaited_.erase(v);
     auto it = waiting_.find(v);
     if (it == waiting_.end()) {
       // A midpoint this client was not waiting for may complete the children
@@ -170,6 +171,13 @@ void ViewSession::OnDrained() {
   WantRemap();
 }
 
+void ViewSession::OnSceneMoved(std::span<const VertexId> reshades) {
+  reshadesAwaited_.insert(reshades.begin(), reshades.end());
+  // Lighting changed: what was converged may now be worth splitting (the
+  // criteria split where it changed) or improving.
+  if (hasVisible_) RestartRefinement();
+}
+
 void ViewSession::SetRefinementParams(const RefinementParams& params) {
   driver_.SetParams(params);
   RestartRefinement();
@@ -216,7 +224,7 @@ void ViewSession::OnImprovementsAnswered(std::span<const VertexId> answered) {
 std::optional<double> ViewSession::FillStatus(wire::Delta& delta, bool last, size_t renderers,
                                               Clock::time_point now) {
   delta.set_view_id(appliedViewId_);
-  delta.set_pending_samples(uint32_t(waiting_.size() + driver_.PendingSamples()));
+  delta.set_pending_samples(uint32_t(waiting_.size() + driver_.PendingSamples() + reshadesAwaited_.size()));
   const bool converged = last && Converged();
   delta.set_converged(converged);
   delta.set_refining(!converged && RefiningNow());

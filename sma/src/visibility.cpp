@@ -151,10 +151,12 @@ struct Packet {
 
 struct VisibilityTracer::Impl {
   std::unique_ptr<EmbreeScene> embree;
-  RTCScene Handle() const { return embree->Initial()->Handle(); }  // for the queries
+  RTCScene Handle() const { return embree->Initial()->Handle(); }  // TraceRaw's queries: the scene as loaded
   // Per base triangle, its geometric normal (counter-clockwise front): which
   // side a ray meets decides which of the hierarchy's roots it sees. Ours,
-  // not Embree's Ng, so that "front" means one thing in every tier.
+  // not Embree's Ng, so that "front" means one thing in every tier. In
+  // object space: a movable object's are turned into the world by the pose
+  // (PosedEmbreeScene::WorldNormal) before they meet a ray.
   std::vector<Vec3> faceNormals;
 };
 
@@ -179,9 +181,21 @@ Expected<std::unique_ptr<VisibilityTracer>> VisibilityTracer::Build(const Scene&
 VisibilityTracer::VisibilityTracer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 VisibilityTracer::~VisibilityTracer() = default;
 
-void VisibilityTracer::Trace(const CameraView& view, HitBuffer& out, const std::atomic<bool>* cancel) const {
+Expected<std::shared_ptr<const PosedEmbreeScene>> VisibilityTracer::AtPose(const ScenePose& pose) const {
+  return impl_->embree->AtPose(pose);
+}
+
+std::shared_ptr<const PosedEmbreeScene> VisibilityTracer::Initial() const { return impl_->embree->Initial(); }
+
+void VisibilityTracer::Trace(const CameraView& view, HitBuffer& out, const std::atomic<bool>* cancel,
+                             const PosedEmbreeScene* posedScene) const {
   const int width = view.width, height = view.height;
+  // Kept alive by the caller (or by the EmbreeScene, for the initial pose)
+  // for the whole trace.
+  const PosedEmbreeScene& posed = posedScene ? *posedScene : *impl_->embree->Initial();
+  const RTCScene scene = posed.Handle();
   out.view = view;
+  out.epoch = posed.Pose().epoch;
   out.hits.resize(size_t(width) * size_t(height));
   const PrimaryRays rays(view);
   const Tiling tiling(width, height);
@@ -196,7 +210,7 @@ void VisibilityTracer::Trace(const CameraView& view, HitBuffer& out, const std::
       // A big view takes seconds; a shutdown should not wait for it.
       if (cancel && cancel->load(std::memory_order_relaxed)) break;
       tiling.ForEachPacket(tile, [&](int x0, int y0) {
-        packet.Trace(impl_->Handle(), context, rays, width, height, x0, y0);
+        packet.Trace(scene, context, rays, width, height, x0, y0);
         for (int lane = 0; lane < kPacketSize; ++lane) {
           if (!packet.valid[lane]) continue;
           PixelHit& hit = out.hits[size_t(y0 + LaneY(lane)) * size_t(width) + size_t(x0 + LaneX(lane))];
@@ -204,8 +218,10 @@ void VisibilityTracer::Trace(const CameraView& view, HitBuffer& out, const std::
             hit = PixelHit{};
             continue;
           }
-          const uint32_t triangle = packet.rayHit.hit.primID[lane];
-          const Vec3& n = impl_->faceNormals[triangle];
+          const unsigned instance = packet.rayHit.hit.instID[0][lane];
+          const uint32_t triangle = posed.Triangle(instance, packet.rayHit.hit.primID[lane]);
+          // The side met is decided in the world: an object's normal turns with it.
+          const Vec3 n = posed.WorldNormal(instance, impl_->faceNormals[triangle]);
           const float towardNormal = packet.rayHit.ray.dir_x[lane] * n.x + packet.rayHit.ray.dir_y[lane] * n.y +
                                      packet.rayHit.ray.dir_z[lane] * n.z;
           hit = PixelHit{triangle, packet.rayHit.hit.u[lane], packet.rayHit.hit.v[lane], towardNormal > 0.0f};

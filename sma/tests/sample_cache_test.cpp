@@ -179,5 +179,104 @@ TEST(SampleCache, EvictionWhileReadingBumpsGenerations) {
   EXPECT_EQ(cache.ShadedCount(), size_t(kVertices));
 }
 
+
+// Moving objects (issue 14): a sample shaded at a pose older than its
+// vertex's last invalidation never reaches the cache, whichever of the
+// reply and the move comes first.
+ShadedSample At(VertexId v, float value, uint64_t epoch, uint16_t round = 0) {
+  ShadedSample s = Sample(v, value, round);
+  s.epoch = epoch;
+  return s;
+}
+
+TEST(SampleCache, InvalidateEvictsOlderSamplesAndRefusesStaleOnes) {
+  SampleCache cache;
+  cache.Reserve(4);
+  ASSERT_EQ(cache.Store(std::vector{At(0, 1.0f, 0), At(1, 1.0f, 0), At(2, 1.0f, 3)}), 3u);
+  const uint32_t generation = cache.Generation(0);
+
+  // A move at epoch 3: the samples shaded before it go; one already shaded
+  // at epoch 3 (dispatched after the move was published) stays.
+  EXPECT_TRUE(cache.Invalidate(0, 3));
+  EXPECT_FALSE(cache.Invalidate(2, 3));
+  EXPECT_FALSE(cache.Invalidate(3, 3));  // never shaded: only its ValidFrom moves
+  EXPECT_FALSE(cache.IsShaded(0));
+  EXPECT_TRUE(cache.AwaitingReshade(0));
+  EXPECT_FALSE(cache.AwaitingReshade(3));
+  EXPECT_EQ(cache.Generation(0), generation + 1);
+  EXPECT_TRUE(cache.IsShaded(1));  // not invalidated
+  EXPECT_TRUE(cache.IsShaded(2));
+  EXPECT_EQ(cache.ValidFrom(0), 3u);
+  EXPECT_EQ(cache.ShadedCount(), 2u);
+
+  // A reply shaded at epoch 2 arriving after the move: refused, reported.
+  std::vector<VertexId> stale;
+  EXPECT_EQ(cache.Store(std::vector{At(0, 5.0f, 2), At(3, 5.0f, 1)}, &stale), 0u);
+  EXPECT_EQ(stale, (std::vector<VertexId>{0, 3}));
+  EXPECT_FALSE(cache.IsShaded(0));
+  EXPECT_TRUE(cache.AwaitingReshade(0));
+  // An improvement of a vertex awaiting its reshade, or shaded before the
+  // move, is refused too: the vertex needs a first estimate.
+  stale.clear();
+  EXPECT_TRUE(cache.Improve(std::vector{At(0, 5.0f, 3, 1)}, &stale).empty());
+  EXPECT_EQ(stale, std::vector<VertexId>{0});
+
+  // The reshade, shaded at epoch 3 or later, is stored and counted.
+  stale.clear();
+  EXPECT_EQ(cache.Store(std::vector{At(0, 7.0f, 4)}, &stale), 1u);
+  EXPECT_TRUE(stale.empty());
+  EXPECT_FALSE(cache.AwaitingReshade(0));
+  EXPECT_EQ(cache.Radiance(0).r, 7.0f);
+  EXPECT_EQ(cache.Read(0)->epoch, 4u);
+  EXPECT_EQ(cache.Reshaded(), 1u);
+
+  // Invalidations only raise ValidFrom.
+  EXPECT_FALSE(cache.Invalidate(0, 2));
+  EXPECT_EQ(cache.ValidFrom(0), 3u);
+  EXPECT_TRUE(cache.IsShaded(0));
+}
+
+TEST(SampleCache, ImprovedSampleKeepsTheOldestEpochItMixes) {
+  SampleCache cache;
+  ASSERT_EQ(cache.Store(std::vector{At(0, 1.0f, 1)}), 1u);
+  ASSERT_EQ(cache.Improve(std::vector{At(0, 1.0f, 5, 1)}).size(), 1u);
+  EXPECT_EQ(cache.Read(0)->epoch, 1u);
+  // So a move at epoch 2 evicts it: part of it was shaded at epoch 1.
+  EXPECT_TRUE(cache.Invalidate(0, 2));
+}
+
+// Replies and moves race on one slot: whatever the interleaving, no sample
+// older than the last invalidation is left in the cache.
+TEST(SampleCache, ConcurrentStoresAndInvalidationsLeaveNothingStale) {
+  constexpr VertexId kVertices = 256;
+  constexpr uint64_t kEpochs = 200;
+  SampleCache cache;
+  cache.Reserve(kVertices);
+  std::atomic<uint64_t> published{0};
+  std::atomic<bool> done{false};
+  std::thread mover([&] {
+    for (uint64_t e = 1; e <= kEpochs; ++e) {
+      published.store(e);
+      for (VertexId v = 0; v < kVertices; ++v) cache.Invalidate(v, e);
+    }
+    done = true;
+  });
+  std::thread replies([&] {
+    uint64_t round = 0;
+    while (!done) {
+      // Shaded at a pose read some time ago: often stale.
+      const uint64_t epoch = published.load() - std::min<uint64_t>(published.load(), round++ % 3);
+      for (VertexId v = 0; v < kVertices; ++v) cache.Store(std::vector{At(v, float(epoch), epoch)});
+    }
+  });
+  mover.join();
+  replies.join();
+  for (VertexId v = 0; v < kVertices; ++v) {
+    const auto s = cache.Read(v);
+    if (s) EXPECT_GE(s->epoch, kEpochs) << v;
+    EXPECT_EQ(cache.ValidFrom(v), kEpochs);
+  }
+}
+
 }  // namespace
 }  // namespace penumbra::sma

@@ -361,5 +361,68 @@ TEST(SampleScheduler, AStaleQueueCopyDoesNotSendAnImprovementEarly) {
   EXPECT_EQ(s.Counters().queuedImprove, 0u);
 }
 
+
+// Moving objects (issue 14): a batch is shaded at the epoch it was sent at;
+// the reply must say so, and its samples carry it to the cache.
+TEST(SampleScheduler, BatchesCarryTheirEpochAndRepliesMustMatchIt) {
+  FakeClock clock;
+  SampleScheduler s(Options(), clock.Function());
+  s.RendererReady(1, kOneCredit);
+  s.SetEpoch(3);
+  s.Request(Requests(0, 4), Priority::kVisible);
+  auto batches = s.Assemble();
+  ASSERT_EQ(batches.size(), 1u);
+  EXPECT_EQ(batches[0].epoch, 3u);
+  s.SetEpoch(4);  // a move after it left: the batch keeps epoch 3
+  wire::ShadeReply reply = Answer(batches[0]);
+  reply.set_scene_epoch(3);
+  auto outcome = s.OnReply(1, reply);
+  ASSERT_FALSE(outcome.badReply) << *outcome.badReply;
+  ASSERT_EQ(outcome.results.size(), 4u);
+  for (const ShadedSample& r : outcome.results) EXPECT_EQ(r.epoch, 3u);
+
+  // A renderer that shades at another pose (one that ignores movable
+  // objects answers epoch 0) answered nonsense.
+  s.RendererReady(2, kOneCredit);
+  s.Request(Requests(10, 4), Priority::kVisible);
+  batches = s.Assemble();
+  ASSERT_EQ(batches.size(), 1u);
+  EXPECT_EQ(batches[0].epoch, 4u);
+  outcome = s.OnReply(batches[0].renderer, Answer(batches[0]));  // scene_epoch 0
+  ASSERT_TRUE(outcome.badReply);
+  EXPECT_NE(outcome.badReply->find("epoch"), std::string::npos) << *outcome.badReply;
+  EXPECT_EQ(s.Queued(), 4u) << "its samples went back to the queue";
+}
+
+// A sample the cache refused as stale is asked again as a first estimate,
+// visible while a view wants it; an improvement becomes a first estimate.
+TEST(SampleScheduler, RetryRequeuesAnsweredSamplesAsFirstEstimates) {
+  FakeClock clock;
+  SampleScheduler s(Options(), clock.Function());
+  s.RendererReady(1, RendererCapacity{4, 1000, 32});
+  s.Request(Requests(0, 2), Priority::kVisible);
+  s.Request(Requests(5, 1, /*round=*/2), Priority::kImprove);
+  auto batches = s.Assemble();
+  std::vector<ShadedSample> results;
+  for (const auto& b : batches) {
+    auto outcome = s.OnReply(1, Answer(b));
+    ASSERT_FALSE(outcome.badReply) << *outcome.badReply;
+    results.insert(results.end(), outcome.results.begin(), outcome.results.end());
+  }
+  ASSERT_EQ(results.size(), 3u);
+  s.Retry(std::vector<VertexId>{0, 5, 7});  // 7 was never asked: ignored
+  s.Complete(results);                       // the retried ones stay alive
+  EXPECT_EQ(s.Outstanding(), 2u);
+  EXPECT_EQ(s.Counters().retried, 2u);
+  EXPECT_EQ(s.Counters().queuedVisible, 1u);     // 0: its view still wants it
+  EXPECT_EQ(s.Counters().queuedBackground, 1u);  // 5: nobody's interest
+  EXPECT_EQ(s.Request(Requests(0, 1), Priority::kVisible), 0u) << "alive: asked once";
+  batches = s.Assemble();
+  std::set<std::pair<VertexId, uint16_t>> asked;
+  for (const auto& b : batches)
+    for (const auto& r : b.samples) asked.insert({r.vertex, r.round});
+  EXPECT_EQ(asked, (std::set<std::pair<VertexId, uint16_t>>{{0, 0}, {5, 0}}));
+}
+
 }  // namespace
 }  // namespace penumbra::sma

@@ -33,16 +33,26 @@ class ClientMirror {
   size_t TriangleCount() const { return held_.size(); }
   size_t VertexCount() const { return vertexRefs_.size(); }
   const std::unordered_set<NodeId>& Held() const { return held_; }
+  /// Calls f(vertex) for every vertex the client holds.
+  template <class F>
+  void ForEachVertex(F&& f) const {
+    for (const auto& entry : vertexRefs_) f(entry.first);
+  }
 
   /// Appends to `delta` the removal of `removals` (nodes not held are
   /// skipped), then the addition of `additions` (nodes already held are
   /// skipped) with every vertex the client lacks. Every corner of an added
-  /// node must be shaded in `cache`. Returns the number of triangles added.
+  /// node must be shaded in `cache`. Vertex positions are in their object's
+  /// space (hierarchy.h); when the scene has movable objects each new vertex
+  /// also gets its object id (vertex_objects: index + 1, 0 static). Returns
+  /// the number of triangles added.
   size_t AppendChanges(std::span<const NodeId> removals, std::span<const NodeId> additions,
                        const Hierarchy& hierarchy, const SampleCache& cache, wire::Delta& delta);
 
   /// Appends to `delta` the cache's current radiance of every vertex of
-  /// `vertices` the client holds (updated_vertex_*). Returns how many.
+  /// `vertices` the client holds (updated_vertex_*), skipping vertices with
+  /// no sample now (invalidated by a move: their reshade is sent when it
+  /// arrives). Returns how many.
   size_t AppendUpdates(std::span<const VertexId> vertices, const SampleCache& cache, wire::Delta& delta) const;
   /// Forgets everything (the client reconnected or was reset).
   void Clear();

@@ -69,9 +69,17 @@ inline constexpr NodeId kNoNode = ~NodeId(0);
 inline constexpr VertexId kNoVertex = ~VertexId(0);
 
 /// A shading sample's place: what the renderer needs to shade it.
+///
+/// Movable objects (issue 14): position and normal are in the space of the
+/// vertex's object -- the object of its base triangle
+/// (Scene::ObjectOfTriangle(baseTriangle)) -- and world space only for the
+/// static part. An object's subtree travels with it: a move changes no
+/// vertex, only the pose that places it (ScenePose; the SMA turns them into
+/// the world when it asks a renderer, shade_codec.h). Clients get them in
+/// object space too (Delta.vertex_objects names the object).
 struct SampleVertex {
-  Vec3 position;          // world space
-  Vec3 normal;            // world space, unit
+  Vec3 position;          // object space (world space for the static part)
+  Vec3 normal;            // object space, unit
   uint32_t point = 0;     // position identity: vertices at the same point share it
   uint32_t baseTriangle = 0;  // a base triangle the vertex lies on
   Vec2 bary{0.0f};        // (b1, b2) of `position` on `baseTriangle`

@@ -89,6 +89,7 @@ struct RendererPoolStats {
   uint64_t requeued = 0;     // samples sent again after a renderer failed
   uint64_t failed = 0;       // samples a renderer refused as invalid (stored black)
   uint64_t rejected = 0;     // samples whose radiance was impossible (their renderer was quarantined)
+  uint64_t retried = 0;      // samples shaded at a pose a move had changed, asked again
   std::vector<RendererStatus> renderers;
 };
 
@@ -121,6 +122,13 @@ class RendererPool : public std::enable_shared_from_this<RendererPool> {
   void ReleaseInterest(std::span<const VertexId> vertices);
   /// The results have been stored: forget these vertices.
   void Complete(std::span<const ShadedSample> samples);
+  /// The cache refused these answered vertices (shaded before a move that
+  /// invalidated them): ask again as first estimates (SampleScheduler::Retry).
+  void Retry(std::span<const VertexId> vertices);
+  /// Batches dispatched from now on are shaded at `pose` (its epoch and
+  /// transforms; null: a static scene). Thread-safe; a batch assembled
+  /// before the call keeps the pose it was assembled with.
+  void SetPose(std::shared_ptr<const ScenePose> pose);
 
   /// Samples queued or in flight.
   size_t Outstanding() const;
@@ -156,6 +164,7 @@ class RendererPool : public std::enable_shared_from_this<RendererPool> {
   mutable std::mutex mutex_;
   bool stopped_ = false;
   SampleScheduler scheduler_;
+  std::shared_ptr<const ScenePose> pose_;  // batches are encoded at it (null: static scene)
   std::vector<std::shared_ptr<RendererLink>> links_;
   uint32_t nextLinkIndex_ = 1;  // RendererStatus::index, and the scheduler's RendererId
   std::vector<std::vector<tcp::endpoint>> resolved_;  // per configured renderer

@@ -18,13 +18,26 @@
 //    and makes it even again (release); Read() retries until it saw one even
 //    sequence before and after, so it returns a whole sample, never half of
 //    an improvement. IsShaded() is one acquire load.
-//  * Replacement and removal (coming: moving objects invalidate samples,
-//    eviction bounds memory) are writes like any other: Evict() clears a
-//    slot under its sequence and bumps its generation. A reader holds
-//    values it copied, never a reference into a slot, so it is never left
-//    with a torn or freed sample; one that must know whether what it copied
-//    is still current compares CachedSample::generation with Generation().
-//    Chunks are freed only with the cache.
+//  * Replacement and removal (moving objects invalidate samples, issue 14;
+//    eviction will bound memory, issue 15) are writes like any other:
+//    Evict() and Invalidate() clear a slot under its sequence and bump its
+//    generation. A reader holds values it copied, never a reference into a
+//    slot, so it is never left with a torn or freed sample; one that must
+//    know whether what it copied is still current compares
+//    CachedSample::generation with Generation(). Chunks are freed only with
+//    the cache.
+//  * Scene epochs (issue 14). Each slot keeps the epoch its sample was
+//    shaded at and the epoch it is valid from (`validFrom`): Invalidate(v, e)
+//    raises validFrom to e, and every write -- Store, Improve, Restore --
+//    compares the sample's epoch with validFrom inside the slot's sequence,
+//    so a sample shaded at a pose older than the vertex's last invalidation
+//    is refused whatever order the reply and the move reach the slot in
+//    (the check and the invalidation are both writes of the one slot, so
+//    they are ordered). A vertex whose sample was invalidated (not merely
+//    never shaded) reads `AwaitingReshade` until a valid sample is stored:
+//    visibility still descends through splits whose midpoints await a
+//    reshade, so a client keeps the triangles it holds (and their old
+//    radiance, its own copy) until the RESHADED update replaces it.
 
 #include <atomic>
 #include <cstdint>
@@ -47,6 +60,7 @@ struct ShadedSample {
   float irradianceStdErr = 0.0f;  // standard error of Luminance(irradiance), from the renderer
   uint32_t paths = 1;             // paths the estimate averages
   uint16_t round = 0;             // 0: the first estimate; k > 0: the k-th improvement
+  uint64_t epoch = 0;             // the scene epoch (pose) it was shaded at
 };
 
 /// What a renderer's sample can physically be in one scene, so that a bad or
@@ -74,6 +88,7 @@ struct CachedSample {
   uint32_t paths = 0;
   uint16_t rounds = 0;
   uint32_t generation = 0;  // the slot's generation when read (Evict bumps it)
+  uint64_t epoch = 0;       // the scene epoch it was shaded at
 };
 
 class SampleCache {
@@ -103,8 +118,17 @@ class SampleCache {
   /// Paths averaged into a shaded sample, and the improvement rounds so far.
   uint32_t Paths(VertexId v) const;
   uint16_t Rounds(VertexId v) const;
-  /// Generation of a vertex's slot: bumped by every Evict().
+  /// Generation of a vertex's slot: bumped by every Evict() and Invalidate().
   uint32_t Generation(VertexId v) const;
+  /// Whether the vertex's sample was invalidated by a move and no valid one
+  /// has been stored since (it is then unshaded, too).
+  bool AwaitingReshade(VertexId v) const {
+    const Slot* s = Find(v);
+    return s && s->awaitingReshade.load(std::memory_order_acquire) != 0;
+  }
+  /// The earliest scene epoch a sample of this vertex may have been shaded
+  /// at to be stored (0 for a vertex never invalidated).
+  uint64_t ValidFrom(VertexId v) const;
   /// Relative standard error of a shaded sample's irradiance luminance (0
   /// for a sample that reads black with no spread: nothing to improve).
   float RelativeError(VertexId v) const;
@@ -113,14 +137,18 @@ class SampleCache {
 
   /// Stores first estimates (round 0); a vertex beyond Size() grows the
   /// cache. Storing a vertex twice keeps the first value (samples are
-  /// deterministic, so a second one can only be a duplicate). Returns how
-  /// many were new.
-  size_t Store(std::span<const ShadedSample> samples);
+  /// deterministic, so a second one can only be a duplicate). A sample
+  /// shaded at an epoch before the vertex's ValidFrom is refused and, when
+  /// `stale` is given, its vertex appended there (to be asked again).
+  /// Returns how many were new.
+  size_t Store(std::span<const ShadedSample> samples, std::vector<VertexId>* stale = nullptr);
   /// Averages improvements (round k > 0) into shaded samples, weighted by
   /// paths; the standard errors combine accordingly. An improvement of an
-  /// unshaded vertex, or whose round is not the vertex's next, is ignored.
-  /// Returns the vertices that changed.
-  std::vector<VertexId> Improve(std::span<const ShadedSample> samples);
+  /// unshaded vertex, or whose round is not the vertex's next, is ignored;
+  /// one shaded before the vertex's ValidFrom, or of a vertex awaiting its
+  /// reshade, is refused and appended to `stale` (when given): the vertex
+  /// needs a first estimate again. Returns the vertices that changed.
+  std::vector<VertexId> Improve(std::span<const ShadedSample> samples, std::vector<VertexId>* stale = nullptr);
   /// Puts back samples as a snapshot saved them (CacheSnapshot), with their
   /// paths and improvement rounds, into vertices not yet shaded; a vertex
   /// beyond Size() grows the cache. Returns how many were put back.
@@ -131,8 +159,17 @@ class SampleCache {
   /// vertex is in the cache or alive in the pool) by requesting it again if
   /// it is still needed. Returns whether it was shaded.
   bool Evict(VertexId v);
+  /// A move at scene epoch `epoch` changed what this vertex's sample should
+  /// be: from now on only samples shaded at `epoch` or later are stored
+  /// (ValidFrom), and a stored sample shaded earlier is evicted (as Evict,
+  /// and the vertex then reads AwaitingReshade). A sample already shaded at
+  /// `epoch` or later is kept. Returns whether a sample was evicted.
+  bool Invalidate(VertexId v, uint64_t epoch);
 
   size_t ShadedCount() const { return shadedCount_.load(std::memory_order_relaxed); }
+  /// First estimates stored into vertices awaiting a reshade (a move
+  /// invalidated their sample), since the cache was made.
+  uint64_t Reshaded() const { return reshaded_.load(std::memory_order_relaxed); }
   /// Counts every sample stored, improved, restored or evicted: a snapshot
   /// is due when it moved since the last one.
   uint64_t Changes() const { return changes_.load(std::memory_order_relaxed); }
@@ -157,6 +194,9 @@ class SampleCache {
     std::atomic<float> irradianceStdErr{0.0f};
     std::atomic<uint32_t> paths{0};
     std::atomic<uint16_t> rounds{0};
+    std::atomic<uint8_t> awaitingReshade{0};
+    std::atomic<uint64_t> epoch{0};      // of the stored sample
+    std::atomic<uint64_t> validFrom{0};  // samples shaded before this epoch are refused
   };
   static constexpr unsigned kChunkBits = 14;  // 16 Ki slots per chunk
   static constexpr size_t kChunkSlots = size_t(1) << kChunkBits;
@@ -171,7 +211,7 @@ class SampleCache {
   static uint32_t BeginWrite(Slot& s);
   static void EndWrite(Slot& s, uint32_t sequence) { s.sequence.store(sequence + 2, std::memory_order_release); }
   static void WriteValues(Slot& s, const ShadedSample& sample, uint16_t rounds);
-  size_t Put(std::span<const ShadedSample> samples, bool keepRounds);  // Store, Restore
+  size_t Put(std::span<const ShadedSample> samples, bool keepRounds, std::vector<VertexId>* stale);  // Store, Restore
   template <typename F>
   auto ReadConsistent(VertexId v, F&& read) const -> decltype(read(std::declval<const Slot&>()));
 
@@ -181,6 +221,7 @@ class SampleCache {
   std::atomic<size_t> size_{0};
   std::atomic<size_t> shadedCount_{0};
   std::atomic<uint64_t> changes_{0};
+  std::atomic<uint64_t> reshaded_{0};
   mutable std::atomic<uint64_t> hits_{0};
   mutable std::atomic<uint64_t> misses_{0};
 };

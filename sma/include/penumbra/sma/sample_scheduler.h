@@ -73,6 +73,7 @@ using RendererId = uint32_t;
 struct AssignedBatch {
   RendererId renderer = 0;
   uint64_t id = 0;
+  uint64_t epoch = 0;           // the scene epoch (pose) it is to be shaded at (SetEpoch)
   uint32_t pathsPerSample = 0;  // as sent (0: the renderer's default)
   std::vector<SampleRequest> samples;
 };
@@ -107,6 +108,7 @@ struct SchedulerCounters {
   uint64_t requeued = 0;   // samples sent again after a renderer failed
   uint64_t failed = 0;     // samples a renderer refused as invalid three times (stored black)
   uint64_t rejected = 0;   // samples whose radiance was impossible (their renderer was quarantined)
+  uint64_t retried = 0;    // samples shaded at a pose a move had changed, asked again (Retry)
 };
 
 class SampleScheduler {
@@ -126,6 +128,15 @@ class SampleScheduler {
   void ReleaseInterest(std::span<const VertexId> vertices);
   /// The results have been stored: forget these vertices.
   void Complete(std::span<const ShadedSample> samples);
+  /// These answered vertices were refused by the cache (shaded at a pose a
+  /// move has since changed; SampleCache::Store): ask again, as first
+  /// estimates (an improvement becomes one), at the front of their queue --
+  /// visible while a view is interested. Vertices not answered are ignored.
+  void Retry(std::span<const VertexId> vertices);
+  /// Batches assembled from now on are shaded at `epoch` (the scene pose
+  /// the pool encodes them with). A reply must name its batch's epoch.
+  void SetEpoch(uint64_t epoch) { epoch_ = epoch; }
+  uint64_t Epoch() const { return epoch_; }
 
   // --- Renderers (events from their links) ---
   /// Connected and past its handshake: it may get work (unless quarantined).
@@ -140,7 +151,9 @@ class SampleScheduler {
   void RemoveRenderer(RendererId renderer);
 
   /// A reply part: checked against what the batch asked for (ids, rounds,
-  /// counts, RadianceBounds) as a whole before any sample is taken, so a bad
+  /// counts, RadianceBounds, the scene epoch it was sent at -- a renderer
+  /// that shaded at another pose, e.g. one that ignores movable objects,
+  /// answered nonsense) as a whole before any sample is taken, so a bad
   /// part requeues every sample of the renderer. A renderer that is not
   /// ready (lost, timed out: its work already requeued) is not listened to.
   ReplyOutcome OnReply(RendererId renderer, const wire::ShadeReply& reply);
@@ -183,6 +196,7 @@ class SampleScheduler {
     std::vector<VertexId> vertices;
     size_t answered = 0;
     uint32_t paths = 0;  // paths per sample asked for (the renderer's default when the request said 0)
+    uint64_t epoch = 0;  // the scene epoch it was sent at
     Clock::time_point sentAt;
   };
   struct Renderer {
@@ -226,6 +240,8 @@ class SampleScheduler {
   uint64_t requeued_ = 0;
   uint64_t failed_ = 0;
   uint64_t rejected_ = 0;
+  uint64_t retried_ = 0;
+  uint64_t epoch_ = 0;
 };
 
 }  // namespace penumbra::sma

@@ -89,6 +89,10 @@ struct SmaOptions {
   uint64_t largeViewPixels = uint64_t(4) << 20;
   ClientRefinementLimits clientRefinement;  // what SessionOptions may ask
   uint32_t maxTextureRequests = 1024;       // unanswered TextureRequests per client
+  /// Moving objects (issue 14): the SMA plays the scene's animation paths on
+  /// its own clock, one move per animated object every 1/animationHz
+  /// seconds (coalesced with other moves like a client's). 0: not played.
+  double animationHz = 10.0;
 };
 
 class SmaServer {

@@ -21,18 +21,28 @@
 
 namespace penumbra::sma {
 
-/// Everything a renderer needs to shade one vertex.
+/// Everything a renderer needs to shade one vertex. Position and normal are
+/// in the space of the vertex's object (world space for the static part):
+/// they are placed in the world when the batch is encoded, at the pose it
+/// is sent at, so that a request queued before a move is shaded where the
+/// object is when it leaves.
 struct SampleRequest {
   VertexId vertex = kNoVertex;
-  Vec3 position;
-  Vec3 normal;
+  Vec3 position;  // object space
+  Vec3 normal;    // object space, unit
   uint32_t triangle = 0;
   Vec2 bary{0.0f};
   uint16_t round = 0;  // 0: first shading; k > 0: the k-th improvement (Priority::kImprove)
+  uint32_t object = kStaticObject;  // Scene::objects index of the base triangle's object
 };
 
 /// Builds the request for vertex `v` of `hierarchy`.
 SampleRequest MakeSampleRequest(const Hierarchy& hierarchy, VertexId v);
+
+/// The pose a batch is shaded at: ShadeRequest.scene_epoch and, for a scene
+/// with movable objects, their transforms. Null means epoch 0 with no
+/// objects (a static scene).
+void FillShadeRequestPose(const ScenePose* pose, wire::ShadeRequest* request);
 
 /// Wire sample ids: the vertex in the low 32 bits, the improvement round
 /// above, so that each round has a random stream of its own.
@@ -41,13 +51,16 @@ constexpr VertexId VertexOfWireId(uint64_t id) { return VertexId(id & 0xffffffff
 constexpr uint64_t RoundOfWireId(uint64_t id) { return id >> 32; }
 
 /// Fills `request` with one batch: `pathsPerSample` 0 leaves the count to
-/// the renderer's default.
+/// the renderer's default. Positions and normals go in world space at
+/// `pose` (object samples transformed by their object's transform), with
+/// the pose itself (FillShadeRequestPose); null `pose`: a static scene.
 void FillShadeRequest(uint64_t batchId, uint32_t pathsPerSample, std::span<const SampleRequest> samples,
-                      wire::ShadeRequest* request);
+                      wire::ShadeRequest* request, const ScenePose* pose = nullptr);
 /// The same batch as a whole frame, ready for net::Connection::SendFrame:
 /// built by the caller outside any lock.
 std::shared_ptr<const std::string> EncodeShadeRequestFrame(uint64_t batchId, uint32_t pathsPerSample,
-                                                           std::span<const SampleRequest> samples);
+                                                           std::span<const SampleRequest> samples,
+                                                           const ScenePose* pose = nullptr);
 
 /// OK when a reply part's arrays agree: per sample one id, three radiance,
 /// three irradiance and one standard-error value, and no path counts or one

@@ -170,10 +170,26 @@ class ViewSession {
   /// What is displayed changed: look for improvements again.
   void DisplayChanged() { improvementDone_ = false; }
 
+  // --- Moves (issue 14) -----------------------------------------------------
+  /// The scene moved: `reshades` -- vertices the client holds whose samples
+  /// the move invalidated, asked for again -- are awaited (the view is not
+  /// converged until they arrived or the client let them go), and
+  /// refinement and improvement look at the view again.
+  void OnSceneMoved(std::span<const VertexId> reshades);
+  /// Forgets awaited reshades of vertices `stillHeld` says the client no
+  /// longer holds.
+  template <class StillHeld>
+  void PruneReshades(StillHeld stillHeld) {
+    std::erase_if(reshadesAwaited_, [&](VertexId v) { return !stillHeld(v); });
+  }
+  size_t ReshadesAwaited() const { return reshadesAwaited_.size(); }
+
   // --- Status ---------------------------------------------------------------
   bool RefinementDone() const { return driver_.Finished() && !RemapWanted(); }
   bool ImprovementDone() const { return !improvementOn_ || (improvementDone_ && improvePending_.empty()); }
-  bool Converged() const { return Stage1Done() && RefinementDone() && ImprovementDone(); }
+  bool Converged() const {
+    return Stage1Done() && RefinementDone() && ImprovementDone() && reshadesAwaited_.empty();
+  }
   bool RefiningNow() const { return Stage1Done() && !Converged() && (driver_.Enabled() || improvementOn_); }
   /// Fills a delta's status fields (view id, pending, converged, refining,
   /// progress). `last`: no delta of this event follows, so it may say
@@ -218,6 +234,7 @@ class ViewSession {
   bool improvementOn_;
   bool improvementDone_ = false;
   std::unordered_set<VertexId> improvePending_;  // asked for, not answered
+  std::unordered_set<VertexId> reshadesAwaited_;  // held, invalidated by a move, asked again
 
   bool sentConverged_ = false;  // as the last delta sent said
   bool sentRefining_ = false;

@@ -25,6 +25,10 @@
 #include "penumbra/common/scene.h"
 #include "penumbra/sma/hierarchy.h"
 
+namespace penumbra {
+class PosedEmbreeScene;
+}
+
 namespace penumbra::sma {
 
 inline constexpr uint32_t kNoHit = ~uint32_t(0);
@@ -40,6 +44,7 @@ struct PixelHit {
 /// Primary hits for one camera view, row-major, row 0 at the top.
 struct HitBuffer {
   CameraView view;
+  uint64_t epoch = 0;          // the scene epoch (pose) it was traced at
   std::vector<PixelHit> hits;  // view.width * view.height
 };
 
@@ -63,6 +68,13 @@ class VisibilityTracer {
   VisibilityTracer(const VisibilityTracer&) = delete;
   VisibilityTracer& operator=(const VisibilityTracer&) = delete;
 
+  /// The scene at `pose` (movable objects placed by it), for Trace; built in
+  /// microseconds (a top level of instances over BVHs built once).
+  /// Thread-safe. Without movable objects: always the one static scene.
+  Expected<std::shared_ptr<const PosedEmbreeScene>> AtPose(const ScenePose& pose) const;
+  /// The scene as loaded (epoch 0).
+  std::shared_ptr<const PosedEmbreeScene> Initial() const;
+
   /// Casts a ray through every pixel centre of `view` (PinholeCamera
   /// conventions) and fills `out` (resized to width * height; its storage is
   /// reused from call to call). Rays start at the eye, with no near plane,
@@ -70,7 +82,12 @@ class VisibilityTracer {
   /// ValidateCameraView. Thread-safe; runs on the TBB threads of the calling
   /// thread's arena. When `cancel` becomes true (looked at per tile) it
   /// returns early, `out` half-filled: the caller drops it.
-  void Trace(const CameraView& view, HitBuffer& out, const std::atomic<bool>* cancel = nullptr) const;
+  /// Hits name base triangles (object triangles too: their barycentrics are
+  /// the same in object and world space) and the side met, decided against
+  /// the triangle's world normal at `posed`'s pose; `out.epoch` is its epoch.
+  /// Null `posed`: the scene as loaded.
+  void Trace(const CameraView& view, HitBuffer& out, const std::atomic<bool>* cancel = nullptr,
+             const PosedEmbreeScene* posed = nullptr) const;
 
   /// For benchmarks only: Trace's rays for `view`, traced on the calling
   /// thread by plain Embree calls that record nothing but whether they hit.

@@ -1,0 +1,119 @@
+#pragma once
+// Moving objects in the SMA (issue 14), as plain code without sockets:
+// checking a client's MoveObject, coalescing the moves that arrive while one
+// is being applied, the next pose, and which vertices a move invalidates.
+// The server (server.cpp) carries these out on a job thread: see
+// sma/README.md, "Moving objects".
+//
+// Threads: MoveCoalescer is thread-safe; the rest are functions of their
+// arguments (PlanInvalidation reads the hierarchy: the caller holds the
+// state lock shared).
+
+#include <cstdint>
+#include <map>
+#include <mutex>
+#include <optional>
+#include <span>
+#include <vector>
+
+#include "penumbra/common/expected.h"
+#include "penumbra/common/rigid_transform.h"
+#include "penumbra/common/scene.h"
+#include "penumbra/sma/hierarchy.h"
+#include "penumbra/sma/sample_cache.h"
+#include "penumbra/wire.pb.h"
+
+namespace penumbra::sma {
+
+/// One object's new place: `object` indexes Scene::objects (the wire id
+/// minus 1).
+struct ObjectMove {
+  uint32_t object = 0;
+  RigidTransform objectToWorld;
+};
+
+/// The wire id of Scene::objects[index] (MovableObjectInfo.object,
+/// Delta.vertex_objects, moved_objects): index + 1; 0 is the static part.
+inline uint32_t WireObjectId(uint32_t index) { return index == kStaticObject ? 0 : index + 1; }
+
+/// The SceneInfo's movable objects (id, name, object-space bounds, where
+/// `pose` puts them, animated) and scene_epoch, replacing any objects
+/// already there.
+void FillSceneInfoObjects(const Scene& scene, const ScenePose& pose, wire::SceneInfo* info);
+/// A MOVED delta's body: kind, scene_epoch and, for each of `objects`
+/// (indices into Scene::objects), its id and its transform at `pose`.
+void FillMovedDelta(const ScenePose& pose, std::span<const uint32_t> objects, wire::Delta* delta);
+
+/// A client's MoveObject checked against the scene: an object id that names
+/// a movable object (1 .. objects.size()), not one the SMA animates, and 12
+/// finite numbers forming a rigid transform (RigidTransform::FromRowMajor).
+/// The error message names the problem.
+Expected<ObjectMove> CheckMoveObject(const wire::MoveObject& move, const Scene& scene);
+
+/// `current` with `moves` applied (later moves of one object win) at epoch
+/// current.epoch + 1; nothing when no object changes place.
+std::optional<ScenePose> NextPose(const ScenePose& current, std::span<const ObjectMove> moves);
+
+/// Moves waiting to be applied, at most one per object: a move arriving
+/// while earlier ones wait (or are being applied) replaces the waiting move
+/// of its object, so a client dragging at 30 moves/s costs at most one
+/// application at a time. One job applies them: Add says when to post it,
+/// and the job calls Take until it returns nothing. Thread-safe.
+class MoveCoalescer {
+ public:
+  /// Queues a move. True when no job is posted or running: the caller posts one.
+  bool Add(const ObjectMove& move);
+  /// The moves waiting now (in object order), or nothing -- then the job is
+  /// over and the next Add posts a new one.
+  std::vector<ObjectMove> Take();
+  /// Moves replaced by a later one before they were applied.
+  uint64_t Coalesced() const;
+
+ private:
+  mutable std::mutex mutex_;
+  std::map<uint32_t, RigidTransform> pending_;
+  bool jobActive_ = false;
+  uint64_t coalesced_ = 0;
+};
+
+/// A vertex whose sample a move might change, as the invalidation test sees
+/// it: in world space at the pose before the move (its object did not move,
+/// so also after it).
+struct InvalidationCandidate {
+  VertexId vertex = kNoVertex;
+  Vec3 position;  // world space
+  Vec3 normal;    // world space, unit: the side its sample shades
+  bool shaded = false;  // false: no sample cached (one may be on its way, shaded at the old pose)
+  Rgb radiance{0.0f};
+  Rgb irradiance{0.0f};
+  float irradianceStdErr = 0.0f;  // the sample's own noise (0 when unshaded)
+  Rgb albedo{0.0f};
+};
+
+/// The vertices, among `candidates` (every vertex not of the moved object:
+/// static ones and those of objects that stayed), whose radiance moving
+/// object `movedObject` (an index into scene.objects) from its place in
+/// `oldPose` to its place in `newPose` may change by more than their noise.
+/// An unshaded candidate must be returned when a sample shaded at the old
+/// pose could be wrong: one may be on its way.
+///
+/// For now the conservative answer: every candidate (correct, wasteful).
+/// The motion-volume test (motion_volume.h, issue 14) replaces it here.
+std::vector<VertexId> InvalidatedStaticVertices(const Scene& scene, const ScenePose& oldPose,
+                                                const ScenePose& newPose, uint32_t movedObject,
+                                                std::span<const InvalidationCandidate> candidates);
+
+/// What a move from `oldPose` to `newPose` invalidates.
+struct Invalidation {
+  std::vector<VertexId> vertices;  // sorted, each once: the moved objects' vertices and those the test chose
+  size_t objectVertices = 0;       // of which the moved objects' own
+};
+
+/// Every vertex of a moved object (its world place changed), and for each
+/// moved object the vertices InvalidatedStaticVertices chooses among the
+/// others. The caller holds the state lock shared (the hierarchy is read;
+/// the cache is read as it is).
+Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cache, const ScenePose& oldPose,
+                              const ScenePose& newPose);
+
+}  // namespace penumbra::sma

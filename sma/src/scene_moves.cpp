@@ -1,0 +1,168 @@
+#include "penumbra/sma/scene_moves.h"
+
+#include <algorithm>
+#include <array>
+
+#include <fmt/format.h>
+
+namespace penumbra::sma {
+
+namespace {
+
+void AddTransform(const RigidTransform& t, google::protobuf::RepeatedField<float>* out) {
+  const std::array<float, 12> m = t.ToRowMajor();
+  out->Add(m.begin(), m.end());
+}
+
+void SetVec3(const Vec3& v, wire::Vec3* out) {
+  out->set_x(v.x);
+  out->set_y(v.y);
+  out->set_z(v.z);
+}
+
+}  // namespace
+
+void FillSceneInfoObjects(const Scene& scene, const ScenePose& pose, wire::SceneInfo* info) {
+  info->clear_objects();
+  for (uint32_t i = 0; i < scene.objects.size(); ++i) {
+    const MovableObject& o = scene.objects[i];
+    wire::MovableObjectInfo* out = info->add_objects();
+    out->set_object(WireObjectId(i));
+    out->set_name(o.name);
+    SetVec3(o.objectBounds.min, out->mutable_bounds_min());
+    SetVec3(o.objectBounds.max, out->mutable_bounds_max());
+    AddTransform(i < pose.objectToWorld.size() ? pose.objectToWorld[i] : o.objectToWorld,
+                 out->mutable_object_to_world());
+    out->set_animated(o.animation.has_value());
+  }
+  info->set_scene_epoch(pose.epoch);
+}
+
+void FillMovedDelta(const ScenePose& pose, std::span<const uint32_t> objects, wire::Delta* delta) {
+  delta->set_kind(wire::DELTA_KIND_MOVED);
+  delta->set_scene_epoch(pose.epoch);
+  for (uint32_t o : objects) {
+    if (o >= pose.objectToWorld.size()) continue;
+    delta->add_moved_objects(WireObjectId(o));
+    AddTransform(pose.objectToWorld[o], delta->mutable_moved_object_transforms());
+  }
+}
+
+Expected<ObjectMove> CheckMoveObject(const wire::MoveObject& move, const Scene& scene) {
+  const uint32_t id = move.object();
+  if (scene.objects.empty())
+    return Fail(fmt::format("move_object: object {}: scene '{}' has no movable objects", id, scene.name));
+  if (id == 0 || id > scene.objects.size())
+    return Fail(fmt::format("move_object: unknown object id {} (the scene's movable objects are 1 .. {}; 0 is the "
+                            "static part)",
+                            id, scene.objects.size()));
+  const MovableObject& object = scene.objects[id - 1];
+  if (object.animation)
+    return Fail(fmt::format("move_object: object {} ('{}') is animated: the SMA plays its path, it cannot be moved",
+                            id, object.name));
+  if (move.object_to_world_size() != 12)
+    return Fail(fmt::format("move_object: object {} ('{}'): object_to_world has {} numbers, not 12 (3x4 row-major)", id,
+                            object.name, move.object_to_world_size()));
+  auto transform = RigidTransform::FromRowMajor(
+      std::span<const float>(move.object_to_world().data(), size_t(move.object_to_world_size())));
+  if (!transform)
+    return Fail(fmt::format("move_object: object {} ('{}'): {}", id, object.name, transform.error().message));
+  return ObjectMove{id - 1, *transform};
+}
+
+std::optional<ScenePose> NextPose(const ScenePose& current, std::span<const ObjectMove> moves) {
+  ScenePose next = current;
+  for (const ObjectMove& m : moves)
+    if (m.object < next.objectToWorld.size()) next.objectToWorld[m.object] = m.objectToWorld;
+  if (next.SamePlaces(current)) return std::nullopt;
+  next.epoch = current.epoch + 1;
+  return next;
+}
+
+bool MoveCoalescer::Add(const ObjectMove& move) {
+  std::lock_guard lock(mutex_);
+  auto [it, inserted] = pending_.insert_or_assign(move.object, move.objectToWorld);
+  if (!inserted) ++coalesced_;
+  if (jobActive_) return false;
+  jobActive_ = true;
+  return true;
+}
+
+std::vector<ObjectMove> MoveCoalescer::Take() {
+  std::lock_guard lock(mutex_);
+  std::vector<ObjectMove> moves;
+  moves.reserve(pending_.size());
+  for (const auto& [object, transform] : pending_) moves.push_back(ObjectMove{object, transform});
+  pending_.clear();
+  if (moves.empty()) jobActive_ = false;
+  return moves;
+}
+
+uint64_t MoveCoalescer::Coalesced() const {
+  std::lock_guard lock(mutex_);
+  return coalesced_;
+}
+
+std::vector<VertexId> InvalidatedStaticVertices(const Scene& scene, const ScenePose& oldPose,
+                                                const ScenePose& newPose, uint32_t movedObject,
+                                                std::span<const InvalidationCandidate> candidates) {
+  // Conservative until the motion-volume test is merged: a moved object can
+  // shadow or light anything, so every candidate is invalidated.
+  (void)scene;
+  (void)oldPose;
+  (void)newPose;
+  (void)movedObject;
+  std::vector<VertexId> out;
+  out.reserve(candidates.size());
+  for (const InvalidationCandidate& c : candidates) out.push_back(c.vertex);
+  return out;
+}
+
+Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cache, const ScenePose& oldPose,
+                              const ScenePose& newPose) {
+  const Scene& scene = hierarchy.GetScene();
+  std::vector<bool> moved(scene.objects.size(), false);
+  std::vector<uint32_t> movedObjects;
+  for (uint32_t o = 0; o < scene.objects.size(); ++o) {
+    if (o < oldPose.objectToWorld.size() && o < newPose.objectToWorld.size() &&
+        oldPose.objectToWorld[o] == newPose.objectToWorld[o])
+      continue;
+    moved[o] = true;
+    movedObjects.push_back(o);
+  }
+  Invalidation out;
+  if (movedObjects.empty()) return out;
+  std::vector<InvalidationCandidate> candidates;
+  const size_t vertexCount = hierarchy.VertexCount();
+  for (VertexId v = 0; v < vertexCount; ++v) {
+    const SampleVertex& sv = hierarchy.GetVertex(v);
+    const uint32_t object = scene.ObjectOfTriangle(sv.baseTriangle);
+    if (object != kStaticObject && moved[object]) {
+      out.vertices.push_back(v);
+      continue;
+    }
+    InvalidationCandidate c;
+    c.vertex = v;
+    const RigidTransform place = oldPose.Of(object);
+    c.position = place.ApplyPoint(sv.position);
+    c.normal = place.ApplyVector(sv.normal);
+    if (const std::optional<CachedSample> sample = cache.Read(v)) {
+      c.shaded = true;
+      c.radiance = sample->radiance;
+      c.irradiance = sample->irradiance;
+      c.irradianceStdErr = sample->irradianceStdErr;
+    }
+    c.albedo = scene.AlbedoAt(sv.baseTriangle, sv.bary.x, sv.bary.y);
+    candidates.push_back(c);
+  }
+  out.objectVertices = out.vertices.size();
+  for (uint32_t o : movedObjects) {
+    std::vector<VertexId> chosen = InvalidatedStaticVertices(scene, oldPose, newPose, o, candidates);
+    out.vertices.insert(out.vertices.end(), chosen.begin(), chosen.end());
+  }
+  std::sort(out.vertices.begin(), out.vertices.end());
+  out.vertices.erase(std::unique(out.vertices.begin(), out.vertices.end()), out.vertices.end());
+  return out;
+}
+
+}  // namespace penumbra::sma

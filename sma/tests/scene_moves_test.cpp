@@ -1,0 +1,254 @@
+// Moving objects in the SMA (issue 14) without sockets: MoveObject checks,
+// coalescing, the next pose, what a move invalidates, the wire fields of
+// SceneInfo, MOVED and new vertices, and visibility at a moved pose.
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <limits>
+#include <set>
+#include <vector>
+
+#include "penumbra/common/embree_scene.h"
+#include "penumbra/sma/delta.h"
+#include "penumbra/sma/scene_moves.h"
+#include "penumbra/sma/visibility.h"
+
+namespace penumbra::sma {
+namespace {
+
+// A 4x4 static floor on y = 0 around the origin; object 0 ("box"): a unit
+// quad, facing +y in object space, placed 1 above the floor's centre;
+// object 1 ("spinner"): a small quad far off, animated.
+Scene FloorWithObjects() {
+  SceneBuilder b;
+  const uint32_t m = b.AddMaterial(Material{});
+  b.AddQuad(Vec3(-2.0f, 0.0f, -2.0f), Vec3(0, 0, 4), Vec3(4, 0, 0), m);
+  MovableObject box;
+  box.name = "box";
+  box.objectToWorld = RigidTransform{glm::mat3(1.0f), Vec3(0.0f, 1.0f, 0.0f)};
+  b.BeginObject(box);
+  b.AddQuad(Vec3(-0.5f, 0.0f, -0.5f), Vec3(0, 0, 1), Vec3(1, 0, 0), m);
+  MovableObject spinner;
+  spinner.name = "spinner";
+  spinner.objectToWorld = RigidTransform{glm::mat3(1.0f), Vec3(10.0f, 1.0f, 0.0f)};
+  ObjectAnimation path;
+  path.keys = {ObjectKeyframe{0.0f, spinner.objectToWorld},
+               ObjectKeyframe{1.0f, RigidTransform{glm::mat3(1.0f), Vec3(10.0f, 2.0f, 0.0f)}}};
+  spinner.animation = path;
+  b.BeginObject(spinner);
+  b.AddQuad(Vec3(-0.1f, 0.0f, -0.1f), Vec3(0, 0, 0.2f), Vec3(0.2f, 0, 0), m);
+  b.EndObject();
+  Scene s;
+  s.name = "floor-with-objects";
+  s.twoSided = true;
+  const Status built = b.BuildInto(s);
+  EXPECT_TRUE(built.ok()) << built.error().message;
+  return s;
+}
+
+wire::MoveObject Move(uint32_t id, std::vector<float> m12) {
+  wire::MoveObject m;
+  m.set_request_id(7);
+  m.set_object(id);
+  for (float f : m12) m.add_object_to_world(f);
+  return m;
+}
+
+std::vector<float> Translation(float x, float y, float z) { return {1, 0, 0, x, 0, 1, 0, y, 0, 0, 1, z}; }
+
+TEST(SceneMoves, CheckMoveObjectRefusesWhatCannotBeAMoveAndNamesIt) {
+  const Scene scene = FloorWithObjects();
+  ASSERT_EQ(scene.objects.size(), 2u);
+  const auto refused = [&](const wire::MoveObject& m, const std::string& word) {
+    auto checked = CheckMoveObject(m, scene);
+    if (checked) return ::testing::AssertionFailure() << "accepted";
+    if (checked.error().message.find(word) == std::string::npos)
+      return ::testing::AssertionFailure() << "message '" << checked.error().message << "' lacks '" << word << "'";
+    return ::testing::AssertionSuccess();
+  };
+  EXPECT_TRUE(refused(Move(0, Translation(0, 1, 0)), "unknown object id 0"));
+  EXPECT_TRUE(refused(Move(3, Translation(0, 1, 0)), "unknown object id 3"));
+  EXPECT_TRUE(refused(Move(2, Translation(0, 1, 0)), "animated"));
+  EXPECT_TRUE(refused(Move(1, {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1}), "12"));
+  std::vector<float> nan = Translation(0, 1, 0);
+  nan[3] = std::numeric_limits<float>::quiet_NaN();
+  EXPECT_TRUE(refused(Move(1, nan), "box"));
+  EXPECT_FALSE(CheckMoveObject(Move(1, {2, 0, 0, 0, 0, 2, 0, 0, 0, 0, 2, 0}), scene)) << "scaled";
+  EXPECT_FALSE(CheckMoveObject(Move(1, {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, -1, 0}), scene)) << "mirrored";
+  EXPECT_FALSE(CheckMoveObject(Move(1, {1, 1, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0}), scene)) << "sheared";
+  EXPECT_FALSE(CheckMoveObject(Move(1, std::vector<float>(12, 0.0f)), scene)) << "degenerate";
+
+  auto ok = CheckMoveObject(Move(1, Translation(0.5f, 1.0f, 0.0f)), scene);
+  ASSERT_TRUE(ok) << ok.error().message;
+  EXPECT_EQ(ok->object, 0u);
+  EXPECT_EQ(ok->objectToWorld.translation, Vec3(0.5f, 1.0f, 0.0f));
+
+  auto none = Scene();
+  EXPECT_FALSE(CheckMoveObject(Move(1, Translation(0, 0, 0)), scene.objects.empty() ? scene : none));
+}
+
+TEST(SceneMoves, NextPoseCountsEpochsAndSkipsMovesThatChangeNothing) {
+  const Scene scene = FloorWithObjects();
+  const ScenePose initial = ScenePose::Initial(scene);
+  EXPECT_FALSE(NextPose(initial, std::vector{ObjectMove{0, scene.objects[0].objectToWorld}}));
+  const RigidTransform away{glm::mat3(1.0f), Vec3(1.0f, 1.0f, 0.0f)};
+  auto next = NextPose(initial, std::vector{ObjectMove{0, away}});
+  ASSERT_TRUE(next);
+  EXPECT_EQ(next->epoch, 1u);
+  EXPECT_EQ(next->objectToWorld[0], away);
+  EXPECT_EQ(next->objectToWorld[1], initial.objectToWorld[1]);
+}
+
+TEST(SceneMoves, CoalescerKeepsTheLatestMovePerObjectAndOneJob) {
+  MoveCoalescer q;
+  const auto at = [](float x) { return RigidTransform{glm::mat3(1.0f), Vec3(x, 0.0f, 0.0f)}; };
+  EXPECT_TRUE(q.Add(ObjectMove{0, at(1)})) << "first: post the job";
+  EXPECT_FALSE(q.Add(ObjectMove{0, at(2)})) << "the job is posted";
+  EXPECT_FALSE(q.Add(ObjectMove{1, at(3)}));
+  auto moves = q.Take();
+  ASSERT_EQ(moves.size(), 2u);
+  EXPECT_EQ(moves[0].object, 0u);
+  EXPECT_EQ(moves[0].objectToWorld, at(2));
+  EXPECT_EQ(moves[1].objectToWorld, at(3));
+  EXPECT_EQ(q.Coalesced(), 1u);
+  // While the job applies them, a new move waits for the job's next Take.
+  EXPECT_FALSE(q.Add(ObjectMove{0, at(4)}));
+  EXPECT_EQ(q.Take().size(), 1u);
+  EXPECT_TRUE(q.Take().empty()) << "nothing left: the job ends";
+  EXPECT_TRUE(q.Add(ObjectMove{0, at(5)})) << "a new job";
+}
+
+TEST(SceneMoves, PlanInvalidationTakesTheMovedObjectsVerticesAndTheConservativeRest) {
+  const Scene scene = FloorWithObjects();
+  Hierarchy hierarchy(scene);
+  hierarchy.Refine(0, RefineOptions{});  // midpoints on the floor
+  const NodeId boxRoot = NodeId(scene.objects[0].firstTriangle);
+  hierarchy.Refine(boxRoot, RefineOptions{});  // and on the box
+  SampleCache cache;
+  cache.Reserve(hierarchy.VertexCount());
+  std::vector<ShadedSample> all;
+  for (VertexId v = 0; v < hierarchy.VertexCount(); ++v) all.push_back(ShadedSample{v, Rgb(1.0f), Rgb(2.0f), 0.1f, 16});
+  cache.Store(all);
+
+  const ScenePose before = ScenePose::Initial(scene);
+  EXPECT_TRUE(PlanInvalidation(hierarchy, cache, before, before).vertices.empty()) << "nothing moved";
+  ScenePose after = *NextPose(before, std::vector{ObjectMove{0, RigidTransform{glm::mat3(1.0f), Vec3(1, 1, 0)}}});
+  const Invalidation inv = PlanInvalidation(hierarchy, cache, before, after);
+
+  size_t boxVertices = 0;
+  for (VertexId v = 0; v < hierarchy.VertexCount(); ++v)
+    boxVertices += scene.ObjectOfTriangle(hierarchy.GetVertex(v).baseTriangle) == 0;
+  EXPECT_GT(boxVertices, 8u);  // base vertices of both sides and midpoints
+  EXPECT_EQ(inv.objectVertices, boxVertices);
+  // Conservative for now: everything else too (the motion-volume test will narrow it).
+  EXPECT_EQ(inv.vertices.size(), hierarchy.VertexCount());
+  EXPECT_TRUE(std::is_sorted(inv.vertices.begin(), inv.vertices.end()));
+}
+
+TEST(SceneMoves, SceneInfoAndMovedDeltaNameObjectsByIdWithTheirTransforms) {
+  const Scene scene = FloorWithObjects();
+  ScenePose pose = ScenePose::Initial(scene);
+  pose.objectToWorld[0] = RigidTransform::FromAxisAngle(Vec3(0, 1, 0), 0.5f, Vec3(0.25f, 1.0f, 0.0f));
+  pose.epoch = 4;
+  wire::SceneInfo info;
+  info.add_objects()->set_name("left over");  // replaced, not added to
+  FillSceneInfoObjects(scene, pose, &info);
+  ASSERT_EQ(info.objects_size(), 2);
+  EXPECT_EQ(info.scene_epoch(), 4u);
+  EXPECT_EQ(info.objects(0).object(), 1u);
+  EXPECT_EQ(info.objects(0).name(), "box");
+  EXPECT_FALSE(info.objects(0).animated());
+  EXPECT_TRUE(info.objects(1).animated());
+  EXPECT_EQ(info.objects(1).object(), 2u);
+  EXPECT_FLOAT_EQ(info.objects(0).bounds_min().x(), -0.5f);  // object space
+  EXPECT_FLOAT_EQ(info.objects(0).bounds_max().z(), 0.5f);
+  ASSERT_EQ(info.objects(0).object_to_world_size(), 12);
+  EXPECT_FLOAT_EQ(info.objects(0).object_to_world(3), 0.25f);
+  EXPECT_FLOAT_EQ(info.objects(0).object_to_world(0), std::cos(0.5f));
+
+  wire::Delta delta;
+  FillMovedDelta(pose, std::vector<uint32_t>{0}, &delta);
+  EXPECT_EQ(delta.kind(), wire::DELTA_KIND_MOVED);
+  EXPECT_EQ(delta.scene_epoch(), 4u);
+  ASSERT_EQ(delta.moved_objects_size(), 1);
+  EXPECT_EQ(delta.moved_objects(0), 1u);
+  ASSERT_EQ(delta.moved_object_transforms_size(), 12);
+  const auto back = RigidTransform::FromRowMajor(
+      std::span<const float>(delta.moved_object_transforms().data(), 12));
+  ASSERT_TRUE(back);
+  EXPECT_NEAR(back->translation.x, 0.25f, 1e-6f);
+}
+
+TEST(SceneMoves, NewVerticesGoInObjectSpaceWithTheirObject) {
+  const Scene scene = FloorWithObjects();
+  Hierarchy hierarchy(scene);
+  SampleCache cache;
+  std::vector<ShadedSample> all;
+  for (VertexId v = 0; v < hierarchy.VertexCount(); ++v) all.push_back(ShadedSample{v, Rgb(1.0f), Rgb(2.0f), 0.1f, 16});
+  cache.Store(all);
+  ClientMirror mirror;
+  std::vector<NodeId> roots;
+  for (NodeId r = 0; r < hierarchy.RootCount(); ++r) roots.push_back(r);
+  wire::Delta delta;
+  mirror.AppendChanges({}, roots, hierarchy, cache, delta);
+  ASSERT_EQ(delta.vertex_objects_size(), delta.vertex_ids_size());
+  std::set<uint32_t> objects;
+  for (int i = 0; i < delta.vertex_ids_size(); ++i) {
+    const VertexId v = VertexId(delta.vertex_ids(i));
+    const uint32_t object = scene.ObjectOfTriangle(hierarchy.GetVertex(v).baseTriangle);
+    EXPECT_EQ(delta.vertex_objects(i), object == kStaticObject ? 0u : object + 1);
+    objects.insert(delta.vertex_objects(i));
+    // Object space: the box's corners at y = 0, not at its world y = 1.
+    EXPECT_EQ(delta.vertex_positions(3 * i + 1), hierarchy.GetVertex(v).position.y);
+    if (object == 0) EXPECT_EQ(delta.vertex_positions(3 * i + 1), 0.0f);
+  }
+  EXPECT_EQ(objects, (std::set<uint32_t>{0, 1, 2}));
+}
+
+// Visibility at a pose: the box hides the floor below it until it moves
+// away; turned upside down, a ray from above meets its back.
+TEST(SceneMoves, VisibilityTracesAtThePoseAndSidesFollowTheWorldNormal) {
+  const Scene scene = FloorWithObjects();
+  auto tracer = VisibilityTracer::Build(scene);
+  ASSERT_TRUE(tracer) << tracer.error().message;
+  CameraView view;
+  view.pose.eye = Vec3(0.0f, 5.0f, 0.0f);
+  view.pose.target = Vec3(0.0f, 0.0f, 0.0f);
+  view.pose.up = Vec3(0.0f, 0.0f, 1.0f);
+  view.fovYDeg = 10.0f;
+  view.width = 8;
+  view.height = 8;
+  const auto centre = [&](const HitBuffer& hits) { return hits.hits[size_t(4 * 8 + 4)]; };
+  const uint32_t boxFirst = scene.objects[0].firstTriangle;
+  const auto onBox = [&](const PixelHit& h) { return h.triangle == boxFirst || h.triangle == boxFirst + 1; };
+
+  HitBuffer initial;
+  (*tracer)->Trace(view, initial);
+  EXPECT_EQ(initial.epoch, 0u);
+  EXPECT_TRUE(onBox(centre(initial)));
+  EXPECT_FALSE(centre(initial).backFace);
+
+  ScenePose away = ScenePose::Initial(scene);
+  away.epoch = 1;
+  away.objectToWorld[0] = RigidTransform{glm::mat3(1.0f), Vec3(5.0f, 1.0f, 0.0f)};
+  auto posedAway = (*tracer)->AtPose(away);
+  ASSERT_TRUE(posedAway) << posedAway.error().message;
+  HitBuffer moved;
+  (*tracer)->Trace(view, moved, nullptr, posedAway->get());
+  EXPECT_EQ(moved.epoch, 1u);
+  EXPECT_LT(centre(moved).triangle, scene.staticTriangleCount) << "the floor, uncovered";
+
+  ScenePose flipped = ScenePose::Initial(scene);
+  flipped.epoch = 2;
+  flipped.objectToWorld[0] = RigidTransform::FromAxisAngle(Vec3(1, 0, 0), float(M_PI), Vec3(0.0f, 1.0f, 0.0f));
+  auto posedFlipped = (*tracer)->AtPose(flipped);
+  ASSERT_TRUE(posedFlipped) << posedFlipped.error().message;
+  HitBuffer upsideDown;
+  (*tracer)->Trace(view, upsideDown, nullptr, posedFlipped->get());
+  EXPECT_TRUE(onBox(centre(upsideDown)));
+  EXPECT_TRUE(centre(upsideDown).backFace) << "its front now faces the floor";
+}
+
+}  // namespace
+}  // namespace penumbra::sma
