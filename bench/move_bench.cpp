@@ -104,7 +104,7 @@ Expected<MoveFigures> TimeMove(SmaTestClient& c, uint32_t object, const RigidTra
     auto e = c.Wire().Receive(500ms);
     if (!e && e.error().message == "timeout") continue;
     if (!e) return e.error();
-    if (e->has_error()) return Fail("the move was refused: " + e->error().message);
+    if (e->has_error()) return Fail("the move was refused: " + e->error().message());
     if (e->has_delta()) {
       const wire::Delta& d = e->delta();
       if (d.kind() == wire::DELTA_KIND_RESHADED && d.scene_epoch() >= epoch && f.firstUpdateMs < 0)

@@ -1,5 +1,7 @@
 #include "penumbra/sma/scene_moves.h"
 
+#include "penumbra/sma/motion_volume.h"
+
 #include <algorithm>
 #include <array>
 
@@ -106,15 +108,45 @@ uint64_t MoveCoalescer::Coalesced() const {
 std::vector<VertexId> InvalidatedStaticVertices(const Scene& scene, const ScenePose& oldPose,
                                                 const ScenePose& newPose, uint32_t movedObject,
                                                 std::span<const InvalidationCandidate> candidates) {
-  // Conservative until the motion-volume test is merged: a moved object can
-  // shadow or light anything, so every candidate is invalidated.
-  (void)scene;
-  (void)oldPose;
-  (void)newPose;
-  (void)movedObject;
+  // The motion volume of the move (motion_volume.h): where the object was
+  // and where it is now, one box or two.
+  const MotionVolume volume =
+      MotionVolumes(WorldBounds(scene, oldPose, movedObject), WorldBounds(scene, newPose, movedObject));
+  // What the volume can block or reflect towards a vertex: no surface is
+  // brighter than the brightest cached sample by much -- the moving object
+  // is lit by the same lights as what is cached around it. The margin (2x)
+  // covers surfaces no client has seen yet being brighter than those seen;
+  // with nothing cached the scene's brightest light bounds it (always safe).
+  float brightest = 0.0f;
+  for (const InvalidationCandidate& c : candidates)
+    if (c.shaded) brightest = std::max(brightest, Luminance(c.radiance));
+  InvalidationParams params;
+  params.indirectRadiance = brightest > 0.0f ? 2.0f * brightest : -1.0f;
+  const MoveInvalidator invalidator(scene, volume, params);
+
+  std::vector<Vec3> positions(candidates.size()), normals(candidates.size());
+  std::vector<float> irradiance(candidates.size()), stdErr(candidates.size());
+  for (size_t i = 0; i < candidates.size(); ++i) {
+    const InvalidationCandidate& c = candidates[i];
+    positions[i] = c.position;
+    normals[i] = c.normal;
+    // An unshaded candidate may have a sample on its way, shaded at the old
+    // pose: zero irradiance and noise make its tolerance 0, so it is
+    // invalidated whenever the move can change anything it sees.
+    irradiance[i] = c.shaded ? Luminance(c.irradiance) : 0.0f;
+    stdErr[i] = c.shaded ? c.irradianceStdErr : 0.0f;
+  }
+  auto chosen = invalidator.InvalidatedVertices(VertexSpans{positions, normals, irradiance, stdErr});
   std::vector<VertexId> out;
-  out.reserve(candidates.size());
-  for (const InvalidationCandidate& c : candidates) out.push_back(c.vertex);
+  if (!chosen) {
+    // Spans of equal length by construction; should it ever fail, the safe
+    // answer is every candidate.
+    out.reserve(candidates.size());
+    for (const InvalidationCandidate& c : candidates) out.push_back(c.vertex);
+    return out;
+  }
+  out.reserve(chosen->size());
+  for (uint32_t i : *chosen) out.push_back(candidates[i].vertex);
   return out;
 }
 

@@ -97,8 +97,10 @@ struct InvalidationCandidate {
 /// An unshaded candidate must be returned when a sample shaded at the old
 /// pose could be wrong: one may be on its way.
 ///
-/// For now the conservative answer: every candidate (correct, wasteful).
-/// The motion-volume test (motion_volume.h, issue 14) replaces it here.
+/// The motion-volume test (motion_volume.h): the move's one or two boxes,
+/// exact shafts for direct light and a solid-angle bound for indirect light
+/// (bounded by twice the brightest cached radiance), against each sample's
+/// own noise.
 std::vector<VertexId> InvalidatedStaticVertices(const Scene& scene, const ScenePose& oldPose,
                                                 const ScenePose& newPose, uint32_t movedObject,
                                                 std::span<const InvalidationCandidate> candidates);
