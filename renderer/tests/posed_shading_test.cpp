@@ -6,8 +6,12 @@
 
 #include <glm/trigonometric.hpp>
 
+#include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <limits>
+#include <memory>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -15,6 +19,7 @@
 #include "penumbra/renderer/reference.h"
 #include "penumbra/renderer/shade_batch.h"
 #include "penumbra/renderer/shading.h"
+#include "penumbra/renderer/shading_pool.h"
 #include "test_scenes.h"
 
 namespace penumbra {
@@ -326,6 +331,60 @@ TEST(PosedShadingTest, AnObjectMovedFarAwayLeavesTheStaticShadingAsItWas) {
   ASSERT_TRUE(ValidateShadeInput(s.t.scene, far, onFar).ok());
   const ShadeOutput out = shader.Shade(*posed, onFar, 16, nullptr);
   EXPECT_TRUE(std::isfinite(out.irradiance.r) && out.irradiance.r >= 0.0f);
+}
+
+// Batches at different poses -- two SMAs, or one across a move -- share the
+// pool's workers, each shaded at its own pose, whatever the interleaving.
+TEST(PosedShadingTest, ThePoolShadesEachJobAtItsOwnPose) {
+  const OccluderScene s = MakeOccluderScene();
+  const Shader shader(s.t.scene, *s.t.rays, DirectOnly());
+  ScenePose aside = ScenePose::Initial(s.t.scene);
+  aside.epoch = 1;
+  aside.objectToWorld[0] = Translation(Vec3(3.0f, 1.0f, 0.0f));
+  const auto blocked = s.t.rays->Initial();
+  const auto open = PoseOrFail(*s.t.rays, aside);
+  ASSERT_TRUE(open);
+  const ShadeInput underLight = SampleAt(s.t.scene, Vec3(0.0f), kUp);
+
+  ShadingPool pool(shader, 3);
+  const auto source = pool.AddSource();
+  constexpr int kJobs = 24, kSamples = 40;
+  std::mutex mutex;
+  std::condition_variable done;
+  int finished = 0;
+  std::vector<std::shared_ptr<ShadeJob>> jobs;
+  for (int j = 0; j < kJobs; ++j) {
+    auto job = std::make_shared<ShadeJob>();
+    job->batchId = uint64_t(j);
+    job->paths = 16;
+    job->pose = j % 2 == 0 ? blocked : open;
+    for (int i = 0; i < kSamples; ++i) {
+      ShadeInput in = underLight;
+      in.sampleId = uint64_t(j * kSamples + i);
+      job->inputs.push_back(in);
+    }
+    job->onPart = [&](const ShadeJob&, size_t, size_t, const ShadeCounters&, size_t remaining) {
+      if (remaining != 0) return;
+      std::lock_guard lock(mutex);
+      ++finished;
+      done.notify_all();
+    };
+    jobs.push_back(job);
+    pool.Submit(source, job);
+  }
+  {
+    std::unique_lock lock(mutex);
+    ASSERT_TRUE(done.wait_for(lock, std::chrono::seconds(60), [&] { return finished == kJobs; }));
+  }
+  const float exact = float(LightAt(Vec3(0.0f)));
+  for (const auto& job : jobs) {
+    for (const ShadeOutput& out : job->outputs) {
+      if (job->batchId % 2 == 0)
+        EXPECT_EQ(out.irradiance.r, 0.0f) << "batch " << job->batchId;
+      else
+        EXPECT_NEAR(out.irradiance.r, exact, 0.3f * exact) << "batch " << job->batchId;
+    }
+  }
 }
 
 // --- The wire pose ------------------------------------------------------------------
