@@ -524,6 +524,39 @@ TEST(PlaceObjectTest, ReadsATransformOrATranslationAndRefusesTheRest) {
   EXPECT_NE(errorOf("occluder=translate:1e30,0,0").find("beyond"), std::string::npos);
 }
 
+TEST(PlaceObjectTest, AnimatedObjectsArePlacedAtTheirAnimationsTime) {
+  SceneBuilder b;
+  const uint32_t m = b.AddMaterial(MakeMaterial(Rgb(0.5f)));
+  AddHorizontalSquare(b, Vec3(0.0f), 4.0f, m, true);
+  MovableObject slider;
+  slider.name = "slider";
+  ObjectAnimation animation;
+  animation.loop = false;
+  animation.keys = {ObjectKeyframe{0.0f, Translation(Vec3(0.0f, 1.0f, 0.0f))},
+                    ObjectKeyframe{2.0f, Translation(Vec3(4.0f, 1.0f, 0.0f))}};
+  slider.objectToWorld = animation.keys[0].objectToWorld;
+  slider.animation = animation;
+  b.BeginObject(slider);
+  AddHorizontalSquare(b, Vec3(0.0f), 0.5f, m, true);
+  MovableObject still;
+  still.name = "still";
+  still.objectToWorld = Translation(Vec3(-1.0f, 2.0f, 0.0f));
+  b.BeginObject(still);
+  AddHorizontalSquare(b, Vec3(0.0f), 0.5f, m, true);
+  const TestScene t = Finish(b);
+  ASSERT_EQ(t.scene.objects.size(), 2u);
+
+  ScenePose pose = ScenePose::Initial(t.scene);
+  PlaceAnimatedObjects(t.scene, 0.5, &pose);
+  EXPECT_NEAR(glm::length(pose.objectToWorld[0].translation - Vec3(1.0f, 1.0f, 0.0f)), 0.0f, 1e-6f);
+  EXPECT_EQ(pose.objectToWorld[1], t.scene.objects[1].objectToWorld);
+  PlaceAnimatedObjects(t.scene, 10.0, &pose);  // held at the end
+  EXPECT_NEAR(glm::length(pose.objectToWorld[0].translation - Vec3(4.0f, 1.0f, 0.0f)), 0.0f, 1e-6f);
+  // --object then moves one of them from there.
+  ASSERT_TRUE(PlaceObject(t.scene, "slider=translate:0,0,1", &pose).ok());
+  EXPECT_NEAR(glm::length(pose.objectToWorld[0].translation - Vec3(4.0f, 1.0f, 1.0f)), 0.0f, 1e-6f);
+}
+
 TEST(PosedReferenceTest, TheImageShowsTheShadowWhereThePosePutsTheOccluder) {
   const OccluderScene s = MakeOccluderScene(0.5f);
   ShadingSettings settings = DirectOnly();
