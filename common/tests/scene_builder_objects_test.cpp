@@ -40,7 +40,7 @@ std::string ErrorOf(SceneBuilder& b, Scene& s) {
   return st.ok() ? std::string() : st.error().message;
 }
 
-TEST(SceneObjectsTest, ObjectsFollowTheStaticPartInContiguousRangesInTheirOrder) {
+TEST(SceneBuilderObjectsTest, ObjectsFollowTheStaticPartInContiguousRangesInTheirOrder) {
   SceneBuilder b;
   const uint32_t m = White(b);
   AddFloorSquare(b, Vec3(0, 0, 0), m);  // static
@@ -86,7 +86,7 @@ TEST(SceneObjectsTest, ObjectsFollowTheStaticPartInContiguousRangesInTheirOrder)
   EXPECT_EQ(s.FindObject("chair"), kStaticObject);
 }
 
-TEST(SceneObjectsTest, CornersOfDifferentPartsNeverWeld) {
+TEST(SceneBuilderObjectsTest, CornersOfDifferentPartsNeverWeld) {
   SceneBuilder b;
   const uint32_t m = White(b);
   AddFloorSquare(b, Vec3(0, 0, 0), m);
@@ -109,7 +109,7 @@ TEST(SceneObjectsTest, CornersOfDifferentPartsNeverWeld) {
   EXPECT_EQ(p.vertices.size(), 6u);
 }
 
-TEST(SceneObjectsTest, ObjectGeometryIsInObjectSpaceAndAPosePlacesIt) {
+TEST(SceneBuilderObjectsTest, ObjectGeometryIsInObjectSpaceAndAPosePlacesIt) {
   SceneBuilder b;
   const uint32_t m = White(b);
   AddFloorSquare(b, Vec3(0, 0, 0), m);
@@ -154,7 +154,7 @@ TEST(SceneObjectsTest, ObjectGeometryIsInObjectSpaceAndAPosePlacesIt) {
   EXPECT_FALSE(later.SamePlaces(ScenePose::Initial(s)));
 }
 
-TEST(SceneObjectsTest, IdentityCoversTheObjectsNamesAndPlaces) {
+TEST(SceneBuilderObjectsTest, IdentityCoversTheObjectsNamesAndPlaces) {
   auto make = [](const std::string& name, float lift) {
     SceneBuilder b;
     const uint32_t m = White(b);
@@ -170,7 +170,7 @@ TEST(SceneObjectsTest, IdentityCoversTheObjectsNamesAndPlaces) {
   EXPECT_NE(make("box", 1.0f), make("crate", 1.0f));
 }
 
-TEST(SceneObjectsTest, FinalizeRefusesEmissiveObjectsDuplicateNamesAndEmptyObjects) {
+TEST(SceneBuilderObjectsTest, FinalizeRefusesEmissiveObjectsDuplicateNamesAndEmptyObjects) {
   {
     SceneBuilder b;
     const uint32_t m = White(b);
@@ -229,7 +229,7 @@ ObjectAnimation Slide(std::vector<float> times, bool loop = true) {
   return a;
 }
 
-TEST(SceneObjectsTest, FinalizeRefusesBadAnimations) {
+TEST(SceneBuilderObjectsTest, FinalizeRefusesBadAnimations) {
   const struct {
     ObjectAnimation animation;
     const char* message;
