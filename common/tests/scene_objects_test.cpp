@@ -6,12 +6,14 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 #include <optional>
 #include <string>
 #include <vector>
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include "penumbra/common/scene.h"
 #include "test_files.h"
@@ -393,6 +395,9 @@ const BadObjects kBadObjects[] = {
      "objects.a.transform: \"translate\" must be an array of 3 finite numbers"},
     {"TransformFarAway", R"({"a": {"group": "crate", "transform": {"translate": [0, 2e7, 0]}}})",
      "objects.a.transform: translation"},
+    {"PivotAndTranslateTooFar",
+     R"({"a": {"group": "crate", "pivot": [9e6, 0, 0], "transform": {"translate": [9e6, 0, 0]}}})",
+     "objects.a: translation (18000000, 0, 0) is beyond 10000000"},
     {"AxisWithoutAngle", R"({"a": {"group": "crate", "transform": {"axis": [1, 0, 0]}}})",
      "objects.a.transform: \"axis\" without \"rotate_deg\""},
     {"ZeroAxis", R"({"a": {"group": "crate", "transform": {"rotate_deg": 10, "axis": [0, 0, 0]}}})",
@@ -452,6 +457,8 @@ const BadObjects kBadObjects[] = {
         {"t": 1, "matrix": [2, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0]}]}}})",
      "objects.a.animation.keyframes[1]: the 3x3 part is not a rotation"},
     {"EmptyName", R"({"": {"group": "crate"}})", "objects: an object's name must have 1 to 128 bytes"},
+    {"NameWithNewline", R"({"a\nb": {"group": "crate"}})", "no control characters"},
+    {"GroupWithNewline", R"({"a": {"group": "cr\nate"}})", "objects.a: \"group\" must be a non-empty string"},
 };
 
 // One test for the whole table (each process start costs ~0.3 s of
@@ -468,6 +475,60 @@ TEST(SceneObjectsTest, EveryBadObjectIsAnErrorNamingTheFileAndTheField) {
     EXPECT_NE(message.find(input.problem), std::string::npos) << message;
     EXPECT_EQ(message.find('\n'), std::string::npos) << "one line: " << message;
   }
+}
+
+// Every value under "objects" of a file using every key, replaced in turn by
+// values of other types and out of range: each load succeeds or fails with
+// one line that names the file and is the parser's own message -- never an
+// exception's text (a type nobody checked), a crash or a hang.
+TEST(SceneObjectsTest, AnyValueOfAnyTypeUnderObjectsLoadsOrIsRefusedCleanly) {
+  ScratchDir dir;
+  const nlohmann::json base = nlohmann::json::parse(R"({"mesh": "parts.obj", "objects": {
+      "stack": {"group": ["crate", "shelf"], "pivot": [2, 0, 3],
+                "animation": {"loop": false, "keyframes": [
+                    {"t": 0, "translate": [0, 1, 0], "rotate_deg": 10, "axis": [0, 1, 0]},
+                    {"t": 1, "matrix": [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0]}]}},
+      "cube": {"mesh": "cube.obj", "transform": {"translate": [1, 2, 3], "rotate_deg": 45, "axis": [1, 0, 0]}}}})");
+  const fs::path file = WriteScene(dir, base["objects"].dump());
+  ASSERT_TRUE(LoadScene(file).ok()) << "the unchanged file loads";
+  std::vector<nlohmann::json::json_pointer> places;
+  std::vector<nlohmann::json::json_pointer> pending{nlohmann::json::json_pointer("/objects")};
+  while (!pending.empty()) {
+    const auto at = pending.back();
+    pending.pop_back();
+    places.push_back(at);
+    const nlohmann::json& value = base.at(at);
+    if (value.is_object())
+      for (const auto& item : value.items()) pending.push_back(at / item.key());
+    if (value.is_array())
+      for (size_t i = 0; i < value.size(); ++i) pending.push_back(at / i);
+  }
+  // Few, so that few variants get as far as reading the meshes (~0.1 s each).
+  const nlohmann::json replacements[] = {nullptr, "x", 1e30, nlohmann::json::object(),
+                                         nlohmann::json::array({1, 2, 3})};
+  size_t loaded = 0, refused = 0;
+  for (const auto& at : places) {
+    for (const nlohmann::json& replacement : replacements) {
+      nlohmann::json changed = base;
+      changed[at] = replacement;
+      const std::string text = changed.dump();
+      dir.Write("scene.json", text);
+      auto scene = LoadScene(file);
+      if (scene.ok()) {
+        ++loaded;
+        continue;
+      }
+      ++refused;
+      const std::string& message = scene.error().message;
+      EXPECT_EQ(message.rfind(file.string(), 0), 0u) << text << "\n" << message;
+      EXPECT_EQ(message.find('\n'), std::string::npos) << text << "\n" << message;
+      EXPECT_EQ(message.find("cannot load"), std::string::npos) << "an exception escaped: " << text << "\n" << message;
+      EXPECT_EQ(message.find("json.exception"), std::string::npos) << text << "\n" << message;
+    }
+  }
+  EXPECT_GT(places.size(), 40u);
+  EXPECT_GT(refused, loaded) << "most replacements are wrong";
+  EXPECT_GT(loaded, 0u) << "some are harmless (an axis of [1, 2, 3])";
 }
 
 TEST(SceneObjectsTest, ObjectCountsAreBounded) {
@@ -598,7 +659,7 @@ TEST(RepositoryObjectScenesTest, CornellBoxAnimatedLoopsItsBoxThroughFreeSpace) 
 
 fs::path SharedScene(std::string_view relative) { return SourceDir() / "../shared/scenes" / relative; }
 
-TEST(RepositoryObjectScenesTest, BreakfastRoomChairIsAMovableGroupOfThreeParts) {
+TEST(RepositoryObjectScenesTest, BreakfastRoomChairIsAMovableGroupOfThreePartsThatShadowsSunlitFloor) {
   if (!fs::exists(SharedScene("breakfast-room/breakfast-room.obj")))
     GTEST_SKIP() << "../shared/scenes/breakfast-room is absent (clone ../shared beside the source tree)";
   auto scene = LoadScene(SourceDir() / "scenes/breakfast-room-chair.json");
@@ -620,6 +681,49 @@ TEST(RepositoryObjectScenesTest, BreakfastRoomChairIsAMovableGroupOfThreeParts) 
   ExpectNear(world.max, Vec3(-1.12f, 1.17f, 0.73f), 0.02f, "chair max");
   ExpectNear(chair.objectToWorld.translation, world.Center(), 1e-4f, "pivot at the centre of its bounds");
   EXPECT_NEAR(world.min.y, -1.41f, 0.02f) << "standing on the floor (y = -1.42)";
+
+  // Moving it changes what the sun does: on a 0.25 grid of the floor around
+  // it, points whose way to the sun the chair (and nothing else) blocks.
+  const ScenePose pose = ScenePose::Initial(*scene);
+  std::vector<WorldTriangle> triangles(scene->triangles.size());
+  for (uint32_t t = 0; t < triangles.size(); ++t)
+    triangles[t] = {WorldPointAt(*scene, pose, t, 0, 0), WorldPointAt(*scene, pose, t, 1, 0),
+                    WorldPointAt(*scene, pose, t, 0, 1)};
+  // Nearest triangle the ray from `origin` along `direction` meets, among
+  // [0, end).
+  auto nearest = [&](const Vec3& origin, const Vec3& direction, uint32_t end) -> std::optional<uint32_t> {
+    std::optional<uint32_t> best;
+    float bestDistance = std::numeric_limits<float>::max();
+    for (uint32_t t = 0; t < end; ++t) {
+      const WorldTriangle& w = triangles[t];
+      const Vec3 e1 = w[1] - w[0], e2 = w[2] - w[0];
+      const Vec3 p = glm::cross(direction, e2);
+      const float det = glm::dot(e1, p);
+      if (std::abs(det) < 1e-12f) continue;
+      const Vec3 s = origin - w[0];
+      const float u = glm::dot(s, p) / det;
+      if (u < 0.0f || u > 1.0f) continue;
+      const Vec3 q = glm::cross(s, e1);
+      const float v = glm::dot(direction, q) / det;
+      if (v < 0.0f || u + v > 1.0f) continue;
+      const float distance = glm::dot(e2, q) / det;
+      if (distance > 1e-3f && distance < bestDistance) {
+        bestDistance = distance;
+        best = t;
+      }
+    }
+    return best;
+  };
+  const Vec3 toSun = scene->sun->directionToSun;
+  int inChairShadow = 0;
+  for (float x = world.min.x - 4.0f; x <= world.max.x + 0.5f; x += 0.25f)
+    for (float z = world.min.z - 1.0f; z <= world.max.z + 1.5f; z += 0.25f) {
+      const Vec3 floor(x, -1.40f, z);
+      const auto blocker = nearest(floor, toSun, uint32_t(triangles.size()));
+      if (blocker && scene->ObjectOfTriangle(*blocker) == 0 && !nearest(floor, toSun, scene->staticTriangleCount))
+        ++inChairShadow;
+    }
+  EXPECT_GE(inChairShadow, 8) << "floor points in the chair's sun shadow (13 when written)";
 }
 
 }  // namespace

@@ -145,6 +145,11 @@ void AddProgressivePass(const Shader& shader, const PosedRayScene& rays, const C
   });
 }
 
+void PlaceAnimatedObjects(const Scene& scene, double timeS, ScenePose* pose) {
+  for (size_t i = 0; i < scene.objects.size(); ++i)
+    if (scene.objects[i].animation) pose->objectToWorld[i] = scene.objects[i].animation->At(timeS);
+}
+
 Status PlaceObject(const Scene& scene, const std::string& spec, ScenePose* pose) {
   const size_t equals = spec.find('=');
   if (equals == std::string::npos)

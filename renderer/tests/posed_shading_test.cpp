@@ -6,8 +6,12 @@
 
 #include <glm/trigonometric.hpp>
 
+#include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <limits>
+#include <memory>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -15,6 +19,7 @@
 #include "penumbra/renderer/reference.h"
 #include "penumbra/renderer/shade_batch.h"
 #include "penumbra/renderer/shading.h"
+#include "penumbra/renderer/shading_pool.h"
 #include "test_scenes.h"
 
 namespace penumbra {
@@ -328,6 +333,60 @@ TEST(PosedShadingTest, AnObjectMovedFarAwayLeavesTheStaticShadingAsItWas) {
   EXPECT_TRUE(std::isfinite(out.irradiance.r) && out.irradiance.r >= 0.0f);
 }
 
+// Batches at different poses -- two SMAs, or one across a move -- share the
+// pool's workers, each shaded at its own pose, whatever the interleaving.
+TEST(PosedShadingTest, ThePoolShadesEachJobAtItsOwnPose) {
+  const OccluderScene s = MakeOccluderScene();
+  const Shader shader(s.t.scene, *s.t.rays, DirectOnly());
+  ScenePose aside = ScenePose::Initial(s.t.scene);
+  aside.epoch = 1;
+  aside.objectToWorld[0] = Translation(Vec3(3.0f, 1.0f, 0.0f));
+  const auto blocked = s.t.rays->Initial();
+  const auto open = PoseOrFail(*s.t.rays, aside);
+  ASSERT_TRUE(open);
+  const ShadeInput underLight = SampleAt(s.t.scene, Vec3(0.0f), kUp);
+
+  ShadingPool pool(shader, 3);
+  const auto source = pool.AddSource();
+  constexpr int kJobs = 24, kSamples = 40;
+  std::mutex mutex;
+  std::condition_variable done;
+  int finished = 0;
+  std::vector<std::shared_ptr<ShadeJob>> jobs;
+  for (int j = 0; j < kJobs; ++j) {
+    auto job = std::make_shared<ShadeJob>();
+    job->batchId = uint64_t(j);
+    job->paths = 16;
+    job->pose = j % 2 == 0 ? blocked : open;
+    for (int i = 0; i < kSamples; ++i) {
+      ShadeInput in = underLight;
+      in.sampleId = uint64_t(j * kSamples + i);
+      job->inputs.push_back(in);
+    }
+    job->onPart = [&](const ShadeJob&, size_t, size_t, const ShadeCounters&, size_t remaining) {
+      if (remaining != 0) return;
+      std::lock_guard lock(mutex);
+      ++finished;
+      done.notify_all();
+    };
+    jobs.push_back(job);
+    pool.Submit(source, job);
+  }
+  {
+    std::unique_lock lock(mutex);
+    ASSERT_TRUE(done.wait_for(lock, std::chrono::seconds(60), [&] { return finished == kJobs; }));
+  }
+  const float exact = float(LightAt(Vec3(0.0f)));
+  for (const auto& job : jobs) {
+    for (const ShadeOutput& out : job->outputs) {
+      if (job->batchId % 2 == 0)
+        EXPECT_EQ(out.irradiance.r, 0.0f) << "batch " << job->batchId;
+      else
+        EXPECT_NEAR(out.irradiance.r, exact, 0.3f * exact) << "batch " << job->batchId;
+    }
+  }
+}
+
 // --- The wire pose ------------------------------------------------------------------
 
 wire::ShadeRequest OneSampleRequest(const Scene& scene, const ShadeInput& in) {
@@ -463,6 +522,39 @@ TEST(PlaceObjectTest, ReadsATransformOrATranslationAndRefusesTheRest) {
   EXPECT_NE(errorOf("occluder=translate:1,nan,3").find("not finite"), std::string::npos);
   EXPECT_NE(errorOf("occluder=2,0,0,0,0,2,0,0,0,0,2,0").find("not a rotation"), std::string::npos);
   EXPECT_NE(errorOf("occluder=translate:1e30,0,0").find("beyond"), std::string::npos);
+}
+
+TEST(PlaceObjectTest, AnimatedObjectsArePlacedAtTheirAnimationsTime) {
+  SceneBuilder b;
+  const uint32_t m = b.AddMaterial(MakeMaterial(Rgb(0.5f)));
+  AddHorizontalSquare(b, Vec3(0.0f), 4.0f, m, true);
+  MovableObject slider;
+  slider.name = "slider";
+  ObjectAnimation animation;
+  animation.loop = false;
+  animation.keys = {ObjectKeyframe{0.0f, Translation(Vec3(0.0f, 1.0f, 0.0f))},
+                    ObjectKeyframe{2.0f, Translation(Vec3(4.0f, 1.0f, 0.0f))}};
+  slider.objectToWorld = animation.keys[0].objectToWorld;
+  slider.animation = animation;
+  b.BeginObject(slider);
+  AddHorizontalSquare(b, Vec3(0.0f), 0.5f, m, true);
+  MovableObject still;
+  still.name = "still";
+  still.objectToWorld = Translation(Vec3(-1.0f, 2.0f, 0.0f));
+  b.BeginObject(still);
+  AddHorizontalSquare(b, Vec3(0.0f), 0.5f, m, true);
+  const TestScene t = Finish(b);
+  ASSERT_EQ(t.scene.objects.size(), 2u);
+
+  ScenePose pose = ScenePose::Initial(t.scene);
+  PlaceAnimatedObjects(t.scene, 0.5, &pose);
+  EXPECT_NEAR(glm::length(pose.objectToWorld[0].translation - Vec3(1.0f, 1.0f, 0.0f)), 0.0f, 1e-6f);
+  EXPECT_EQ(pose.objectToWorld[1], t.scene.objects[1].objectToWorld);
+  PlaceAnimatedObjects(t.scene, 10.0, &pose);  // held at the end
+  EXPECT_NEAR(glm::length(pose.objectToWorld[0].translation - Vec3(4.0f, 1.0f, 0.0f)), 0.0f, 1e-6f);
+  // --object then moves one of them from there.
+  ASSERT_TRUE(PlaceObject(t.scene, "slider=translate:0,0,1", &pose).ok());
+  EXPECT_NEAR(glm::length(pose.objectToWorld[0].translation - Vec3(4.0f, 1.0f, 1.0f)), 0.0f, 1e-6f);
 }
 
 TEST(PosedReferenceTest, TheImageShowsTheShadowWhereThePosePutsTheOccluder) {

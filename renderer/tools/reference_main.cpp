@@ -11,7 +11,8 @@
 // then (bench/walkthrough/).
 //
 // --object NAME=... (repeatable) places a movable object elsewhere than the
-// scene file does, for a from-scratch reference of a moved scene.
+// scene file does, and --animation-time T puts the animated ones where their
+// animations have them at T: a from-scratch reference of a moved scene.
 
 #include <chrono>
 #include <cmath>
@@ -169,6 +170,11 @@ int main(int argc, char** argv) {
                  "(its object-to-world transform, 3x4 row-major, rigid) or NAME=translate:x,y,z (moved by x,y,z "
                  "from where the scene puts it); repeatable")
       ->take_all();
+  double animationTime = -1.0;
+  app.add_option("--animation-time", animationTime,
+                 "Place every animated object where its animation has it this many seconds after it starts (before "
+                 "--object, which may then move one elsewhere)")
+      ->check(CLI::Range(0.0, 1e9));
   app.add_option("--log-level", logLevel, "trace, debug, info, warn, error, critical or off")->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   if (!SetupLogging(logLevel)) return Exit("unknown --log-level '" + logLevel + "'");
@@ -212,6 +218,7 @@ int main(int argc, char** argv) {
   if (auto ok = WriteImage(probePath, 1, 1, probe); !ok) return Exit(ok.error().message);
 
   ScenePose pose = ScenePose::Initial(*scene);
+  if (animationTime >= 0.0) PlaceAnimatedObjects(*scene, animationTime, &pose);
   for (const std::string& spec : objectSpecs)
     if (auto ok = PlaceObject(*scene, spec, &pose); !ok) return Exit(ok.error().message);
 

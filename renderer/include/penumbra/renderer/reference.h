@@ -58,6 +58,12 @@ Image RenderReference(const Shader& shader, const PosedRayScene& rays, const Cam
 void AddProgressivePass(const Shader& shader, const PosedRayScene& rays, const CameraView& view, int threads,
                         uint64_t pass, std::vector<float>* sum, ShadeCounters* counters = nullptr);
 
+/// Places every animated movable object of `scene` where its animation has
+/// it `timeS` seconds after it starts (ObjectAnimation::At: looped or held);
+/// the others keep their place in `pose` (penumbra-reference
+/// --animation-time). `pose` must have one transform per movable object.
+void PlaceAnimatedObjects(const Scene& scene, double timeS, ScenePose* pose);
+
 /// Places one movable object of `scene` in `pose` from a command-line
 /// spec (penumbra-reference --object):
 ///   NAME=r00,r01,r02,tx,r10,r11,r12,ty,r20,r21,r22,tz
