@@ -12,6 +12,7 @@
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include "penumbra/common/scene.h"
 #include "test_files.h"
@@ -452,6 +453,8 @@ const BadObjects kBadObjects[] = {
         {"t": 1, "matrix": [2, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0]}]}}})",
      "objects.a.animation.keyframes[1]: the 3x3 part is not a rotation"},
     {"EmptyName", R"({"": {"group": "crate"}})", "objects: an object's name must have 1 to 128 bytes"},
+    {"NameWithNewline", R"({"a\nb": {"group": "crate"}})", "no control characters"},
+    {"GroupWithNewline", R"({"a": {"group": "cr\nate"}})", "objects.a: \"group\" must be a non-empty string"},
 };
 
 // One test for the whole table (each process start costs ~0.3 s of
@@ -468,6 +471,60 @@ TEST(SceneObjectsTest, EveryBadObjectIsAnErrorNamingTheFileAndTheField) {
     EXPECT_NE(message.find(input.problem), std::string::npos) << message;
     EXPECT_EQ(message.find('\n'), std::string::npos) << "one line: " << message;
   }
+}
+
+// Every value under "objects" of a file using every key, replaced in turn by
+// values of other types and out of range: each load succeeds or fails with
+// one line that names the file and is the parser's own message -- never an
+// exception's text (a type nobody checked), a crash or a hang.
+TEST(SceneObjectsTest, AnyValueOfAnyTypeUnderObjectsLoadsOrIsRefusedCleanly) {
+  ScratchDir dir;
+  const nlohmann::json base = nlohmann::json::parse(R"({"mesh": "parts.obj", "objects": {
+      "stack": {"group": ["crate", "shelf"], "pivot": [2, 0, 3],
+                "animation": {"loop": false, "keyframes": [
+                    {"t": 0, "translate": [0, 1, 0], "rotate_deg": 10, "axis": [0, 1, 0]},
+                    {"t": 1, "matrix": [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0]}]}},
+      "cube": {"mesh": "cube.obj", "transform": {"translate": [1, 2, 3], "rotate_deg": 45, "axis": [1, 0, 0]}}}})");
+  const fs::path file = WriteScene(dir, base["objects"].dump());
+  ASSERT_TRUE(LoadScene(file).ok()) << "the unchanged file loads";
+  std::vector<nlohmann::json::json_pointer> places;
+  std::vector<nlohmann::json::json_pointer> pending{nlohmann::json::json_pointer("/objects")};
+  while (!pending.empty()) {
+    const auto at = pending.back();
+    pending.pop_back();
+    places.push_back(at);
+    const nlohmann::json& value = base.at(at);
+    if (value.is_object())
+      for (const auto& item : value.items()) pending.push_back(at / item.key());
+    if (value.is_array())
+      for (size_t i = 0; i < value.size(); ++i) pending.push_back(at / i);
+  }
+  // Few, so that few variants get as far as reading the meshes (~0.1 s each).
+  const nlohmann::json replacements[] = {nullptr, "x", 1e30, nlohmann::json::object(),
+                                         nlohmann::json::array({1, 2, 3})};
+  size_t loaded = 0, refused = 0;
+  for (const auto& at : places) {
+    for (const nlohmann::json& replacement : replacements) {
+      nlohmann::json changed = base;
+      changed[at] = replacement;
+      const std::string text = changed.dump();
+      dir.Write("scene.json", text);
+      auto scene = LoadScene(file);
+      if (scene.ok()) {
+        ++loaded;
+        continue;
+      }
+      ++refused;
+      const std::string& message = scene.error().message;
+      EXPECT_EQ(message.rfind(file.string(), 0), 0u) << text << "\n" << message;
+      EXPECT_EQ(message.find('\n'), std::string::npos) << text << "\n" << message;
+      EXPECT_EQ(message.find("cannot load"), std::string::npos) << "an exception escaped: " << text << "\n" << message;
+      EXPECT_EQ(message.find("json.exception"), std::string::npos) << text << "\n" << message;
+    }
+  }
+  EXPECT_GT(places.size(), 40u);
+  EXPECT_GT(refused, loaded) << "most replacements are wrong";
+  EXPECT_GT(loaded, 0u) << "some are harmless (an axis of [1, 2, 3])";
 }
 
 TEST(SceneObjectsTest, ObjectCountsAreBounded) {
