@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 #include <optional>
 #include <string>
 #include <vector>
@@ -658,7 +659,7 @@ TEST(RepositoryObjectScenesTest, CornellBoxAnimatedLoopsItsBoxThroughFreeSpace) 
 
 fs::path SharedScene(std::string_view relative) { return SourceDir() / "../shared/scenes" / relative; }
 
-TEST(RepositoryObjectScenesTest, BreakfastRoomChairIsAMovableGroupOfThreeParts) {
+TEST(RepositoryObjectScenesTest, BreakfastRoomChairIsAMovableGroupOfThreePartsThatShadowsSunlitFloor) {
   if (!fs::exists(SharedScene("breakfast-room/breakfast-room.obj")))
     GTEST_SKIP() << "../shared/scenes/breakfast-room is absent (clone ../shared beside the source tree)";
   auto scene = LoadScene(SourceDir() / "scenes/breakfast-room-chair.json");
@@ -680,6 +681,49 @@ TEST(RepositoryObjectScenesTest, BreakfastRoomChairIsAMovableGroupOfThreeParts) 
   ExpectNear(world.max, Vec3(-1.12f, 1.17f, 0.73f), 0.02f, "chair max");
   ExpectNear(chair.objectToWorld.translation, world.Center(), 1e-4f, "pivot at the centre of its bounds");
   EXPECT_NEAR(world.min.y, -1.41f, 0.02f) << "standing on the floor (y = -1.42)";
+
+  // Moving it changes what the sun does: on a 0.25 grid of the floor around
+  // it, points whose way to the sun the chair (and nothing else) blocks.
+  const ScenePose pose = ScenePose::Initial(*scene);
+  std::vector<WorldTriangle> triangles(scene->triangles.size());
+  for (uint32_t t = 0; t < triangles.size(); ++t)
+    triangles[t] = {WorldPointAt(*scene, pose, t, 0, 0), WorldPointAt(*scene, pose, t, 1, 0),
+                    WorldPointAt(*scene, pose, t, 0, 1)};
+  // Nearest triangle the ray from `origin` along `direction` meets, among
+  // [0, end).
+  auto nearest = [&](const Vec3& origin, const Vec3& direction, uint32_t end) -> std::optional<uint32_t> {
+    std::optional<uint32_t> best;
+    float bestDistance = std::numeric_limits<float>::max();
+    for (uint32_t t = 0; t < end; ++t) {
+      const WorldTriangle& w = triangles[t];
+      const Vec3 e1 = w[1] - w[0], e2 = w[2] - w[0];
+      const Vec3 p = glm::cross(direction, e2);
+      const float det = glm::dot(e1, p);
+      if (std::abs(det) < 1e-12f) continue;
+      const Vec3 s = origin - w[0];
+      const float u = glm::dot(s, p) / det;
+      if (u < 0.0f || u > 1.0f) continue;
+      const Vec3 q = glm::cross(s, e1);
+      const float v = glm::dot(direction, q) / det;
+      if (v < 0.0f || u + v > 1.0f) continue;
+      const float distance = glm::dot(e2, q) / det;
+      if (distance > 1e-3f && distance < bestDistance) {
+        bestDistance = distance;
+        best = t;
+      }
+    }
+    return best;
+  };
+  const Vec3 toSun = scene->sun->directionToSun;
+  int inChairShadow = 0;
+  for (float x = world.min.x - 4.0f; x <= world.max.x + 0.5f; x += 0.25f)
+    for (float z = world.min.z - 1.0f; z <= world.max.z + 1.5f; z += 0.25f) {
+      const Vec3 floor(x, -1.40f, z);
+      const auto blocker = nearest(floor, toSun, uint32_t(triangles.size()));
+      if (blocker && scene->ObjectOfTriangle(*blocker) == 0 && !nearest(floor, toSun, scene->staticTriangleCount))
+        ++inChairShadow;
+    }
+  EXPECT_GE(inChairShadow, 8) << "floor points in the chair's sun shadow (13 when written)";
 }
 
 }  // namespace
