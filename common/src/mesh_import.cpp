@@ -20,10 +20,10 @@
 
 #include <assimp/DefaultIOSystem.h>
 #include <assimp/Importer.hpp>
+#include <assimp/config.h>
 #include <assimp/material.h>
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
-#include <assimp/config.h>
 #include <fmt/format.h>
 #include <fmt/ranges.h>
 #include <nlohmann/json.hpp>
@@ -300,7 +300,6 @@ Status ReadsWithoutCrashing(const fs::path& meshPath, bool keepHierarchy) {
   return Status::Ok();
 }
 
-
 constexpr size_t kNoGroup = ~size_t(0);
 
 // The group (index into `groups`) each of the file's meshes belongs to, or
@@ -372,6 +371,13 @@ Expected<std::vector<size_t>> AssignMeshesToGroups(const aiScene& scene, std::sp
     }
   }
   return groupOfMesh;
+}
+
+// `placement` (relative to the home frame) composed with `home`, checked as
+// the wire checks transforms: a pivot far out can take it beyond range.
+Expected<RigidTransform> PlaceAtHome(const RigidTransform& home, const RigidTransform& placement) {
+  const auto m = home.Compose(placement).ToRowMajor();
+  return RigidTransform::FromRowMajor(m);
 }
 }  // namespace
 
@@ -498,9 +504,18 @@ Status ImportMesh(const fs::path& meshPath, SceneBuilder& builder, std::span<con
       RigidTransform home;  // world axes, origin at the pivot
       home.translation = pivot;
       MovableObject object = groups[g].object;
-      object.objectToWorld = home.Compose(object.objectToWorld);
-      if (object.animation)
-        for (ObjectKeyframe& key : object.animation->keys) key.objectToWorld = home.Compose(key.objectToWorld);
+      auto placed = PlaceAtHome(home, object.objectToWorld);
+      if (!placed) return Fail(fmt::format("{}: objects.{}: {}", where, object.name, placed.error().message));
+      object.objectToWorld = *placed;
+      if (object.animation) {
+        for (ObjectKeyframe& key : object.animation->keys) {
+          auto keyPlaced = PlaceAtHome(home, key.objectToWorld);
+          if (!keyPlaced)
+            return Fail(fmt::format("{}: objects.{}: the keyframe at t = {}: {}", where, object.name, key.timeS,
+                                    keyPlaced.error().message));
+          key.objectToWorld = *keyPlaced;
+        }
+      }
       builder.BeginObject(std::move(object));
       for (unsigned meshIndex = 0; meshIndex < scene->mNumMeshes; ++meshIndex)
         if ((*groupOfMesh)[meshIndex] == g)

@@ -383,9 +383,14 @@ Expected<ObjectAnimation> ParseObjectAnimation(const JsonReader& r, const Json& 
 
 Expected<ObjectDescription> ParseObject(const JsonReader& r, const fs::path& sceneDir, const std::string& name,
                                         const Json& j) {
+  // Names go into log lines, error messages and every client's object list.
+  const auto hasControl = [](const std::string& text) {
+    return std::any_of(text.begin(), text.end(), [](char c) { return (unsigned char)c < 0x20 || c == 0x7f; });
+  };
+  if (name.empty() || name.size() > kMaxObjectNameBytes || hasControl(name))
+    return r.Problem("objects", fmt::format("an object's name must have 1 to {} bytes and no control characters",
+                                            kMaxObjectNameBytes));
   const std::string ctx = fmt::format("objects.{}", name);
-  if (name.empty() || name.size() > kMaxObjectNameBytes)
-    return r.Problem("objects", fmt::format("an object's name must have 1 to {} bytes", kMaxObjectNameBytes));
   if (!j.is_object()) return r.Problem(ctx, "must be an object");
   if (auto ok = r.CheckKeys(j, ctx, {"group", "mesh", "pivot", "transform", "animation"}); !ok) return ok.error();
   ObjectDescription o;
@@ -394,14 +399,17 @@ Expected<ObjectDescription> ParseObject(const JsonReader& r, const fs::path& sce
   if (!byGroup) return byGroup.error();
   if (*byGroup) {
     const Json& group = j["group"];
-    const auto isName = [](const Json& v) { return v.is_string() && !v.get_ref<const std::string&>().empty(); };
+    const auto isName = [&](const Json& v) {
+      return v.is_string() && !v.get_ref<const std::string&>().empty() && !hasControl(v.get_ref<const std::string&>());
+    };
     if (isName(group)) {
       o.groups.push_back(group.get<std::string>());
     } else if (group.is_array() && !group.empty() && group.size() <= kMaxObjectGroups &&
                std::all_of(group.begin(), group.end(), isName)) {
       for (const Json& g : group) o.groups.push_back(g.get<std::string>());
     } else {
-      return r.Problem(ctx, fmt::format("\"group\" must be a non-empty string or an array of 1 to {} of them",
+      return r.Problem(ctx, fmt::format("\"group\" must be a non-empty string (no control characters) or an array "
+                                        "of 1 to {} of them",
                                         kMaxObjectGroups));
     }
     if (j.contains("pivot")) {
