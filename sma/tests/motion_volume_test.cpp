@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <limits>
 #include <random>
 
 namespace penumbra::sma {
@@ -228,6 +229,53 @@ TEST(MoveInvalidatorTest, TheSkyThroughTheBox) {
   EXPECT_FALSE(inv.MayChange(OnFloor(4.9f, 4.9f, kPi, 0.01f)));
   // Facing away from it: nothing of the sky through the box reaches it.
   EXPECT_FALSE(inv.MayChange(VertexSample{Vec3(0.0f), -kUp, kPi, 0.01f}));
+}
+
+TEST(MoveInvalidatorTest, ObjectsMovedTogetherAreJudgedTogether) {
+  // Two boxes moved in one epoch, either side of a floor point under a
+  // uniform sky: each alone changes it by less than the tolerance, both
+  // together by more.
+  SkyLight sky;
+  sky.zenith = sky.horizon = sky.ground = Rgb(1.0f);
+  const Scene scene = LitFloor(false, {}, sky);
+  InvalidationParams params = TestParams();
+  params.indirectRadiance = 0.0f;
+  const Bounds3 left = Box(Vec3(-2.5f, 1.5f, -0.5f), Vec3(-1.5f, 2.5f, 0.5f));
+  const Bounds3 right = Box(Vec3(1.5f, 1.5f, -0.5f), Vec3(2.5f, 2.5f, 0.5f));
+  const VertexSample centre = OnFloor(0.0f, 0.0f, kPi, 0.0f);
+  const float leftBound = MoveInvalidator(scene, MotionVolumes(left, left), params).Judge(centre).changeBound;
+  const float rightBound = MoveInvalidator(scene, MotionVolumes(right, right), params).Judge(centre).changeBound;
+  ASSERT_GT(leftBound, 0.0f);
+  params.relativeFloor = 0.0f;
+  params.absoluteFloor = 0.75f * (leftBound + rightBound);  // above each, below their sum
+  ASSERT_GT(params.absoluteFloor, std::max(leftBound, rightBound));
+  const std::array<MotionVolume, 2> both{MotionVolumes(left, left), MotionVolumes(right, right)};
+  const MoveInvalidator together(scene, both, params);
+  EXPECT_EQ(together.BoxCount(), 2u);
+  EXPECT_TRUE(together.MayChange(centre));
+  EXPECT_NEAR(together.Judge(centre).changeBound, leftBound + rightBound, 1e-4f);
+  EXPECT_FALSE(MoveInvalidator(scene, MotionVolumes(left, left), params).MayChange(centre));
+  EXPECT_FALSE(MoveInvalidator(scene, MotionVolumes(right, right), params).MayChange(centre));
+
+  // Many objects: more than kMaxBoxes boxes become their union.
+  std::vector<MotionVolume> many;
+  for (int i = 0; i < 9; ++i) {
+    const Vec3 at(float(i) - 4.0f, 1.0f, 0.0f);
+    many.push_back(MotionVolumes(Box(at, at + Vec3(0.2f)), Box(at + Vec3(0.0f, 0.0f, 3.0f), at + Vec3(0.2f, 0.2f, 3.2f))));
+  }
+  const MoveInvalidator merged(scene, many, params);
+  EXPECT_EQ(merged.BoxCount(), 1u);
+  EXPECT_TRUE(merged.Judge(OnFloor(0.1f, 1.5f, kPi, 0.0f)).facing);
+}
+
+TEST(MoveInvalidatorTest, ASampleWithNonFiniteValuesIsInvalidated) {
+  const Scene scene = LitFloor();
+  const MoveInvalidator inv(scene, MotionVolumes(kBoxUnderLight, kBoxUnderLight), TestParams());
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  EXPECT_TRUE(inv.MayChange(VertexSample{Vec3(nan, 0.0f, 0.0f), kUp, 1.0f, 0.1f}));
+  EXPECT_TRUE(inv.MayChange(VertexSample{Vec3(4.5f, 0.0f, 4.5f), kUp, nan, 0.1f}));
+  EXPECT_TRUE(inv.MayChange(VertexSample{Vec3(4.5f, 0.0f, 4.5f), kUp, 1.0f, std::numeric_limits<float>::infinity()}));
+  EXPECT_FALSE(inv.MayChange(VertexSample{Vec3(4.5f, 0.0f, 4.5f), kUp, 1.0f, 0.05f}));
 }
 
 TEST(MoveInvalidatorTest, ATighterToleranceNeverInvalidatesFewer) {

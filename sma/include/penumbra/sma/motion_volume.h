@@ -167,7 +167,16 @@ struct VertexSpans {
 /// can see the volume at all), then ask it about every cached static vertex.
 class MoveInvalidator {
  public:
+  /// At most this many boxes are tested one by one; more (many objects
+  /// moving at once) are merged into their union, which is conservative.
+  static constexpr size_t kMaxBoxes = 16;
+
   MoveInvalidator(const Scene& scene, const MotionVolume& volume, const InvalidationParams& params = {});
+  /// Several objects moved in one scene epoch (an animation tick): one
+  /// volume each. Their changes add up at a vertex, so they must be judged
+  /// together, not by one invalidator per object (each change could stay
+  /// under the tolerance while their sum does not).
+  MoveInvalidator(const Scene& scene, std::span<const MotionVolume> volumes, const InvalidationParams& params = {});
 
   /// Whether the move may change this vertex's radiance by more than the
   /// tolerance. Thread-safe.
@@ -188,7 +197,7 @@ class MoveInvalidator {
   /// Area lights kept after the per-move cull (those whose front half-space
   /// the volume reaches), for tests and logs.
   size_t RelevantLightCount() const { return lights_.size(); }
-  const MotionVolume& Volume() const { return volume_; }
+  size_t BoxCount() const { return boxes_.size(); }
   float IndirectRadiance() const { return indirectRadiance_; }
 
  private:
@@ -203,9 +212,7 @@ class MoveInvalidator {
     float radius;  // bounding sphere radius
   };
 
-  MotionVolume volume_;
-  std::array<Box, 2> boxes_{};
-  uint32_t boxCount_ = 0;
+  std::vector<Box> boxes_;  // at most kMaxBoxes
   std::vector<AreaLight> lights_;
   float lightRadianceSum_ = 0.0f;  // sum of lights_[].radiance: caps the direct term cheaply
   bool hasSun_ = false;
