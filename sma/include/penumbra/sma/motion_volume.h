@@ -17,18 +17,20 @@
 //    light (an emissive triangle T, emitting from its front face) the convex
 //    hull of p and T, tested exactly by separating axes (box against
 //    tetrahedron); for the sun, the cone from p towards it (half-angle = its
-//    angular radius); for the sky, any direction above p's tangent plane
-//    through the volume. The change is then at most the light's radiance
-//    times the smaller of the light's and the volume's solid angles.
+//    angular radius). The change is then at most the light's radiance times
+//    the smaller of the light's and the volume's solid angles. The sky fills
+//    every direction, so every direction through the volume above p's
+//    tangent plane is in its "shaft": it is bounded like indirect light, by
+//    its largest radiance times the volume's solid angle.
 //  * Indirect light, a conservative bound: the volume can block or reflect
 //    towards p at most `indirectRadiance` (a bound on the radiance of any
 //    non-emissive surface) over the solid angle it subtends, weighted by the
 //    largest cosine over its bounding sphere's cap. This is the first-order
 //    change (light arriving through the volume); light reflected at other
 //    surfaces after they changed (the new shadow on the floor lighting the
-//    ceiling a little less) is a higher-order change, smaller by at least
-//    one more albedo and one more solid angle, and is not bounded here --
-//    the paper ignores indirect light entirely.
+//    ceiling a little less) is a higher-order change, down by one more
+//    albedo and one more solid angle, and is not bounded here -- the paper
+//    ignores indirect light entirely.
 //  * A vertex whose tangent plane has the whole volume behind it sees none of
 //    it: it is kept at once (the cheap first reject).
 //
