@@ -216,6 +216,22 @@ int Run(const Options& o) {
     isInvalidated[i] = v.invalidate;
   }
   const double n = double(points.size());
+  {
+    // How far above its tolerance each facing point's bound is: what a
+    // bound tighter by a factor k would keep.
+    std::vector<float> ratio;
+    for (size_t i = 0; i < points.size(); ++i) {
+      const sma::InvalidationVerdict v =
+          invalidator.Judge({points[i].position, points[i].normal, cached.irradiance[i], cached.stdErr[i]});
+      if (v.facing) ratio.push_back(v.tolerance > 0.0f ? v.changeBound / v.tolerance : 1e30f);
+    }
+    std::printf("bound / tolerance over the %zu facing points:", ratio.size());
+    for (float k : {1.0f, 3.0f, 10.0f, 30.0f, 100.0f}) {
+      const size_t above = size_t(std::count_if(ratio.begin(), ratio.end(), [&](float r) { return r > k; }));
+      std::printf("  > %g: %.1f %%", double(k), 100.0 * double(above) / n);
+    }
+    std::printf(" (of all points)\n");
+  }
   std::printf("motion volume: %u box(es); invalidator built in %.3f ms (%zu of %zu area-light triangles kept)\n",
               volume.count, buildMs, invalidator.RelevantLightCount(), old->emissiveTriangles.size());
   std::printf("invalidated %zu of %zu points (%.2f %%, %.1fx fewer than all), of which by direct light %zu "

@@ -147,15 +147,29 @@ MotionVolume MotionVolumes(const Bounds3& oldWorld, const Bounds3& newWorld, flo
 }
 
 MoveInvalidator::MoveInvalidator(const Scene& scene, const MotionVolume& volume, const InvalidationParams& params)
-    : volume_(volume), params_(params) {
+    : MoveInvalidator(scene, std::span<const MotionVolume>(&volume, 1), params) {}
+
+MoveInvalidator::MoveInvalidator(const Scene& scene, std::span<const MotionVolume> volumes,
+                                 const InvalidationParams& params)
+    : params_(params) {
+  std::vector<Bounds3> given;
+  for (const MotionVolume& volume : volumes) {
+    for (const Bounds3& b : volume.Boxes()) {
+      if (!b.Empty()) given.push_back(b);
+    }
+  }
+  if (given.size() > kMaxBoxes) {
+    Bounds3 all;
+    for (const Bounds3& b : given) all = Union(all, b);
+    given.assign(1, all);
+  }
   const float padding = params.padding >= 0.0f ? params.padding : 1e-4f * glm::length(scene.bounds.Diagonal());
-  for (const Bounds3& b : volume.Boxes()) {
-    if (b.Empty()) continue;
+  for (const Bounds3& b : given) {
     Box box;
     box.center = b.Center();
     box.half = 0.5f * b.Diagonal() + Vec3(padding);
     box.radius = glm::length(box.half);
-    boxes_[boxCount_++] = box;
+    boxes_.push_back(box);
   }
   indirectRadiance_ = params.indirectRadiance >= 0.0f ? params.indirectRadiance : scene.MaxEmittedRadiance();
 
@@ -169,8 +183,7 @@ MoveInvalidator::MoveInvalidator(const Scene& scene, const MotionVolume& volume,
     light.radiance = Luminance(scene.MaterialOf(t).emission);
     if (!(light.radiance > 0.0f) || !(scene.Area(t) > 0.0f)) continue;
     bool seesVolume = false;
-    for (uint32_t b = 0; b < boxCount_; ++b) {
-      const Box& box = boxes_[b];
+    for (const Box& box : boxes_) {
       if (glm::dot(box.center - light.corner[0], light.normal) + MaxAbsDot(light.normal, box.half) > 0.0f) {
         seesVolume = true;
       }
@@ -201,12 +214,21 @@ InvalidationVerdict MoveInvalidator::Judge(const VertexSample& v, bool complete)
                                 params_.absoluteFloor});
   const Vec3& p = v.position;
   const Vec3& n = v.normal;
+  if (!IsFinite(p) || !IsFinite(n) || !std::isfinite(v.irradiance) || !std::isfinite(v.irradianceStdErr)) {
+    // Nothing can be said about such a sample: re-shading it is the safe answer.
+    verdict.facing = true;
+    verdict.tolerance = 0.0f;
+    verdict.changeBound = std::numeric_limits<float>::infinity();
+    verdict.invalidate = true;
+    return verdict;
+  }
 
   // First reject: a box wholly behind the tangent plane sends nothing to p's
   // shaded side. Per box, its projected solid angle bound.
-  std::array<float, 2> omega{0.0f, 0.0f};
+  std::array<float, kMaxBoxes> omega{};
   float omegaTotal = 0.0f;
-  for (uint32_t b = 0; b < boxCount_; ++b) {
+  const size_t boxCount = boxes_.size();
+  for (size_t b = 0; b < boxCount; ++b) {
     const Box& box = boxes_[b];
     if (glm::dot(box.center - p, n) + MaxAbsDot(n, box.half) <= 0.0f) continue;
     verdict.facing = true;
@@ -233,7 +255,7 @@ InvalidationVerdict MoveInvalidator::Judge(const VertexSample& v, bool complete)
   // The sun: its cone from p (only when the sun is above p's tangent plane).
   if (hasSun_ && glm::dot(n, sunDirection_) > -sunSinHalfAngle_) {
     float omegaInCone = 0.0f;
-    for (uint32_t b = 0; b < boxCount_; ++b) {
+    for (size_t b = 0; b < boxCount; ++b) {
       if (omega[b] <= 0.0f) continue;
       const Box& box = boxes_[b];
       // The cone's radius where it could meet the box is at most tFar *
@@ -272,7 +294,7 @@ InvalidationVerdict MoveInvalidator::Judge(const VertexSample& v, bool complete)
                                            glm::dot(light.corner[2] - p, n)});
       if (aboveTangent <= 0.0f) continue;
       float omegaInShaft = 0.0f;
-      for (uint32_t b = 0; b < boxCount_; ++b) {
+      for (size_t b = 0; b < boxCount; ++b) {
         if (omega[b] <= 0.0f) continue;
         const Box& box = boxes_[b];
         const std::array<Vec3, 4> tetrahedron{p - box.center, light.corner[0] - box.center,

@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <limits>
 #include <random>
 
 namespace penumbra::sma {
@@ -230,6 +231,53 @@ TEST(MoveInvalidatorTest, TheSkyThroughTheBox) {
   EXPECT_FALSE(inv.MayChange(VertexSample{Vec3(0.0f), -kUp, kPi, 0.01f}));
 }
 
+TEST(MoveInvalidatorTest, ObjectsMovedTogetherAreJudgedTogether) {
+  // Two boxes moved in one epoch, either side of a floor point under a
+  // uniform sky: each alone changes it by less than the tolerance, both
+  // together by more.
+  SkyLight sky;
+  sky.zenith = sky.horizon = sky.ground = Rgb(1.0f);
+  const Scene scene = LitFloor(false, {}, sky);
+  InvalidationParams params = TestParams();
+  params.indirectRadiance = 0.0f;
+  const Bounds3 left = Box(Vec3(-2.5f, 1.5f, -0.5f), Vec3(-1.5f, 2.5f, 0.5f));
+  const Bounds3 right = Box(Vec3(1.5f, 1.5f, -0.5f), Vec3(2.5f, 2.5f, 0.5f));
+  const VertexSample centre = OnFloor(0.0f, 0.0f, kPi, 0.0f);
+  const float leftBound = MoveInvalidator(scene, MotionVolumes(left, left), params).Judge(centre).changeBound;
+  const float rightBound = MoveInvalidator(scene, MotionVolumes(right, right), params).Judge(centre).changeBound;
+  ASSERT_GT(leftBound, 0.0f);
+  params.relativeFloor = 0.0f;
+  params.absoluteFloor = 0.75f * (leftBound + rightBound);  // above each, below their sum
+  ASSERT_GT(params.absoluteFloor, std::max(leftBound, rightBound));
+  const std::array<MotionVolume, 2> both{MotionVolumes(left, left), MotionVolumes(right, right)};
+  const MoveInvalidator together(scene, both, params);
+  EXPECT_EQ(together.BoxCount(), 2u);
+  EXPECT_TRUE(together.MayChange(centre));
+  EXPECT_NEAR(together.Judge(centre).changeBound, leftBound + rightBound, 1e-4f);
+  EXPECT_FALSE(MoveInvalidator(scene, MotionVolumes(left, left), params).MayChange(centre));
+  EXPECT_FALSE(MoveInvalidator(scene, MotionVolumes(right, right), params).MayChange(centre));
+
+  // Many objects: more than kMaxBoxes boxes become their union.
+  std::vector<MotionVolume> many;
+  for (int i = 0; i < 9; ++i) {
+    const Vec3 at(float(i) - 4.0f, 1.0f, 0.0f);
+    many.push_back(MotionVolumes(Box(at, at + Vec3(0.2f)), Box(at + Vec3(0.0f, 0.0f, 3.0f), at + Vec3(0.2f, 0.2f, 3.2f))));
+  }
+  const MoveInvalidator merged(scene, many, params);
+  EXPECT_EQ(merged.BoxCount(), 1u);
+  EXPECT_TRUE(merged.Judge(OnFloor(0.1f, 1.5f, kPi, 0.0f)).facing);
+}
+
+TEST(MoveInvalidatorTest, ASampleWithNonFiniteValuesIsInvalidated) {
+  const Scene scene = LitFloor();
+  const MoveInvalidator inv(scene, MotionVolumes(kBoxUnderLight, kBoxUnderLight), TestParams());
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  EXPECT_TRUE(inv.MayChange(VertexSample{Vec3(nan, 0.0f, 0.0f), kUp, 1.0f, 0.1f}));
+  EXPECT_TRUE(inv.MayChange(VertexSample{Vec3(4.5f, 0.0f, 4.5f), kUp, nan, 0.1f}));
+  EXPECT_TRUE(inv.MayChange(VertexSample{Vec3(4.5f, 0.0f, 4.5f), kUp, 1.0f, std::numeric_limits<float>::infinity()}));
+  EXPECT_FALSE(inv.MayChange(VertexSample{Vec3(4.5f, 0.0f, 4.5f), kUp, 1.0f, 0.05f}));
+}
+
 TEST(MoveInvalidatorTest, ATighterToleranceNeverInvalidatesFewer) {
   SunLight sun;
   sun.directionToSun = glm::normalize(Vec3(0.3f, 1.0f, 0.2f));
@@ -321,6 +369,96 @@ TEST(MoveInvalidatorTest, AnyPointOfTheShaftInsideTheBoxPutsTheVertexInTheShaft)
     }
   }
   EXPECT_GT(hits, 10);  // the trials really exercise the test
+}
+
+bool RayHitsBox(const Vec3& o, const Vec3& d, const Bounds3& b) {
+  float t0 = 0.0f, t1 = 1e30f;
+  for (int a = 0; a < 3; ++a) {
+    if (std::abs(d[a]) < 1e-12f) {
+      if (o[a] < b.min[a] || o[a] > b.max[a]) return false;
+      continue;
+    }
+    float ta = (b.min[a] - o[a]) / d[a], tb = (b.max[a] - o[a]) / d[a];
+    if (ta > tb) std::swap(ta, tb);
+    t0 = std::max(t0, ta);
+    t1 = std::min(t1, tb);
+  }
+  return t0 <= t1;
+}
+
+TEST(MoveInvalidatorTest, AnyDirectionOfTheSunsConeThroughTheBoxPutsTheVertexInTheCone) {
+  // Conservativeness of the cone test, with a large sun (10 degrees) so that
+  // the cone's width matters: directions drawn in the cone, and whenever one
+  // hits the box, the verdict must say "in the cone".
+  SunLight sun;
+  sun.directionToSun = glm::normalize(Vec3(0.3f, 1.0f, -0.2f));
+  sun.radiance = Rgb(100.0f);
+  sun.angularDiameterRad = 20.0f * kPi / 180.0f;
+  const Scene scene = LitFloor(false, sun);
+  const Frame frame = Frame::FromNormal(sun.directionToSun);
+  const float cosMax = sun.CosHalfAngle();
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  InvalidationParams params = TestParams();
+  params.padding = 0.0f;
+  int hits = 0, inCone = 0;
+  for (int trial = 0; trial < 400; ++trial) {
+    const Vec3 lo(4.0f * u(rng) - 2.0f, 0.5f + 2.5f * u(rng), 4.0f * u(rng) - 2.0f);
+    const Bounds3 box = Box(lo, lo + Vec3(0.05f + 0.5f * u(rng), 0.05f + 0.5f * u(rng), 0.05f + 0.5f * u(rng)));
+    const MoveInvalidator inv(scene, MotionVolumes(box, box), params);
+    // A floor point whose line to the sun passes near the box: where the
+    // box's shadow and penumbra fall, give or take 0.8 m.
+    const Vec3 c = box.Center();
+    const Vec3 shadow = c - sun.directionToSun * (c.y / sun.directionToSun.y);
+    const Vec3 p(shadow.x + 1.6f * u(rng) - 0.8f, 0.0f, shadow.z + 1.6f * u(rng) - 0.8f);
+    const InvalidationVerdict v = inv.Judge(OnFloor(p.x, p.z));
+    inCone += v.inSunCone;
+    for (int k = 0; k < 500; ++k) {
+      const float cosTheta = 1.0f - u(rng) * (1.0f - cosMax);
+      const float sinTheta = std::sqrt(1.0f - cosTheta * cosTheta), phi = 2.0f * kPi * u(rng);
+      const Vec3 d = frame.ToWorld(Vec3(sinTheta * std::cos(phi), sinTheta * std::sin(phi), cosTheta));
+      if (RayHitsBox(p, d, box)) {
+        ++hits;
+        EXPECT_TRUE(v.inSunCone) << "trial " << trial;
+        break;
+      }
+    }
+  }
+  EXPECT_GT(hits, 50);
+  EXPECT_LT(inCone, 400);  // and the test is not "always in the cone"
+  // The test grows the box by the cone's widest radius, so it is loose by a
+  // little for a sun this large (by ~1 cm for the real one), not by much.
+  EXPECT_LT(inCone, 2 * hits) << "far more in the cone than directions hitting the box";
+}
+
+TEST(MoveInvalidatorTest, TheSolidAngleBoundIsAboveTheBoxsProjectedSolidAngle) {
+  // The indirect bound is indirectRadiance times a projected solid angle;
+  // estimate the box's true projected solid angle by cosine-weighted
+  // directions (pi times the fraction that hit it) and compare.
+  const Scene scene = LitFloor(false);
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  InvalidationParams params = TestParams();
+  params.indirectRadiance = 1.0f;
+  params.padding = 0.0f;
+  const Frame frame = Frame::FromNormal(kUp);
+  for (int trial = 0; trial < 100; ++trial) {
+    const Vec3 lo(6.0f * u(rng) - 3.0f, 0.2f + 2.0f * u(rng), 6.0f * u(rng) - 3.0f);
+    const Bounds3 box = Box(lo, lo + Vec3(0.1f + 1.5f * u(rng), 0.05f + 1.0f * u(rng), 0.1f + 1.5f * u(rng)));
+    const MoveInvalidator inv(scene, MotionVolumes(box, box), params);
+    const Vec3 p(6.0f * u(rng) - 3.0f, 0.0f, 6.0f * u(rng) - 3.0f);
+    const int n = 20000;
+    int hit = 0;
+    for (int k = 0; k < n; ++k) {
+      const float r = std::sqrt(u(rng)), phi = 2.0f * kPi * u(rng);
+      const Vec3 d = frame.ToWorld(Vec3(r * std::cos(phi), r * std::sin(phi), std::sqrt(std::max(0.0f, 1.0f - r * r))));
+      hit += RayHitsBox(p, d, box);
+    }
+    const float projected = kPi * float(hit) / float(n);
+    const float sigma = kPi * std::sqrt(float(hit)) / float(n);
+    const InvalidationVerdict v = inv.Judge(OnFloor(p.x, p.z, 1.0f, 0.0f));
+    EXPECT_GE(v.changeBound + 4.0f * sigma + 1e-4f, projected) << "trial " << trial;
+  }
 }
 
 TEST(MoveInvalidatorTest, TheBulkHelperAgreesWithTheSingleTest) {

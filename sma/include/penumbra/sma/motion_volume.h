@@ -17,18 +17,20 @@
 //    light (an emissive triangle T, emitting from its front face) the convex
 //    hull of p and T, tested exactly by separating axes (box against
 //    tetrahedron); for the sun, the cone from p towards it (half-angle = its
-//    angular radius); for the sky, any direction above p's tangent plane
-//    through the volume. The change is then at most the light's radiance
-//    times the smaller of the light's and the volume's solid angles.
+//    angular radius). The change is then at most the light's radiance times
+//    the smaller of the light's and the volume's solid angles. The sky fills
+//    every direction, so every direction through the volume above p's
+//    tangent plane is in its "shaft": it is bounded like indirect light, by
+//    its largest radiance times the volume's solid angle.
 //  * Indirect light, a conservative bound: the volume can block or reflect
 //    towards p at most `indirectRadiance` (a bound on the radiance of any
 //    non-emissive surface) over the solid angle it subtends, weighted by the
 //    largest cosine over its bounding sphere's cap. This is the first-order
 //    change (light arriving through the volume); light reflected at other
 //    surfaces after they changed (the new shadow on the floor lighting the
-//    ceiling a little less) is a higher-order change, smaller by at least
-//    one more albedo and one more solid angle, and is not bounded here --
-//    the paper ignores indirect light entirely.
+//    ceiling a little less) is a higher-order change, down by one more
+//    albedo and one more solid angle, and is not bounded here -- the paper
+//    ignores indirect light entirely.
 //  * A vertex whose tangent plane has the whole volume behind it sees none of
 //    it: it is kept at once (the cheap first reject).
 //
@@ -167,7 +169,16 @@ struct VertexSpans {
 /// can see the volume at all), then ask it about every cached static vertex.
 class MoveInvalidator {
  public:
+  /// At most this many boxes are tested one by one; more (many objects
+  /// moving at once) are merged into their union, which is conservative.
+  static constexpr size_t kMaxBoxes = 16;
+
   MoveInvalidator(const Scene& scene, const MotionVolume& volume, const InvalidationParams& params = {});
+  /// Several objects moved in one scene epoch (an animation tick): one
+  /// volume each. Their changes add up at a vertex, so they must be judged
+  /// together, not by one invalidator per object (each change could stay
+  /// under the tolerance while their sum does not).
+  MoveInvalidator(const Scene& scene, std::span<const MotionVolume> volumes, const InvalidationParams& params = {});
 
   /// Whether the move may change this vertex's radiance by more than the
   /// tolerance. Thread-safe.
@@ -188,7 +199,7 @@ class MoveInvalidator {
   /// Area lights kept after the per-move cull (those whose front half-space
   /// the volume reaches), for tests and logs.
   size_t RelevantLightCount() const { return lights_.size(); }
-  const MotionVolume& Volume() const { return volume_; }
+  size_t BoxCount() const { return boxes_.size(); }
   float IndirectRadiance() const { return indirectRadiance_; }
 
  private:
@@ -203,9 +214,7 @@ class MoveInvalidator {
     float radius;  // bounding sphere radius
   };
 
-  MotionVolume volume_;
-  std::array<Box, 2> boxes_{};
-  uint32_t boxCount_ = 0;
+  std::vector<Box> boxes_;  // at most kMaxBoxes
   std::vector<AreaLight> lights_;
   float lightRadianceSum_ = 0.0f;  // sum of lights_[].radiance: caps the direct term cheaply
   bool hasSun_ = false;
