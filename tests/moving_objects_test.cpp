@@ -275,12 +275,16 @@ TEST_F(MovingObjectsTest, AMovedBoxConvergesToWhatAFreshStackComputes) {
 
   const auto fresh = FreshStackSamples(target, "front");
   const Agreement moved = Compare(after, fresh);
+  const Agreement stale = Compare(before, fresh);
+  std::printf("after the move: %zu samples compared with a fresh stack, %zu beyond 21 %%, mean %.3f, worst %s; "
+              "before the move: %zu compared, %zu beyond, mean %.3f; %llu RESHADED updates\n",
+              moved.compared, moved.outside, moved.meanRelative, moved.worst.c_str(), stale.compared, stale.outside,
+              stale.meanRelative, static_cast<unsigned long long>(reshaded));
   EXPECT_GT(moved.compared, 100u);
   EXPECT_EQ(moved.outside, 0u) << moved.compared << " compared; worst " << moved.worst;
   EXPECT_LT(moved.meanRelative, 0.05) << "worst " << moved.worst;
   // The check can fail: the samples from before the move do not agree with
   // the fresh stack where the shadow moved.
-  const Agreement stale = Compare(before, fresh);
   EXPECT_GT(stale.outside, 0u) << "the move changed nothing the comparison can see";
   ASSERT_TRUE(stack.sma.process.Running()) << stack.sma.process.LogTail();
 }

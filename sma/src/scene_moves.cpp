@@ -106,12 +106,15 @@ uint64_t MoveCoalescer::Coalesced() const {
 }
 
 std::vector<VertexId> InvalidatedStaticVertices(const Scene& scene, const ScenePose& oldPose,
-                                                const ScenePose& newPose, uint32_t movedObject,
+                                                const ScenePose& newPose, std::span<const uint32_t> movedObjects,
                                                 std::span<const InvalidationCandidate> candidates) {
-  // The motion volume of the move (motion_volume.h): where the object was
-  // and where it is now, one box or two.
-  const MotionVolume volume =
-      MotionVolumes(WorldBounds(scene, oldPose, movedObject), WorldBounds(scene, newPose, movedObject));
+  // The motion volume of each moved object (motion_volume.h): where it was
+  // and where it is now, one box or two. All of an epoch's volumes are
+  // judged together: two separate tests could each keep a vertex whose
+  // combined change exceeds the tolerance.
+  std::vector<MotionVolume> volumes;
+  for (uint32_t o : movedObjects)
+    volumes.push_back(MotionVolumes(WorldBounds(scene, oldPose, o), WorldBounds(scene, newPose, o)));
   // What the volume can block or reflect towards a vertex: no surface is
   // brighter than the brightest cached sample by much -- the moving object
   // is lit by the same lights as what is cached around it. The margin (2x)
@@ -122,7 +125,7 @@ std::vector<VertexId> InvalidatedStaticVertices(const Scene& scene, const SceneP
     if (c.shaded) brightest = std::max(brightest, Luminance(c.radiance));
   InvalidationParams params;
   params.indirectRadiance = brightest > 0.0f ? 2.0f * brightest : -1.0f;
-  const MoveInvalidator invalidator(scene, volume, params);
+  const MoveInvalidator invalidator(scene, std::span<const MotionVolume>(volumes), params);
 
   std::vector<Vec3> positions(candidates.size()), normals(candidates.size());
   std::vector<float> irradiance(candidates.size()), stdErr(candidates.size());
@@ -188,10 +191,8 @@ Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cac
     candidates.push_back(c);
   }
   out.objectVertices = out.vertices.size();
-  for (uint32_t o : movedObjects) {
-    std::vector<VertexId> chosen = InvalidatedStaticVertices(scene, oldPose, newPose, o, candidates);
-    out.vertices.insert(out.vertices.end(), chosen.begin(), chosen.end());
-  }
+  const std::vector<VertexId> chosen = InvalidatedStaticVertices(scene, oldPose, newPose, movedObjects, candidates);
+  out.vertices.insert(out.vertices.end(), chosen.begin(), chosen.end());
   std::sort(out.vertices.begin(), out.vertices.end());
   out.vertices.erase(std::unique(out.vertices.begin(), out.vertices.end()), out.vertices.end());
   return out;

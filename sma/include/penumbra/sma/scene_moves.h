@@ -92,8 +92,8 @@ struct InvalidationCandidate {
 
 /// The vertices, among `candidates` (every vertex not of the moved object:
 /// static ones and those of objects that stayed), whose radiance moving
-/// object `movedObject` (an index into scene.objects) from its place in
-/// `oldPose` to its place in `newPose` may change by more than their noise.
+/// objects `movedObjects` (indices into scene.objects) from their places in
+/// `oldPose` to their places in `newPose` may change by more than their noise.
 /// An unshaded candidate must be returned when a sample shaded at the old
 /// pose could be wrong: one may be on its way.
 ///
@@ -102,7 +102,7 @@ struct InvalidationCandidate {
 /// (bounded by twice the brightest cached radiance), against each sample's
 /// own noise.
 std::vector<VertexId> InvalidatedStaticVertices(const Scene& scene, const ScenePose& oldPose,
-                                                const ScenePose& newPose, uint32_t movedObject,
+                                                const ScenePose& newPose, std::span<const uint32_t> movedObjects,
                                                 std::span<const InvalidationCandidate> candidates);
 
 /// What a move from `oldPose` to `newPose` invalidates.
@@ -112,7 +112,7 @@ struct Invalidation {
 };
 
 /// Every vertex of a moved object (its world place changed), and for each
-/// moved object the vertices InvalidatedStaticVertices chooses among the
+/// the vertices InvalidatedStaticVertices chooses, for all moved objects at once, among the
 /// others. The caller holds the state lock shared (the hierarchy is read;
 /// the cache is read as it is).
 Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cache, const ScenePose& oldPose,
