@@ -3,6 +3,7 @@
 #include "penumbra/sma/motion_volume.h"
 
 #include <algorithm>
+#include <cmath>
 #include <array>
 
 #include <fmt/format.h>
@@ -72,10 +73,27 @@ Expected<ObjectMove> CheckMoveObject(const wire::MoveObject& move, const Scene& 
   return ObjectMove{id - 1, *transform};
 }
 
+namespace {
+
+// Whether two transforms place an object in the same spot up to float
+// rounding: a client echoing a transform it was sent (12 floats, the
+// rotation re-orthonormalised by FromRowMajor) must not start an epoch.
+bool SamePlace(const RigidTransform& a, const RigidTransform& b) {
+  const auto ma = a.ToRowMajor(), mb = b.ToRowMajor();
+  for (size_t i = 0; i < 12; ++i) {
+    const float scale = (i % 4 == 3) ? std::max(1.0f, std::abs(ma[i])) : 1.0f;
+    if (std::abs(ma[i] - mb[i]) > 1e-6f * scale) return false;
+  }
+  return true;
+}
+
+}  // namespace
+
 std::optional<ScenePose> NextPose(const ScenePose& current, std::span<const ObjectMove> moves) {
   ScenePose next = current;
   for (const ObjectMove& m : moves)
-    if (m.object < next.objectToWorld.size()) next.objectToWorld[m.object] = m.objectToWorld;
+    if (m.object < next.objectToWorld.size() && !SamePlace(next.objectToWorld[m.object], m.objectToWorld))
+      next.objectToWorld[m.object] = m.objectToWorld;
   if (next.SamePlaces(current)) return std::nullopt;
   next.epoch = current.epoch + 1;
   return next;

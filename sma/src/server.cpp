@@ -705,12 +705,13 @@ void SmaServer::Impl::Session::Flush() {
 void SmaServer::Impl::Session::OnSamplesArrived(const std::vector<VertexId>& vertices) {
   if (!state_.HasVisible() || !connection_->IsOpen()) return;
   const ViewSession::Arrived arrived = state_.OnSamplesArrived(vertices, server_.hierarchy_.BaseVertexCount());
-  // A first estimate of a vertex the client already holds can only be the
-  // reshade of a sample a move invalidated (added nodes' corners are always
-  // shaded): it goes as RESHADED.
+  // A first estimate of a vertex the client already holds, which a move
+  // invalidated (ValidFrom > 0), is its reshade: it goes as RESHADED. (A
+  // vertex never invalidated can also arrive while held -- a duplicate
+  // answer after a requeue -- and is no news.)
   bool reshaded = false;
   for (VertexId v : vertices) {
-    if (!mirror_.HoldsVertex(v)) continue;
+    if (!mirror_.HoldsVertex(v) || server_.cache_.ValidFrom(v) == 0) continue;
     reshadesOwed_.insert(v);
     updatesOwed_.erase(v);
     reshaded = true;
