@@ -432,6 +432,10 @@ void ClientApp::UpdateObjects(Clock::time_point now) {
       log_->warn("move of object {} refused; it stays where the SMA has it", object);
   }
   moveTracker_.Confirm(mesh);
+  for (uint32_t object : moveTracker_.Expire(now))
+    log_->warn("the SMA neither confirmed nor refused the last move of object {} within {} s (another client's move "
+               "may have won); showing it where the SMA has it",
+               object, kMovePendingTimeout.count());
   // Headless images show what the SMA confirmed, so that a snapshot after a
   // scripted move is the SMA's state, not the script's.
   if (options_.headless) return;
