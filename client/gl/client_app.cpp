@@ -373,9 +373,14 @@ void ClientApp::UpdateDrag(bool pressed, double scroll, Clock::time_point now) {
   const glm::vec2 cursor = window_->CursorPixel();
   const Ray ray{camera.Origin(), camera.DirectionThrough(cursor.x, cursor.y)};
   if (!drag_ && pressed) {
-    // The triangles the client holds, as drawn: the visible surface under
-    // the cursor decides (a wall in front of the box hides it).
-    const auto pick = PickHeldTriangle(ray, mesh);
+    // The objects' boxes first: a ray that misses them all needs no scan of
+    // the held triangles. Then the triangles, as drawn: the visible surface
+    // under the cursor decides (a wall in front of the box hides it).
+    std::vector<Bounds3> worldBounds;
+    worldBounds.reserve(scene->objects.size());
+    for (uint32_t id = 1; id <= scene->objects.size(); ++id)
+      worldBounds.push_back(mesh.DisplayedTransform(id).ApplyBounds(scene->objects[id - 1].objectBounds));
+    const auto pick = PickObjectBounds(ray, worldBounds) ? PickHeldTriangle(ray, mesh) : std::nullopt;
     if (!pick || pick->object == 0) {
       notice_ = "No movable object under the cursor";
       noticeUntil_ = now + std::chrono::seconds(2);
