@@ -454,17 +454,21 @@ void ClientApp::UpdateObjects(Clock::time_point now) {
 bool ClientApp::PlayMoves(Clock::time_point now) {
   if (options_.moves.empty() || !options_.headless) return true;
   if (!movesPlayer_) {
-    // The script starts on a converged image, so what a move changes is not
-    // mixed up with the first view still arriving.
-    if (!model_.Scene() || !model_.Converged(viewSerial_)) return true;
+    // By default the script starts on a converged image, so what a move
+    // changes is not mixed up with the first view still arriving; or with
+    // the camera path, from the first connection.
+    if (!model_.Scene() || !model_.Online()) return true;
+    if (!options_.movesFromConnection && !model_.Converged(viewSerial_)) return true;
     auto bound = BindMoves(options_.moves, *model_.Scene());
     if (!bound) {
       Failed("--moves: " + bound.error().message);
       return false;
     }
-    log_->info("first view converged: playing {} scripted moves", bound->size());
     movesPlayer_.emplace(std::move(*bound));
-    movesStart_ = now;
+    movesStart_ = options_.movesFromConnection && pathStart_ ? *pathStart_ : now;
+    log_->info("{}: playing {} scripted moves",
+               options_.movesFromConnection ? "from the first connection" : "first view converged",
+               movesPlayer_->Total());
   }
   for (const BoundMove& move : movesPlayer_->Due(now - *movesStart_)) {
     log_->info("scripted move (line {}) at {:.2f} s: object {} ('{}') to {}", move.line,
