@@ -579,6 +579,7 @@ TEST_F(ClientTest, ScriptedMovesAreSentFromTheFirstConvergedViewAndTheRunWaitsFo
   first.Vertex(1, Vec3(0, 0, 0), Rgb(0.5f)).Vertex(2, Vec3(1, 0, 0), Rgb(0.5f)).Vertex(3, Vec3(1, 1, 0), Rgb(0.5f));
   first.Triangle(10, {1, 2, 3}).Converged();
   for (int i = 0; i < 3; ++i) first.Mutable().add_vertex_objects(1);
+  EXPECT_FALSE(ReceiveMove(*sma, 1s).ok()) << "no move before the first view has converged";
   ASSERT_TRUE(sma->Send(first.Envelope()));
 
   auto move1 = ReceiveMove(*sma);
@@ -630,6 +631,29 @@ TEST_F(ClientTest, ScriptedMovesAreSentFromTheFirstConvergedViewAndTheRunWaitsFo
   };
   EXPECT_NEAR(radianceAt(Vec3(0.0f, 0.7f, 0.0f)), 0.5f, 1e-3f) << "inside the moved triangle";
   EXPECT_EQ(radianceAt(Vec3(0.8f, 0.2f, 0.0f)), 0.0f) << "where it was";
+}
+
+// --moves-start connected: the script's time 0 is the first connection (the
+// camera path's), so its first move goes out before any view has converged.
+TEST_F(ClientTest, ScriptedMovesCanCountFromTheConnection) {
+  SetDisplay("");
+  auto listener = WireListener::Listen();
+  ASSERT_TRUE(listener.ok()) << listener.error().message;
+  const std::string moves = dir_ + "/moves.txt";
+  std::ofstream(moves) << "0 box translate 0 0.5 0\n";
+  ChildProcess client = StartClient({"--connect", fmt::format("127.0.0.1:{}", listener->Port()), "--headless",
+                                     "--camera", "front", "--size", "64x48", "--moves", moves, "--moves-start",
+                                     "connected", "--timeout", "120"},
+                                    dir_ + "/client.log");
+  auto sma = listener->Accept(30s);
+  ASSERT_TRUE(sma.ok()) << sma.error().message << client.LogTail();
+  ASSERT_TRUE(ServeClientHandshake(*sma, SquareWithMovableObjects()).ok());
+  auto move = ReceiveMove(*sma);  // no delta sent at all
+  ASSERT_TRUE(move.ok()) << move.error().message << client.LogTail();
+  EXPECT_EQ(move->object(), 1u);
+  EXPECT_FLOAT_EQ(move->object_to_world(7), 0.5f);
+  client.Signal(SIGTERM);
+  EXPECT_TRUE(client.WaitExit(10s).has_value());
 }
 
 TEST_F(ClientTest, AScriptedMoveOfAnObjectTheSceneLacksFailsTheRunWithItsReason) {

@@ -373,9 +373,14 @@ void ClientApp::UpdateDrag(bool pressed, double scroll, Clock::time_point now) {
   const glm::vec2 cursor = window_->CursorPixel();
   const Ray ray{camera.Origin(), camera.DirectionThrough(cursor.x, cursor.y)};
   if (!drag_ && pressed) {
-    // The triangles the client holds, as drawn: the visible surface under
-    // the cursor decides (a wall in front of the box hides it).
-    const auto pick = PickHeldTriangle(ray, mesh);
+    // The objects' boxes first: a ray that misses them all needs no scan of
+    // the held triangles. Then the triangles, as drawn: the visible surface
+    // under the cursor decides (a wall in front of the box hides it).
+    std::vector<Bounds3> worldBounds;
+    worldBounds.reserve(scene->objects.size());
+    for (uint32_t id = 1; id <= scene->objects.size(); ++id)
+      worldBounds.push_back(mesh.DisplayedTransform(id).ApplyBounds(scene->objects[id - 1].objectBounds));
+    const auto pick = PickObjectBounds(ray, worldBounds) ? PickHeldTriangle(ray, mesh) : std::nullopt;
     if (!pick || pick->object == 0) {
       notice_ = "No movable object under the cursor";
       noticeUntil_ = now + std::chrono::seconds(2);
@@ -432,6 +437,10 @@ void ClientApp::UpdateObjects(Clock::time_point now) {
       log_->warn("move of object {} refused; it stays where the SMA has it", object);
   }
   moveTracker_.Confirm(mesh);
+  for (uint32_t object : moveTracker_.Expire(now))
+    log_->warn("the SMA neither confirmed nor refused the last move of object {} within {} s (another client's move "
+               "may have won); showing it where the SMA has it",
+               object, kMovePendingTimeout.count());
   // Headless images show what the SMA confirmed, so that a snapshot after a
   // scripted move is the SMA's state, not the script's.
   if (options_.headless) return;
@@ -445,17 +454,21 @@ void ClientApp::UpdateObjects(Clock::time_point now) {
 bool ClientApp::PlayMoves(Clock::time_point now) {
   if (options_.moves.empty() || !options_.headless) return true;
   if (!movesPlayer_) {
-    // The script starts on a converged image, so what a move changes is not
-    // mixed up with the first view still arriving.
-    if (!model_.Scene() || !model_.Converged(viewSerial_)) return true;
+    // By default the script starts on a converged image, so what a move
+    // changes is not mixed up with the first view still arriving; or with
+    // the camera path, from the first connection.
+    if (!model_.Scene() || !model_.Online()) return true;
+    if (!options_.movesFromConnection && !model_.Converged(viewSerial_)) return true;
     auto bound = BindMoves(options_.moves, *model_.Scene());
     if (!bound) {
       Failed("--moves: " + bound.error().message);
       return false;
     }
-    log_->info("first view converged: playing {} scripted moves", bound->size());
     movesPlayer_.emplace(std::move(*bound));
-    movesStart_ = now;
+    movesStart_ = options_.movesFromConnection && pathStart_ ? *pathStart_ : now;
+    log_->info("{}: playing {} scripted moves",
+               options_.movesFromConnection ? "from the first connection" : "first view converged",
+               movesPlayer_->Total());
   }
   for (const BoundMove& move : movesPlayer_->Due(now - *movesStart_)) {
     log_->info("scripted move (line {}) at {:.2f} s: object {} ('{}') to {}", move.line,

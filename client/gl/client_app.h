@@ -66,9 +66,12 @@ struct ClientOptions {
   double snapshotPathInterval = 0.0;
   std::filesystem::path snapshotPrefix;
   /// Headless: object moves to send (--moves), timed from the first view's
-  /// convergence; their names are resolved against the SMA's scene, and one
+  /// convergence (or the connection: movesFromConnection); their names are resolved against the SMA's scene, and one
   /// it lacks fails the run (exit 1). Empty: none.
   std::vector<ScriptedMove> moves;
+  /// Headless: time 0 of the moves is the first connection (the camera
+  /// path's time 0) instead of the first converged view (--moves-start).
+  bool movesFromConnection = false;
   /// Refinement settings for the SMA session (criterion, S_req, ...); none:
   /// the SMA's defaults. In a window, C cycles the criterion.
   std::optional<RefinementRequest> refinement;

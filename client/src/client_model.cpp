@@ -72,7 +72,8 @@ void ClientModel::OnDelta(const DeltaReceived& event, SessionRequests& requests)
   log_->debug("delta {} ({}) for view {}: -{} +{} triangles, +{} vertices; {} held, {} samples pending{}", d.sequence(),
               wire::DeltaKind_Name(d.kind()), d.view_id(), d.removed_triangles_size(), d.triangle_ids_size(),
               d.vertex_ids_size(), mesh_.TriangleCount(), d.pending_samples(), d.converged() ? ", converged" : "");
-  deltaViewSerial_ = event.viewSerial;
+  // A MOVED sent before the SMA had any view of ours answers none.
+  if (!(d.kind() == wire::DELTA_KIND_MOVED && d.view_id() == 0)) deltaViewSerial_ = event.viewSerial;
   RequestNeededTextures(requests);
 }
 

@@ -63,6 +63,7 @@ int main(int argc, char** argv) {
   std::string screenshot, stats, screenshotDir = DefaultScreenshotDir();
   std::string snapshotPrefix;
   std::string movesFile;
+  std::string movesStart = "converged";
   std::string authTokenFile, tlsCa;
   // Refinement settings for this client's SMA session; unset: the SMA's.
   std::string criterion;
@@ -141,6 +142,13 @@ int main(int argc, char** argv) {
       "--moves", movesFile,
       "Headless: play the object moves in FILE (lines '<t_seconds> <object> [translate X Y Z] [rotate DEG about AX AY "
       "AZ]'), t counted from the first converged view (client/README.md)");
+  auto* movesStartOption =
+      app.add_option("--moves-start", movesStart,
+                     "Headless: time 0 of --moves is the first converged view (converged) or the first connection, "
+                     "as the camera path's (connected)")
+          ->check(CLI::IsMember({"converged", "connected"}))
+          ->capture_default_str();
+  movesStartOption->needs(movesOption);
   auto* snapshotOption = app.add_option("--snapshot-every", options.snapshotEvery,
                                         "Headless: every S seconds, when the image changed, write the linear "
                                         "radiance to PREFIX_<frame>.exr (frame as in --stats)");
@@ -155,7 +163,7 @@ int main(int argc, char** argv) {
   pathSnapshotOption->needs(prefixOption);
   for (CLI::Option* o : {glOption, pathOption, screenshotOption, convergedFlag, framesOption, secondsOption,
                          connectTimeoutOption, timeoutOption, snapshotOption, pathSnapshotOption, prefixOption,
-                         supersampleOption, movesOption})
+                         supersampleOption, movesOption, movesStartOption})
     o->needs(headless);
 
   try {
@@ -218,6 +226,7 @@ int main(int argc, char** argv) {
     if (!moves) return Usage("--moves: " + moves.error().message);
     options.moves = std::move(*moves);
   }
+  options.movesFromConnection = movesStart == "connected";
 
   const char* display = std::getenv("DISPLAY");
   if (!options.headless && !(display && *display)) {

@@ -227,6 +227,8 @@ Status MeshStore::Apply(const wire::Delta& d) {
   for (int i = 0; i < d.updated_vertex_ids_size(); ++i)
     if (auto ok = UpdateVertex(d, i); !ok) return Fail(fmt::format("delta {}: {}", d.sequence(), ok.error().message));
 
+  // A MOVED before any view (view id 0) says nothing of a view's progress.
+  if (d.kind() == wire::DELTA_KIND_MOVED && d.view_id() == 0) return Status::Ok();
   viewId_ = d.view_id();
   pendingSamples_ = d.pending_samples();
   converged_ = d.converged();

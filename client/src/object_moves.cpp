@@ -101,8 +101,8 @@ bool NearlyEqual(const RigidTransform& a, const RigidTransform& b, float toleran
   return true;
 }
 
-void MoveTracker::Sent(uint32_t object, const RigidTransform& t, uint64_t requestId) {
-  pending_[object] = Entry{t, requestId};
+void MoveTracker::Sent(uint32_t object, const RigidTransform& t, uint64_t requestId, Clock::time_point now) {
+  pending_[object] = Entry{t, requestId, now};
   ++sentCount_;
 }
 
@@ -120,6 +120,16 @@ uint32_t MoveTracker::Refused(uint64_t requestId) {
     return object;
   }
   return 0;
+}
+
+std::vector<uint32_t> MoveTracker::Expire(Clock::time_point now, Clock::duration timeout) {
+  std::vector<uint32_t> expired;
+  std::erase_if(pending_, [&](const auto& entry) {
+    if (now - entry.second.sentAt <= timeout) return false;
+    expired.push_back(entry.first);
+    return true;
+  });
+  return expired;
 }
 
 std::optional<RigidTransform> MoveTracker::LastSent(uint32_t object) const {

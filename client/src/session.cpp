@@ -394,6 +394,11 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
   }
 
   void OnDelta(wire::Delta delta) {
+    // A MOVED delta tells where objects are, not what a view shows: the SMA
+    // may send one before this connection's first view has reached it
+    // (another client's move, an animation), with view id 0.
+    const bool viewless = delta.kind() == wire::DELTA_KIND_MOVED && delta.view_id() == 0;
+    if (viewless) return Push(DeltaReceived{connectionNumber_, 0, std::move(delta)});
     if (delta.view_id() == 0 || delta.view_id() > lastSentViewId_)
       return Refuse(wire::ERROR_CODE_INVALID_REQUEST,
                     fmt::format("delta {} answers view {}, which was never sent (last {})", delta.sequence(),

@@ -271,7 +271,15 @@ TEST_F(MeshRendererTest, AMovedObjectIsDrawnAtItsNewPlaceWithoutAVertexUpload) {
   d.Vertex(1, Vec3(0, 0, 0), grey).Vertex(2, Vec3(1, 0, 0), grey).Vertex(3, Vec3(1, 1, 0), grey);
   d.Triangle(10, {1, 2, 3});
   for (int i = 0; i < 3; ++i) d.Mutable().add_vertex_objects(1);
+  // Many more of the object's triangles, off screen: the move's cost must not depend on them.
+  for (uint64_t i = 0; i < 3000; ++i) {
+    const float x = 100.0f + float(i);
+    d.Vertex(100 + 3 * i, Vec3(x, 0, 0), grey).Vertex(101 + 3 * i, Vec3(x + 0.5f, 0, 0), grey);
+    d.Vertex(102 + 3 * i, Vec3(x, 0.5f, 0), grey).Triangle(1000 + i, {100 + 3 * i, 101 + 3 * i, 102 + 3 * i});
+    for (int c = 0; c < 3; ++c) d.Mutable().add_vertex_objects(1);
+  }
   Apply(DeltaReceived{2, 1, d.Delta()});
+  EXPECT_GT(renderer_->LastUploadBytes(), 9000 * sizeof(GpuVertex)) << "the first delta uploads its vertices";
   std::vector<float> image = Draw();
   ExpectRgbNear(PixelAt(image, kSize, kLowerRightX, kLowerRightY), grey, 1e-6f, "the object where it was");
   ExpectRgbNear(PixelAt(image, kSize, kUpperLeftX, kUpperLeftY), Rgb(0.0f), 0.0f, "nothing there yet");
@@ -283,7 +291,8 @@ TEST_F(MeshRendererTest, AMovedObjectIsDrawnAtItsNewPlaceWithoutAVertexUpload) {
   moved.Mutable().add_moved_objects(1);
   for (float v : turned.ToRowMajor()) moved.Mutable().add_moved_object_transforms(v);
   Apply(DeltaReceived{2, 1, moved.Delta()});
-  EXPECT_EQ(renderer_->LastUploadBytes(), 2 * sizeof(GpuObjectTransform)) << "the table only";
+  EXPECT_EQ(renderer_->LastUploadBytes(), 2 * sizeof(GpuObjectTransform))
+      << "the table only (96 bytes), not the object's 9003 vertices (432 kB)";
   image = Draw();
   ExpectRgbNear(PixelAt(image, kSize, kLowerRightX, kLowerRightY), Rgb(0.0f), 0.0f, "moved away");
   ExpectRgbNear(PixelAt(image, kSize, kUpperLeftX, kUpperLeftY), grey, 1e-6f, "moved here");

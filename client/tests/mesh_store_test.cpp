@@ -346,6 +346,21 @@ TEST_F(MeshStoreObjectsTest, MovedChangesOnlyThatObjectAndUploadsNoVertex) {
   EXPECT_EQ(store_.ObjectTransforms()[1].rows[1][3], 3.0f);
 }
 
+TEST_F(MeshStoreObjectsTest, AMovedBeforeAnyViewLeavesTheViewsProgressAlone) {
+  DeltaBuilder first = ThreeParts();
+  first.Converged().Pending(0);
+  ASSERT_TRUE(store_.Apply(first.Delta()).ok());
+  ASSERT_TRUE(store_.Converged());
+  DeltaBuilder moved(2, 0, wire::DELTA_KIND_MOVED);
+  moved.Mutable().set_scene_epoch(4);
+  AddTransform(moved.Mutable(), 2, box_);
+  ASSERT_TRUE(store_.Apply(moved.Delta()).ok());
+  EXPECT_EQ(store_.SceneEpoch(), 4u);
+  EXPECT_EQ(store_.LastViewId(), 1u);
+  EXPECT_TRUE(store_.Converged());
+  EXPECT_EQ(store_.LastSequence(), 2u);
+}
+
 TEST_F(MeshStoreObjectsTest, ReshadedUpdatesRadianceInPlace) {
   ASSERT_TRUE(store_.Apply(ThreeParts().Delta()).ok());
   store_.DirtyVertices().Clear();

@@ -189,6 +189,22 @@ TEST_F(PickHeldTriangleTest, AMoveIsPendingUntilTheSmaConfirmsOrRefusesIt) {
   EXPECT_FALSE(tracker.LastSent(1).has_value());
 }
 
+TEST(MoveTrackerTest, AMoveNeverConfirmedIsGivenUpAfterTheTimeout) {
+  MoveTracker tracker;
+  const auto t0 = MoveTracker::Clock::time_point{} + 100s;
+  tracker.Sent(1, RigidTransform::Identity(), 7, t0);
+  tracker.Sent(2, RigidTransform::Identity(), 8, t0 + 3s);
+  EXPECT_TRUE(tracker.Expire(t0 + kMovePendingTimeout).empty());
+  EXPECT_EQ(tracker.Expire(t0 + kMovePendingTimeout + 1ms), std::vector<uint32_t>{1});
+  EXPECT_FALSE(tracker.Pending(1));
+  EXPECT_TRUE(tracker.Pending(2));
+  // A newer send restarts the clock.
+  tracker.Sent(2, RigidTransform::Identity(), 9, t0 + 7s);
+  EXPECT_TRUE(tracker.Expire(t0 + 9s).empty());
+  EXPECT_EQ(tracker.Expire(t0 + 13s), std::vector<uint32_t>{2});
+  EXPECT_TRUE(tracker.Empty());
+}
+
 TEST(NearlyEqualTest, ComparesEveryEntryWithinTheTolerance) {
   const RigidTransform a = RigidTransform::FromAxisAngle(Vec3(0, 0, 1), 0.5f, Vec3(1, 2, 3));
   RigidTransform b = a;

@@ -330,5 +330,28 @@ TEST_F(SessionTest, MovesAreSentAndTheirRefusalsSurfaceWithoutEndingTheConnectio
   EXPECT_EQ(session_->Status().connections, 1u);
 }
 
+// A MOVED may come before the SMA has this connection's first view (another
+// client's move, an animation step): view id 0 is then not a violation.
+TEST_F(SessionTest, AMovedBeforeTheFirstViewIsHandedOver) {
+  WireClient sma = AcceptClient();
+  ASSERT_TRUE(WaitForEvent<Connected>().has_value());
+  DeltaBuilder moved(1, 0, wire::DELTA_KIND_MOVED);
+  moved.Mutable().set_scene_epoch(3);
+  ASSERT_TRUE(sma.Send(moved.Envelope()));
+  auto delta = WaitForEvent<DeltaReceived>();
+  ASSERT_TRUE(delta.has_value());
+  EXPECT_EQ(delta->viewSerial, 0u);
+  EXPECT_EQ(delta->delta.kind(), wire::DELTA_KIND_MOVED);
+  // Any other delta for view 0 still is one.
+  ASSERT_TRUE(sma.Send(DeltaBuilder(2, 0, wire::DELTA_KIND_STATUS).Envelope()));
+  bool refused = false;
+  for (int i = 0; i < 10 && !refused; ++i) {
+    auto e = sma.Receive(2s);
+    if (!e) break;
+    refused = e->has_error() && e->error().fatal();
+  }
+  EXPECT_TRUE(refused);
+}
+
 }  // namespace
 }  // namespace penumbra::client

@@ -108,7 +108,9 @@ class MeshStore {
   /// range, corners of a triangle all of one object) is checked too; a
   /// MOVED delta carries only valid ids and rigid transforms (12 floats
   /// each) and no epoch older than the store's; MOVED and RESHADED carry no
-  /// triangles or new vertices. After
+  /// triangles or new vertices; a MOVED with view id 0 (sent before the
+  /// SMA had this client's first view) leaves the view's progress as it
+  /// was. After
   /// a failure the store is consistent (every held triangle's vertices are
   /// held and counted) but holds part of the delta; the caller drops the
   /// connection and calls Reset().

@@ -21,6 +21,7 @@
 #include <map>
 #include <optional>
 #include <span>
+#include <vector>
 
 #include "penumbra/client/mesh_store.h"
 #include "penumbra/common/math.h"
@@ -111,14 +112,21 @@ class MoveThrottle {
 /// MOVED, and re-orthonormalises rotations, so an object is settled when its
 /// confirmed transform is within kMoveConfirmTolerance of the last one sent.
 inline constexpr float kMoveConfirmTolerance = 1e-3f;
+/// A move neither confirmed nor refused this long after it was sent is
+/// given up on (another client's move of the same object may have won the
+/// SMA's coalescing, so ours never comes back as sent).
+inline constexpr std::chrono::seconds kMovePendingTimeout{5};
 
 class MoveTracker {
  public:
-  void Sent(uint32_t object, const RigidTransform& t, uint64_t requestId);
+  using Clock = std::chrono::steady_clock;
+  void Sent(uint32_t object, const RigidTransform& t, uint64_t requestId, Clock::time_point now = Clock::now());
   /// Drops the objects whose confirmed transform in `mesh` matches the last one sent.
   void Confirm(const MeshStore& mesh);
   /// Drops the object whose last request is `requestId`; returns it (0: none).
   uint32_t Refused(uint64_t requestId);
+  /// Drops moves sent more than `timeout` before `now`; returns their objects.
+  std::vector<uint32_t> Expire(Clock::time_point now, Clock::duration timeout = kMovePendingTimeout);
   bool Pending(uint32_t object) const { return pending_.contains(object); }
   /// The last transform sent for `object`, while pending.
   std::optional<RigidTransform> LastSent(uint32_t object) const;
@@ -133,6 +141,7 @@ class MoveTracker {
   struct Entry {
     RigidTransform transform;
     uint64_t requestId = 0;
+    Clock::time_point sentAt;
   };
   std::map<uint32_t, Entry> pending_;
   uint64_t sentCount_ = 0;
