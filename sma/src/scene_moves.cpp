@@ -138,9 +138,12 @@ std::vector<VertexId> InvalidatedStaticVertices(const Scene& scene, const SceneP
   // is lit by the same lights as what is cached around it. The margin (2x)
   // covers surfaces no client has seen yet being brighter than those seen;
   // with nothing cached the scene's brightest light bounds it (always safe).
+  // Reflected radiance only (albedo/pi * E): an emitter's own emission is
+  // light, which the exact shaft tests already account for; counting it here
+  // would make every vertex near the lamp's ceiling "see" lamp-bright walls.
   float brightest = 0.0f;
   for (const InvalidationCandidate& c : candidates)
-    if (c.shaded) brightest = std::max(brightest, Luminance(c.radiance));
+    if (c.shaded) brightest = std::max(brightest, Luminance(c.albedo * c.irradiance) * kInvPi);
   InvalidationParams params;
   params.indirectRadiance = brightest > 0.0f ? 2.0f * brightest : -1.0f;
   const MoveInvalidator invalidator(scene, std::span<const MotionVolume>(volumes), params);
