@@ -154,7 +154,8 @@ TEST_F(SmaMovesTest, AMoveReachesEveryClientAsMovedWithItsTransformAndEpoch) {
 }
 
 TEST_F(SmaMovesTest, BadMovesAreRefusedAndChangeNothing) {
-  Service sma = StartSma({}, "sma");
+  Service renderer = StartRenderer("renderer");
+  Service sma = StartSma({renderer.Address()}, "sma");
   SmaTestClient c = Connect(sma, "mover");
   const std::vector<float> fine = RowMajor(RigidTransform{glm::mat3(1.0f), Vec3(0.0f, 0.6f, 0.0f)});
   std::vector<float> nan = fine;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cmath>
 
 #include <fmt/format.h>
 
@@ -70,11 +71,31 @@ Expected<ObjectMove> CheckMoveObject(const wire::MoveObject& move, const Scene& 
   return ObjectMove{id - 1, *transform};
 }
 
+namespace {
+
+// A transform sent back as the 12 floats it was announced with comes back
+// re-orthonormalised (RigidTransform::FromRowMajor), a few ulps off: that
+// is the same place, not a move.
+bool SamePlace(const RigidTransform& a, const RigidTransform& b) {
+  const std::array<float, 12> x = a.ToRowMajor(), y = b.ToRowMajor();
+  for (size_t i = 0; i < 12; ++i) {
+    const float scale = (i % 4 == 3) ? std::max(1.0f, std::abs(x[i])) : 1.0f;  // translations: relative
+    if (!(std::abs(x[i] - y[i]) <= 1e-6f * scale)) return false;
+  }
+  return true;
+}
+
+}  // namespace
+
 std::optional<ScenePose> NextPose(const ScenePose& current, std::span<const ObjectMove> moves) {
   ScenePose next = current;
-  for (const ObjectMove& m : moves)
-    if (m.object < next.objectToWorld.size()) next.objectToWorld[m.object] = m.objectToWorld;
-  if (next.SamePlaces(current)) return std::nullopt;
+  bool changed = false;
+  for (const ObjectMove& m : moves) {
+    if (m.object >= next.objectToWorld.size() || SamePlace(next.objectToWorld[m.object], m.objectToWorld)) continue;
+    next.objectToWorld[m.object] = m.objectToWorld;
+    changed = true;
+  }
+  if (!changed) return std::nullopt;
   next.epoch = current.epoch + 1;
   return next;
 }

@@ -92,6 +92,14 @@ TEST(SceneMoves, NextPoseCountsEpochsAndSkipsMovesThatChangeNothing) {
   const Scene scene = FloorWithObjects();
   const ScenePose initial = ScenePose::Initial(scene);
   EXPECT_FALSE(NextPose(initial, std::vector{ObjectMove{0, scene.objects[0].objectToWorld}}));
+  // The place as announced (12 floats), read back: re-orthonormalised, the same place.
+  const RigidTransform turned = RigidTransform::FromAxisAngle(Vec3(0, 1, 0), 0.3f, Vec3(1, 2, 3));
+  ScenePose at = initial;
+  at.objectToWorld[0] = turned;
+  const auto m12 = turned.ToRowMajor();
+  auto readBack = RigidTransform::FromRowMajor(m12);
+  ASSERT_TRUE(readBack);
+  EXPECT_FALSE(NextPose(at, std::vector{ObjectMove{0, *readBack}}));
   const RigidTransform away{glm::mat3(1.0f), Vec3(1.0f, 1.0f, 0.0f)};
   auto next = NextPose(initial, std::vector{ObjectMove{0, away}});
   ASSERT_TRUE(next);

@@ -51,7 +51,9 @@ void FillMovedDelta(const ScenePose& pose, std::span<const uint32_t> objects, wi
 Expected<ObjectMove> CheckMoveObject(const wire::MoveObject& move, const Scene& scene);
 
 /// `current` with `moves` applied (later moves of one object win) at epoch
-/// current.epoch + 1; nothing when no object changes place.
+/// current.epoch + 1; nothing when no object changes place (a transform
+/// within 1e-6 of the current one -- the same 12 numbers sent back -- is
+/// no change).
 std::optional<ScenePose> NextPose(const ScenePose& current, std::span<const ObjectMove> moves);
 
 /// Moves waiting to be applied, at most one per object: a move arriving
