@@ -34,6 +34,7 @@ namespace {
 using namespace std::chrono_literals;
 
 const std::string kScene = std::string(PENUMBRA_SOURCE_DIR) + "/scenes/cornell-box-floating.json";
+const std::string kAnimatedScene = std::string(PENUMBRA_SOURCE_DIR) + "/scenes/cornell-box-animated.json";
 constexpr int kWidth = 64;
 constexpr int kHeight = 48;
 
@@ -43,15 +44,17 @@ Service MustStart(const std::string& exe, const std::vector<std::string>& args, 
   return s.ok() ? std::move(*s) : Service{};
 }
 
-Service StartRenderer(const std::string& tag) {
+Service StartRenderer(const std::string& tag, const std::string& scene = kScene) {
   return MustStart(PENUMBRA_RENDERER_EXE,
-                   {"--scene", kScene, "--threads", "1", "--spp", "16", "--max-bounces", "2"}, tag);
+                   {"--scene", scene, "--threads", "1", "--spp", "16", "--max-bounces", "2"}, tag);
 }
 
-Service StartSma(const std::vector<std::string>& renderers, const std::string& tag) {
+Service StartSma(const std::vector<std::string>& renderers, const std::string& tag, const std::string& scene = kScene,
+                 const std::vector<std::string>& extra = {}) {
   // No refinement, no improvement: the deltas are about the move.
-  std::vector<std::string> args = {"--scene", kScene, "--criterion", "none", "--improve-paths", "0"};
+  std::vector<std::string> args = {"--scene", scene, "--criterion", "none", "--improve-paths", "0"};
   for (const auto& r : renderers) args.insert(args.end(), {"--renderer", r});
+  args.insert(args.end(), extra.begin(), extra.end());
   return MustStart(PENUMBRA_SMA_EXE, args, tag);
 }
 
@@ -235,6 +238,51 @@ TEST_F(SmaMovesTest, AfterAMoveHeldVerticesComeBackReshaded) {
   EXPECT_EQ(*c.Counter("client_reshades_awaited"), 0.0);
   EXPECT_EQ(*c.Counter("renderers_connected"), 1.0) << "the renderer answered at the new pose";
   EXPECT_TRUE(sma.process.Running());
+}
+
+
+// The SMA plays an animation path on its own clock: clients see MOVED
+// deltas with increasing epochs without asking, and may not move the object.
+TEST_F(SmaMovesTest, AnAnimatedObjectMovesOnTheSmasClockAndCannotBeMovedByAClient) {
+  if (!std::filesystem::exists(kAnimatedScene)) GTEST_SKIP() << kAnimatedScene << " is not there";
+  auto scene = LoadScene(kAnimatedScene);
+  ASSERT_TRUE(scene.ok()) << scene.error().message;
+  ASSERT_EQ(scene->objects.size(), 1u);
+  ASSERT_TRUE(scene->objects[0].animation.has_value());
+  Service renderer = StartRenderer("renderer", kAnimatedScene);
+  Service sma = StartSma({renderer.Address()}, "sma", kAnimatedScene, {"--animation-hz", "20"});
+  SmaTestClient c = Connect(sma, "watcher");
+  ASSERT_EQ(c.Info().objects_size(), 1);
+  EXPECT_TRUE(c.Info().objects(0).animated());
+
+  std::vector<uint64_t> epochs;
+  std::set<float> heights;
+  while (epochs.size() < 5) {
+    auto delta = WaitMoved(c);
+    ASSERT_TRUE(delta.ok()) << delta.error().message << "\n" << sma.process.LogTail();
+    ASSERT_EQ(delta->moved_objects_size(), 1);
+    EXPECT_EQ(delta->moved_objects(0), 1u);
+    ASSERT_EQ(delta->moved_object_transforms_size(), 12);
+    const float y = delta->moved_object_transforms(7);
+    EXPECT_GE(y, 0.55f - 1e-4f);  // between its keyframes' heights
+    EXPECT_LE(y, 0.95f + 1e-4f);
+    heights.insert(y);
+    epochs.push_back(delta->scene_epoch());
+  }
+  for (size_t i = 1; i < epochs.size(); ++i) EXPECT_GT(epochs[i], epochs[i - 1]);
+  EXPECT_GT(heights.size(), 1u) << "it moves";
+
+  ASSERT_TRUE(c.Wire().Send(MoveEnvelope(41, 1, RowMajor(RigidTransform{glm::mat3(1.0f), Vec3(0.0f, 0.6f, 0.0f)}))));
+  std::optional<wire::ErrorReply> error;
+  while (!error) {
+    auto e = c.Wire().Receive(10s);
+    ASSERT_TRUE(e.ok()) << e.error().message;
+    if (e->has_error()) error = e->error();
+  }
+  EXPECT_EQ(error->code(), wire::ERROR_CODE_INVALID_REQUEST);
+  EXPECT_EQ(error->request_id(), 41u);
+  EXPECT_NE(error->message().find("animated"), std::string::npos) << error->message();
+  EXPECT_GT(*c.Counter("moves"), 4.0);
 }
 
 }  // namespace
