@@ -2,15 +2,19 @@
 // free ports: a client's MoveObject reaches every client as a MOVED delta
 // with the new transform and scene epoch; bad moves are refused and change
 // nothing; after a move, the vertices a client holds come back re-shaded
-// (RESHADED) at the new pose.
+// (RESHADED) at the new pose; an animated object moves on the SMA's clock;
+// after a fast drag no sample of an intermediate pose survives (the image
+// equals a single move's, bit for bit: shading is deterministic).
 //
 // The scene is scenes/cornell-box-floating.json (a box floating above the
 // Cornell box's floor, movable). The reshade test needs renderers that
 // shade at the pose a ShadeRequest names and echo its epoch (issue 14's
 // renderer part): a renderer that ignores poses answers epoch 0 and the SMA
-// drops it as a bad renderer.
+// drops it as a bad renderer. Every case but the bad moves needs them.
 
+#include <array>
 #include <cmath>
+#include <map>
 #include <filesystem>
 #include <thread>
 #include <limits>
@@ -283,6 +287,99 @@ TEST_F(SmaMovesTest, AnAnimatedObjectMovesOnTheSmasClockAndCannotBeMovedByAClien
   EXPECT_EQ(error->request_id(), 41u);
   EXPECT_NE(error->message().find("animated"), std::string::npos) << error->message();
   EXPECT_GT(*c.Counter("moves"), 4.0);
+}
+
+
+// Whether `delta` is a MOVED putting object 1 at `place` (within 1e-5).
+bool MovesTo(const wire::Delta& delta, const std::array<float, 12>& place) {
+  if (delta.kind() != wire::DELTA_KIND_MOVED || delta.moved_object_transforms_size() != 12) return false;
+  for (int i = 0; i < 12; ++i)
+    if (std::abs(delta.moved_object_transforms(i) - place[size_t(i)]) > 1e-5f) return false;
+  return true;
+}
+
+// Receives until a MOVED delta puts object 1 at `place` (12 floats within
+// 1e-5): the moves before it may have been coalesced away.
+Status WaitMovedTo(SmaTestClient& c, const std::array<float, 12>& place, std::chrono::milliseconds timeout = 20s) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (std::chrono::steady_clock::now() < deadline) {
+    auto delta = WaitMoved(c, std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now()));
+    if (!delta) return delta.error();
+    if (MovesTo(*delta, place)) return Status::Ok();
+  }
+  return Fail("the object never arrived at its last place");
+}
+
+// Stale samples never win: a client that watched the box dragged through 30
+// places (moves coalesced, replies for old poses in flight all along) ends
+// with exactly the image of a fresh stack that moved the box there once.
+// Shading is deterministic (a sample's value depends on its id, place and
+// the pose's transforms, not on the epoch), so any sample shaded at an
+// intermediate pose that survived would differ.
+TEST_F(SmaMovesTest, ADragEndsWithTheImageOfASingleMoveThere) {
+  const RigidTransform start = scene_.objects[0].objectToWorld;
+  const RigidTransform end = RigidTransform::FromAxisAngle(Vec3(0, 1, 0), 0.2f, Vec3(0.35f, 0.45f, -0.25f));
+  const auto endFloats = end.ToRowMajor();
+  auto readBack = RigidTransform::FromRowMajor(endFloats);
+  ASSERT_TRUE(readBack);
+  const auto arrived = readBack->ToRowMajor();  // what the SMA announces for it
+
+  std::map<uint64_t, Rgb> dragged, moved;
+  {
+    Service renderer = StartRenderer("renderer-drag");
+    // Slow batches (many paths): replies for old poses are in flight when moves land.
+    Service sma = StartSma({renderer.Address()}, "sma-drag", kScene, {"--first-paths", "1024"});
+    SmaTestClient c = Connect(sma, "dragger");
+    const CameraView view = ViewFromPreset(c.Info().cameras(0), kWidth, kHeight);
+    ASSERT_TRUE(c.SendView(view, 1));
+    ASSERT_TRUE(c.WaitConverged(1, 60s).ok()) << sma.process.LogTail();
+    constexpr int kSteps = 30;
+    bool atEnd = false;
+    for (int i = 1; i <= kSteps; ++i) {
+      const RigidTransform at = i == kSteps ? end : Interpolate(start, end, float(i) / float(kSteps));
+      ASSERT_TRUE(c.Wire().Send(MoveEnvelope(100 + uint64_t(i), 1, RowMajor(at))));
+      // A fast drag (100 moves per second), reading what comes meanwhile.
+      const auto next = std::chrono::steady_clock::now() + 10ms;
+      while (std::chrono::steady_clock::now() < next) {
+        auto e = c.Wire().Receive(std::chrono::duration_cast<std::chrono::milliseconds>(next - std::chrono::steady_clock::now()) + 1ms);
+        if (!e && e.error().message == "timeout") break;
+        ASSERT_TRUE(e.ok()) << e.error().message;
+        ASSERT_TRUE(c.Apply(*e).ok());
+        atEnd |= e->has_delta() && MovesTo(e->delta(), arrived);
+      }
+    }
+    if (!atEnd) ASSERT_TRUE(WaitMovedTo(c, arrived).ok()) << sma.process.LogTail();
+    ASSERT_TRUE(c.WaitConverged(1, 120s).ok()) << sma.process.LogTail();
+    EXPECT_GT(*c.Counter("moves"), 1.0);
+    for (const char* counter : {"moves", "moves_coalesced", "samples_stale_refused", "samples_invalidated",
+                                "samples_reshaded_after_move", "client_reshades_sent"})
+      RecordProperty(counter, fmt::format("{}", *c.Counter(counter)));
+    for (const auto& [id, v] : c.Mesh().Vertices()) dragged[id] = v.radiance;
+  }
+  {
+    Service renderer = StartRenderer("renderer-once");
+    Service sma = StartSma({renderer.Address()}, "sma-once", kScene, {"--first-paths", "1024"});
+    SmaTestClient c = Connect(sma, "mover");
+    ASSERT_TRUE(c.Wire().Send(MoveEnvelope(1, 1, std::vector<float>(endFloats.begin(), endFloats.end()))));
+    ASSERT_TRUE(WaitMovedTo(c, arrived).ok()) << sma.process.LogTail();
+    const CameraView view = ViewFromPreset(c.Info().cameras(0), kWidth, kHeight);
+    ASSERT_TRUE(c.SendView(view, 1));
+    ASSERT_TRUE(c.WaitConverged(1, 60s).ok()) << sma.process.LogTail();
+    for (const auto& [id, v] : c.Mesh().Vertices()) moved[id] = v.radiance;
+  }
+  ASSERT_FALSE(moved.empty());
+  EXPECT_EQ(dragged.size(), moved.size()) << "the same triangles are visible at the same pose";
+  size_t differing = 0;
+  for (const auto& [id, radiance] : moved) {
+    auto it = dragged.find(id);
+    if (it == dragged.end()) continue;
+    for (int k = 0; k < 3; ++k)
+      if (std::abs(it->second[k] - radiance[k]) > 1e-5f * std::max(1.0f, radiance[k])) {
+        ++differing;
+        break;
+      }
+  }
+  EXPECT_EQ(differing, 0u) << "vertices whose radiance is not the single move's (a stale sample survived)";
 }
 
 }  // namespace
