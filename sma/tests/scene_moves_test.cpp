@@ -258,5 +258,32 @@ TEST(SceneMoves, VisibilityTracesAtThePoseAndSidesFollowTheWorldNormal) {
   EXPECT_TRUE(centre(upsideDown).backFace) << "its front now faces the floor";
 }
 
+
+// An object's object-space corners may coincide with static world corners;
+// they are not neighbours: refining the object never splits the floor.
+TEST(SceneMoves, AdjacencyNeverCrossesFromAnObjectToTheStaticPart) {
+  SceneBuilder b;
+  const uint32_t m = b.AddMaterial(Material{});
+  b.AddQuad(Vec3(-0.5f, 0.0f, -0.5f), Vec3(0, 0, 1), Vec3(1, 0, 0), m);
+  MovableObject box;
+  box.name = "box";
+  box.objectToWorld = RigidTransform{glm::mat3(1.0f), Vec3(0.0f, 1.0f, 0.0f)};
+  b.BeginObject(box);
+  b.AddQuad(Vec3(-0.5f, 0.0f, -0.5f), Vec3(0, 0, 1), Vec3(1, 0, 0), m);  // the floor's very corners, object space
+  b.EndObject();
+  Scene scene;
+  scene.twoSided = false;
+  ASSERT_TRUE(b.BuildInto(scene).ok());
+  Hierarchy hierarchy(scene);
+  for (VertexId v = 0; v < scene.staticVertexCount; ++v)
+    for (VertexId w = scene.staticVertexCount; w < scene.vertices.size(); ++w)
+      EXPECT_NE(hierarchy.GetVertex(v).point, hierarchy.GetVertex(w).point) << v << " and " << w;
+  const RefineResult result = hierarchy.Refine(NodeId(scene.objects[0].firstTriangle), RefineOptions{});
+  ASSERT_FALSE(result.split.empty());
+  for (NodeId n : result.split)
+    EXPECT_EQ(scene.ObjectOfTriangle(hierarchy.GetNode(n).baseTriangle), 0u) << "node " << n << " split";
+  EXPECT_TRUE(hierarchy.Conforming());
+}
+
 }  // namespace
 }  // namespace penumbra::sma
