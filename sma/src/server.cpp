@@ -1271,12 +1271,17 @@ void SmaServer::Impl::LogStats() {
       viewTimes_.clear();
     }
   }
+  std::string moves;
+  if (!scene_.objects.empty())
+    moves = fmt::format("; scene epoch {}, {} moves, {} samples invalidated, {} re-shaded, {} stale replies refused",
+                        CurrentPose()->epoch, moves_.load(), samplesInvalidated_.load(), cache_.Reshaded(),
+                        samplesStale_.load());
   log_->info("stats: cache {} shaded, hit rate {:.1f}%; {:.0f} requested/s, {:.0f} shaded/s, {} queued; "
-             "renderers:{}; clients:{}; views: {}",
+             "renderers:{}; clients:{}; views: {}{}",
              shaded, hits + misses > 0 ? 100.0 * double(hits) / double(hits + misses) : 0.0,
              double(now.requested - lastStats_.requested) / seconds, double(now.shaded - lastStats_.shaded) / seconds,
              now.queuedVisible + now.queuedBackground, renderers.empty() ? " none" : renderers,
-             clients.empty() ? " none" : clients, views);
+             clients.empty() ? " none" : clients, views, moves);
   lastStats_ = now;
 }
 
