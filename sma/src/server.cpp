@@ -639,7 +639,6 @@ void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
   server.pool_->Request(requests, Priority::kVisible);
   server.pool_->ReleaseInterest(interest_);
   interest_ = plan.missing;
-  state_.PruneReshades([this](VertexId v) { return mirror_.HoldsVertex(v); });
   for (NodeId id : state_.BeginShading(plan.pending, server.hierarchy_, server.cache_, newView))
     plan.addCached.push_back(id);
 
@@ -662,6 +661,8 @@ void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
     QueueChanges(wire::DELTA_KIND_REFINED, removals, plan.addCached, /*alwaysSend=*/false, /*last=*/true);
   }
   lock.unlock();
+  // Reshades of vertices the client no longer holds are not awaited.
+  state_.PruneReshades([this](VertexId v) { return mirror_.HoldsVertex(v); });
   Flush();
   SendUpdates();
 }
