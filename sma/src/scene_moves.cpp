@@ -125,14 +125,14 @@ uint64_t MoveCoalescer::Coalesced() const {
 }
 
 std::vector<VertexId> InvalidatedStaticVertices(const Scene& scene, const ScenePose& oldPose,
-                                                const ScenePose& newPose, uint32_t movedObject,
+                                                const ScenePose& newPose, std::span<const uint32_t> movedObjects,
                                                 std::span<const InvalidationCandidate> candidates) {
   // Conservative until the motion-volume test is merged: a moved object can
   // shadow or light anything, so every candidate is invalidated.
   (void)scene;
   (void)oldPose;
   (void)newPose;
-  (void)movedObject;
+  (void)movedObjects;
   std::vector<VertexId> out;
   out.reserve(candidates.size());
   for (const InvalidationCandidate& c : candidates) out.push_back(c.vertex);
@@ -177,10 +177,8 @@ Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cac
     candidates.push_back(c);
   }
   out.objectVertices = out.vertices.size();
-  for (uint32_t o : movedObjects) {
-    std::vector<VertexId> chosen = InvalidatedStaticVertices(scene, oldPose, newPose, o, candidates);
-    out.vertices.insert(out.vertices.end(), chosen.begin(), chosen.end());
-  }
+  const std::vector<VertexId> chosen = InvalidatedStaticVertices(scene, oldPose, newPose, movedObjects, candidates);
+  out.vertices.insert(out.vertices.end(), chosen.begin(), chosen.end());
   std::sort(out.vertices.begin(), out.vertices.end());
   out.vertices.erase(std::unique(out.vertices.begin(), out.vertices.end()), out.vertices.end());
   return out;

@@ -92,17 +92,21 @@ struct InvalidationCandidate {
   Rgb albedo{0.0f};
 };
 
-/// The vertices, among `candidates` (every vertex not of the moved object:
-/// static ones and those of objects that stayed), whose radiance moving
-/// object `movedObject` (an index into scene.objects) from its place in
-/// `oldPose` to its place in `newPose` may change by more than their noise.
-/// An unshaded candidate must be returned when a sample shaded at the old
-/// pose could be wrong: one may be on its way.
+/// The vertices, among `candidates` (every vertex not of a moved object:
+/// static ones and those of objects that stayed), whose radiance moving the
+/// objects `movedObjects` (indices into scene.objects) from their places in
+/// `oldPose` to their places in `newPose` may change by more than their
+/// noise. All the objects of one epoch are judged together: their changes
+/// add up at a vertex. An unshaded candidate (irradiance and its error 0)
+/// must be returned when a sample shaded at the old pose could be wrong: one
+/// may be on its way.
 ///
 /// For now the conservative answer: every candidate (correct, wasteful).
-/// The motion-volume test (motion_volume.h, issue 14) replaces it here.
+/// The motion-volume test (motion_volume.h: one MotionVolumes per moved
+/// object from WorldBounds at both poses, one MoveInvalidator over them,
+/// asked about the candidates) replaces it here.
 std::vector<VertexId> InvalidatedStaticVertices(const Scene& scene, const ScenePose& oldPose,
-                                                const ScenePose& newPose, uint32_t movedObject,
+                                                const ScenePose& newPose, std::span<const uint32_t> movedObjects,
                                                 std::span<const InvalidationCandidate> candidates);
 
 /// What a move from `oldPose` to `newPose` invalidates.
@@ -111,10 +115,10 @@ struct Invalidation {
   size_t objectVertices = 0;       // of which the moved objects' own
 };
 
-/// Every vertex of a moved object (its world place changed), and for each
-/// moved object the vertices InvalidatedStaticVertices chooses among the
-/// others. The caller holds the state lock shared (the hierarchy is read;
-/// the cache is read as it is).
+/// Every vertex of a moved object (its world place changed), and the
+/// vertices InvalidatedStaticVertices chooses among the others for all the
+/// moved objects together. The caller holds the state lock shared (the
+/// hierarchy is read; the cache is read as it is).
 Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cache, const ScenePose& oldPose,
                               const ScenePose& newPose);
 
