@@ -313,6 +313,9 @@ Status WaitMovedTo(SmaTestClient& c, const std::array<float, 12>& place, std::ch
 // Stale samples never win: a client that watched the box dragged through 30
 // places (moves coalesced, replies for old poses in flight all along) ends
 // with exactly the image of a fresh stack that moved the box there once.
+// Every move invalidates everything (--invalidate-all-on-move): a sample the
+// invalidation test keeps is shaded at an older pose, equal only within its
+// noise; here every value must be the final pose's, bit for bit.
 // Shading is deterministic (a sample's value depends on its id, place and
 // the pose's transforms, not on the epoch), so any sample shaded at an
 // intermediate pose that survived would differ.
@@ -328,7 +331,7 @@ TEST_F(SmaMovesTest, ADragEndsWithTheImageOfASingleMoveThere) {
   {
     Service renderer = StartRenderer("renderer-drag");
     // Slow batches (many paths): replies for old poses are in flight when moves land.
-    Service sma = StartSma({renderer.Address()}, "sma-drag", kScene, {"--first-paths", "1024"});
+    Service sma = StartSma({renderer.Address()}, "sma-drag", kScene, {"--first-paths", "1024", "--invalidate-all-on-move"});
     SmaTestClient c = Connect(sma, "dragger");
     const CameraView view = ViewFromPreset(c.Info().cameras(0), kWidth, kHeight);
     ASSERT_TRUE(c.SendView(view, 1));
@@ -358,7 +361,7 @@ TEST_F(SmaMovesTest, ADragEndsWithTheImageOfASingleMoveThere) {
   }
   {
     Service renderer = StartRenderer("renderer-once");
-    Service sma = StartSma({renderer.Address()}, "sma-once", kScene, {"--first-paths", "1024"});
+    Service sma = StartSma({renderer.Address()}, "sma-once", kScene, {"--first-paths", "1024", "--invalidate-all-on-move"});
     SmaTestClient c = Connect(sma, "mover");
     ASSERT_TRUE(c.Wire().Send(MoveEnvelope(1, 1, std::vector<float>(endFloats.begin(), endFloats.end()))));
     ASSERT_TRUE(WaitMovedTo(c, arrived).ok()) << sma.process.LogTail();

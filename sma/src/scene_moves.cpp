@@ -140,7 +140,7 @@ std::vector<VertexId> InvalidatedStaticVertices(const Scene& scene, const SceneP
 }
 
 Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cache, const ScenePose& oldPose,
-                              const ScenePose& newPose) {
+                              const ScenePose& newPose, InvalidationRule rule) {
   const Scene& scene = hierarchy.GetScene();
   std::vector<bool> moved(scene.objects.size(), false);
   std::vector<uint32_t> movedObjects;
@@ -154,12 +154,17 @@ Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cac
   Invalidation out;
   if (movedObjects.empty()) return out;
   std::vector<InvalidationCandidate> candidates;
+  std::vector<VertexId> everythingElse;
   const size_t vertexCount = hierarchy.VertexCount();
   for (VertexId v = 0; v < vertexCount; ++v) {
     const SampleVertex& sv = hierarchy.GetVertex(v);
     const uint32_t object = scene.ObjectOfTriangle(sv.baseTriangle);
     if (object != kStaticObject && moved[object]) {
       out.vertices.push_back(v);
+      continue;
+    }
+    if (rule == InvalidationRule::kEverything) {
+      everythingElse.push_back(v);
       continue;
     }
     InvalidationCandidate c;
@@ -174,10 +179,13 @@ Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cac
       c.irradianceStdErr = sample->irradianceStdErr;
     }
     c.albedo = scene.AlbedoAt(sv.baseTriangle, sv.bary.x, sv.bary.y);
+    c.emissive = scene.MaterialOf(sv.baseTriangle).IsEmissive();
     candidates.push_back(c);
   }
   out.objectVertices = out.vertices.size();
-  const std::vector<VertexId> chosen = InvalidatedStaticVertices(scene, oldPose, newPose, movedObjects, candidates);
+  const std::vector<VertexId> chosen = rule == InvalidationRule::kEverything
+                                           ? std::move(everythingElse)
+                                           : InvalidatedStaticVertices(scene, oldPose, newPose, movedObjects, candidates);
   out.vertices.insert(out.vertices.end(), chosen.begin(), chosen.end());
   std::sort(out.vertices.begin(), out.vertices.end());
   out.vertices.erase(std::unique(out.vertices.begin(), out.vertices.end()), out.vertices.end());

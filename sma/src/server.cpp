@@ -1326,7 +1326,9 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
   const size_t cachedBefore = cache_.ShadedCount();
   {
     std::shared_lock lock(stateMutex_);
-    invalidation = PlanInvalidation(hierarchy_, cache_, *oldPose, *newPose);
+    invalidation = PlanInvalidation(hierarchy_, cache_, *oldPose, *newPose,
+                                    options_.invalidateEverythingOnMove ? InvalidationRule::kEverything
+                                                                       : InvalidationRule::kTest);
   }
   // 3. Invalidate under the exclusive lock: a delta is planned and built
   //    under the shared lock, so it sees each sample either before (then

@@ -149,9 +149,12 @@ TEST(SceneMoves, PlanInvalidationTakesTheMovedObjectsVerticesAndTheConservativeR
     boxVertices += scene.ObjectOfTriangle(hierarchy.GetVertex(v).baseTriangle) == 0;
   EXPECT_GT(boxVertices, 8u);  // base vertices of both sides and midpoints
   EXPECT_EQ(inv.objectVertices, boxVertices);
-  // Conservative for now: everything else too (the motion-volume test will narrow it).
-  EXPECT_EQ(inv.vertices.size(), hierarchy.VertexCount());
   EXPECT_TRUE(std::is_sorted(inv.vertices.begin(), inv.vertices.end()));
+  EXPECT_TRUE(std::adjacent_find(inv.vertices.begin(), inv.vertices.end()) == inv.vertices.end());
+  // A full recomputation takes every vertex, whatever the test says.
+  const Invalidation full = PlanInvalidation(hierarchy, cache, before, after, InvalidationRule::kEverything);
+  EXPECT_EQ(full.vertices.size(), hierarchy.VertexCount());
+  EXPECT_EQ(full.objectVertices, boxVertices);
 }
 
 TEST(SceneMoves, SceneInfoAndMovedDeltaNameObjectsByIdWithTheirTransforms) {

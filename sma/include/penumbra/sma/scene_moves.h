@@ -90,6 +90,7 @@ struct InvalidationCandidate {
   Rgb irradiance{0.0f};
   float irradianceStdErr = 0.0f;  // the sample's own noise (0 when unshaded)
   Rgb albedo{0.0f};
+  bool emissive = false;  // on an emitting surface (its radiance includes emission)
 };
 
 /// The vertices, among `candidates` (every vertex not of a moved object:
@@ -115,11 +116,16 @@ struct Invalidation {
   size_t objectVertices = 0;       // of which the moved objects' own
 };
 
+/// How much a move invalidates: what the test chooses, or everything cached
+/// (a full recomputation: the benchmarks' baseline, and a check that needs
+/// every sample shaded at the final pose; --invalidate-all-on-move).
+enum class InvalidationRule { kTest, kEverything };
+
 /// Every vertex of a moved object (its world place changed), and the
 /// vertices InvalidatedStaticVertices chooses among the others for all the
 /// moved objects together. The caller holds the state lock shared (the
 /// hierarchy is read; the cache is read as it is).
 Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cache, const ScenePose& oldPose,
-                              const ScenePose& newPose);
+                              const ScenePose& newPose, InvalidationRule rule = InvalidationRule::kTest);
 
 }  // namespace penumbra::sma
