@@ -163,7 +163,13 @@ Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cac
       out.vertices.push_back(v);
       continue;
     }
-    if (rule == InvalidationRule::kEverything) {
+    const std::optional<CachedSample> sample = cache.Read(v);
+    // Nothing cached: invalidating costs nothing (only ValidFrom rises), and
+    // refuses a sample of it shaded at the old pose that may be on its way.
+    // So the test is asked about cached samples only (most of a refined
+    // hierarchy's vertices are not cached: 287 k of 299 k in the breakfast
+    // room seen once).
+    if (rule == InvalidationRule::kEverything || !sample) {
       everythingElse.push_back(v);
       continue;
     }
@@ -172,21 +178,19 @@ Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cac
     const RigidTransform place = oldPose.Of(object);
     c.position = place.ApplyPoint(sv.position);
     c.normal = place.ApplyVector(sv.normal);
-    if (const std::optional<CachedSample> sample = cache.Read(v)) {
-      c.shaded = true;
-      c.radiance = sample->radiance;
-      c.irradiance = sample->irradiance;
-      c.irradianceStdErr = sample->irradianceStdErr;
-    }
+    c.radiance = sample->radiance;
+    c.irradiance = sample->irradiance;
+    c.irradianceStdErr = sample->irradianceStdErr;
     c.albedo = scene.AlbedoAt(sv.baseTriangle, sv.bary.x, sv.bary.y);
     c.emissive = scene.MaterialOf(sv.baseTriangle).IsEmissive();
     candidates.push_back(c);
   }
   out.objectVertices = out.vertices.size();
-  const std::vector<VertexId> chosen = rule == InvalidationRule::kEverything
-                                           ? std::move(everythingElse)
-                                           : InvalidatedStaticVertices(scene, oldPose, newPose, movedObjects, candidates);
-  out.vertices.insert(out.vertices.end(), chosen.begin(), chosen.end());
+  out.vertices.insert(out.vertices.end(), everythingElse.begin(), everythingElse.end());
+  if (!candidates.empty()) {
+    const std::vector<VertexId> chosen = InvalidatedStaticVertices(scene, oldPose, newPose, movedObjects, candidates);
+    out.vertices.insert(out.vertices.end(), chosen.begin(), chosen.end());
+  }
   std::sort(out.vertices.begin(), out.vertices.end());
   out.vertices.erase(std::unique(out.vertices.begin(), out.vertices.end()), out.vertices.end());
   return out;

@@ -78,29 +78,26 @@ class MoveCoalescer {
   uint64_t coalesced_ = 0;
 };
 
-/// A vertex whose sample a move might change, as the invalidation test sees
-/// it: in world space at the pose before the move (its object did not move,
-/// so also after it).
+/// A cached sample a move might change, as the invalidation test sees it:
+/// in world space at the pose before the move (its object did not move, so
+/// also after it).
 struct InvalidationCandidate {
   VertexId vertex = kNoVertex;
   Vec3 position;  // world space
   Vec3 normal;    // world space, unit: the side its sample shades
-  bool shaded = false;  // false: no sample cached (one may be on its way, shaded at the old pose)
   Rgb radiance{0.0f};
   Rgb irradiance{0.0f};
-  float irradianceStdErr = 0.0f;  // the sample's own noise (0 when unshaded)
+  float irradianceStdErr = 0.0f;  // the sample's own noise
   Rgb albedo{0.0f};
   bool emissive = false;  // on an emitting surface (its radiance includes emission)
 };
 
-/// The vertices, among `candidates` (every vertex not of a moved object:
-/// static ones and those of objects that stayed), whose radiance moving the
+/// The vertices, among `candidates` (every cached vertex not of a moved
+/// object: static ones and those of objects that stayed), whose radiance moving the
 /// objects `movedObjects` (indices into scene.objects) from their places in
 /// `oldPose` to their places in `newPose` may change by more than their
 /// noise. All the objects of one epoch are judged together: their changes
-/// add up at a vertex. An unshaded candidate (irradiance and its error 0)
-/// must be returned when a sample shaded at the old pose could be wrong: one
-/// may be on its way.
+/// add up at a vertex. Called with at least one candidate.
 ///
 /// For now the conservative answer: every candidate (correct, wasteful).
 /// The motion-volume test (motion_volume.h: one MotionVolumes per moved
@@ -121,9 +118,11 @@ struct Invalidation {
 /// every sample shaded at the final pose; --invalidate-all-on-move).
 enum class InvalidationRule { kTest, kEverything };
 
-/// Every vertex of a moved object (its world place changed), and the
-/// vertices InvalidatedStaticVertices chooses among the others for all the
-/// moved objects together. The caller holds the state lock shared (the
+/// Every vertex of a moved object (its world place changed), every vertex
+/// with no sample cached (only its ValidFrom rises: a sample of it shaded at
+/// the old pose, perhaps on its way, is refused), and the cached vertices
+/// InvalidatedStaticVertices chooses among the others, for all the moved
+/// objects together. The caller holds the state lock shared (the
 /// hierarchy is read; the cache is read as it is).
 Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cache, const ScenePose& oldPose,
                               const ScenePose& newPose, InvalidationRule rule = InvalidationRule::kTest);
