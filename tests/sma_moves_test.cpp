@@ -2,15 +2,19 @@
 // free ports: a client's MoveObject reaches every client as a MOVED delta
 // with the new transform and scene epoch; bad moves are refused and change
 // nothing; after a move, the vertices a client holds come back re-shaded
-// (RESHADED) at the new pose.
+// (RESHADED) at the new pose; an animated object moves on the SMA's clock;
+// after a fast drag no sample of an intermediate pose survives (the image
+// equals a single move's, bit for bit: shading is deterministic).
 //
 // The scene is scenes/cornell-box-floating.json (a box floating above the
 // Cornell box's floor, movable). The reshade test needs renderers that
 // shade at the pose a ShadeRequest names and echo its epoch (issue 14's
 // renderer part): a renderer that ignores poses answers epoch 0 and the SMA
-// drops it as a bad renderer.
+// drops it as a bad renderer. Every case but the bad moves needs them.
 
+#include <array>
 #include <cmath>
+#include <map>
 #include <filesystem>
 #include <thread>
 #include <limits>
@@ -34,6 +38,7 @@ namespace {
 using namespace std::chrono_literals;
 
 const std::string kScene = std::string(PENUMBRA_SOURCE_DIR) + "/scenes/cornell-box-floating.json";
+const std::string kAnimatedScene = std::string(PENUMBRA_SOURCE_DIR) + "/scenes/cornell-box-animated.json";
 constexpr int kWidth = 64;
 constexpr int kHeight = 48;
 
@@ -43,15 +48,17 @@ Service MustStart(const std::string& exe, const std::vector<std::string>& args, 
   return s.ok() ? std::move(*s) : Service{};
 }
 
-Service StartRenderer(const std::string& tag) {
+Service StartRenderer(const std::string& tag, const std::string& scene = kScene) {
   return MustStart(PENUMBRA_RENDERER_EXE,
-                   {"--scene", kScene, "--threads", "1", "--spp", "16", "--max-bounces", "2"}, tag);
+                   {"--scene", scene, "--threads", "1", "--spp", "16", "--max-bounces", "2"}, tag);
 }
 
-Service StartSma(const std::vector<std::string>& renderers, const std::string& tag) {
+Service StartSma(const std::vector<std::string>& renderers, const std::string& tag, const std::string& scene = kScene,
+                 const std::vector<std::string>& extra = {}) {
   // No refinement, no improvement: the deltas are about the move.
-  std::vector<std::string> args = {"--scene", kScene, "--criterion", "none", "--improve-paths", "0"};
+  std::vector<std::string> args = {"--scene", scene, "--criterion", "none", "--improve-paths", "0"};
   for (const auto& r : renderers) args.insert(args.end(), {"--renderer", r});
+  args.insert(args.end(), extra.begin(), extra.end());
   return MustStart(PENUMBRA_SMA_EXE, args, tag);
 }
 
@@ -154,8 +161,8 @@ TEST_F(SmaMovesTest, AMoveReachesEveryClientAsMovedWithItsTransformAndEpoch) {
 }
 
 TEST_F(SmaMovesTest, BadMovesAreRefusedAndChangeNothing) {
-  // No renderer needed: a port nobody listens on (the SMA keeps retrying).
-  Service sma = StartSma({"127.0.0.1:1"}, "sma");
+  Service renderer = StartRenderer("renderer");
+  Service sma = StartSma({renderer.Address()}, "sma");
   SmaTestClient c = Connect(sma, "mover");
   const std::vector<float> fine = RowMajor(RigidTransform{glm::mat3(1.0f), Vec3(0.0f, 0.6f, 0.0f)});
   std::vector<float> nan = fine;
@@ -235,6 +242,147 @@ TEST_F(SmaMovesTest, AfterAMoveHeldVerticesComeBackReshaded) {
   EXPECT_EQ(*c.Counter("client_reshades_awaited"), 0.0);
   EXPECT_EQ(*c.Counter("renderers_connected"), 1.0) << "the renderer answered at the new pose";
   EXPECT_TRUE(sma.process.Running());
+}
+
+
+// The SMA plays an animation path on its own clock: clients see MOVED
+// deltas with increasing epochs without asking, and may not move the object.
+TEST_F(SmaMovesTest, AnAnimatedObjectMovesOnTheSmasClockAndCannotBeMovedByAClient) {
+  if (!std::filesystem::exists(kAnimatedScene)) GTEST_SKIP() << kAnimatedScene << " is not there";
+  auto scene = LoadScene(kAnimatedScene);
+  ASSERT_TRUE(scene.ok()) << scene.error().message;
+  ASSERT_EQ(scene->objects.size(), 1u);
+  ASSERT_TRUE(scene->objects[0].animation.has_value());
+  Service renderer = StartRenderer("renderer", kAnimatedScene);
+  Service sma = StartSma({renderer.Address()}, "sma", kAnimatedScene, {"--animation-hz", "20"});
+  SmaTestClient c = Connect(sma, "watcher");
+  ASSERT_EQ(c.Info().objects_size(), 1);
+  EXPECT_TRUE(c.Info().objects(0).animated());
+
+  std::vector<uint64_t> epochs;
+  std::set<float> heights;
+  while (epochs.size() < 5) {
+    auto delta = WaitMoved(c);
+    ASSERT_TRUE(delta.ok()) << delta.error().message << "\n" << sma.process.LogTail();
+    ASSERT_EQ(delta->moved_objects_size(), 1);
+    EXPECT_EQ(delta->moved_objects(0), 1u);
+    ASSERT_EQ(delta->moved_object_transforms_size(), 12);
+    const float y = delta->moved_object_transforms(7);
+    EXPECT_GE(y, 0.55f - 1e-4f);  // between its keyframes' heights
+    EXPECT_LE(y, 0.95f + 1e-4f);
+    heights.insert(y);
+    epochs.push_back(delta->scene_epoch());
+  }
+  for (size_t i = 1; i < epochs.size(); ++i) EXPECT_GT(epochs[i], epochs[i - 1]);
+  EXPECT_GT(heights.size(), 1u) << "it moves";
+
+  ASSERT_TRUE(c.Wire().Send(MoveEnvelope(41, 1, RowMajor(RigidTransform{glm::mat3(1.0f), Vec3(0.0f, 0.6f, 0.0f)}))));
+  std::optional<wire::ErrorReply> error;
+  while (!error) {
+    auto e = c.Wire().Receive(10s);
+    ASSERT_TRUE(e.ok()) << e.error().message;
+    if (e->has_error()) error = e->error();
+  }
+  EXPECT_EQ(error->code(), wire::ERROR_CODE_INVALID_REQUEST);
+  EXPECT_EQ(error->request_id(), 41u);
+  EXPECT_NE(error->message().find("animated"), std::string::npos) << error->message();
+  EXPECT_GT(*c.Counter("moves"), 4.0);
+}
+
+
+// Whether `delta` is a MOVED putting object 1 at `place` (within 1e-5).
+bool MovesTo(const wire::Delta& delta, const std::array<float, 12>& place) {
+  if (delta.kind() != wire::DELTA_KIND_MOVED || delta.moved_object_transforms_size() != 12) return false;
+  for (int i = 0; i < 12; ++i)
+    if (std::abs(delta.moved_object_transforms(i) - place[size_t(i)]) > 1e-5f) return false;
+  return true;
+}
+
+// Receives until a MOVED delta puts object 1 at `place` (12 floats within
+// 1e-5): the moves before it may have been coalesced away.
+Status WaitMovedTo(SmaTestClient& c, const std::array<float, 12>& place, std::chrono::milliseconds timeout = 20s) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (std::chrono::steady_clock::now() < deadline) {
+    auto delta = WaitMoved(c, std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now()));
+    if (!delta) return delta.error();
+    if (MovesTo(*delta, place)) return Status::Ok();
+  }
+  return Fail("the object never arrived at its last place");
+}
+
+// Stale samples never win: a client that watched the box dragged through 30
+// places (moves coalesced, replies for old poses in flight all along) ends
+// with exactly the image of a fresh stack that moved the box there once.
+// Every move invalidates everything (--invalidate-all-on-move): a sample the
+// invalidation test keeps is shaded at an older pose, equal only within its
+// noise; here every value must be the final pose's, bit for bit.
+// Shading is deterministic (a sample's value depends on its id, place and
+// the pose's transforms, not on the epoch), so any sample shaded at an
+// intermediate pose that survived would differ.
+TEST_F(SmaMovesTest, ADragEndsWithTheImageOfASingleMoveThere) {
+  const RigidTransform start = scene_.objects[0].objectToWorld;
+  const RigidTransform end = RigidTransform::FromAxisAngle(Vec3(0, 1, 0), 0.2f, Vec3(0.35f, 0.45f, -0.25f));
+  const auto endFloats = end.ToRowMajor();
+  auto readBack = RigidTransform::FromRowMajor(endFloats);
+  ASSERT_TRUE(readBack);
+  const auto arrived = readBack->ToRowMajor();  // what the SMA announces for it
+
+  std::map<uint64_t, Rgb> dragged, moved;
+  {
+    Service renderer = StartRenderer("renderer-drag");
+    // Slow batches (many paths): replies for old poses are in flight when moves land.
+    Service sma = StartSma({renderer.Address()}, "sma-drag", kScene, {"--first-paths", "1024", "--invalidate-all-on-move"});
+    SmaTestClient c = Connect(sma, "dragger");
+    const CameraView view = ViewFromPreset(c.Info().cameras(0), kWidth, kHeight);
+    ASSERT_TRUE(c.SendView(view, 1));
+    ASSERT_TRUE(c.WaitConverged(1, 60s).ok()) << sma.process.LogTail();
+    constexpr int kSteps = 30;
+    bool atEnd = false;
+    for (int i = 1; i <= kSteps; ++i) {
+      const RigidTransform at = i == kSteps ? end : Interpolate(start, end, float(i) / float(kSteps));
+      ASSERT_TRUE(c.Wire().Send(MoveEnvelope(100 + uint64_t(i), 1, RowMajor(at))));
+      // A fast drag (100 moves per second), reading what comes meanwhile.
+      const auto next = std::chrono::steady_clock::now() + 10ms;
+      while (std::chrono::steady_clock::now() < next) {
+        auto e = c.Wire().Receive(std::chrono::duration_cast<std::chrono::milliseconds>(next - std::chrono::steady_clock::now()) + 1ms);
+        if (!e && e.error().message == "timeout") break;
+        ASSERT_TRUE(e.ok()) << e.error().message;
+        ASSERT_TRUE(c.Apply(*e).ok());
+        atEnd |= e->has_delta() && MovesTo(e->delta(), arrived);
+      }
+    }
+    if (!atEnd) ASSERT_TRUE(WaitMovedTo(c, arrived).ok()) << sma.process.LogTail();
+    ASSERT_TRUE(c.WaitConverged(1, 120s).ok()) << sma.process.LogTail();
+    EXPECT_GT(*c.Counter("moves"), 1.0);
+    for (const char* counter : {"moves", "moves_coalesced", "samples_stale_refused", "samples_invalidated",
+                                "samples_reshaded_after_move", "client_reshades_sent"})
+      RecordProperty(counter, fmt::format("{}", *c.Counter(counter)));
+    for (const auto& [id, v] : c.Mesh().Vertices()) dragged[id] = v.radiance;
+  }
+  {
+    Service renderer = StartRenderer("renderer-once");
+    Service sma = StartSma({renderer.Address()}, "sma-once", kScene, {"--first-paths", "1024", "--invalidate-all-on-move"});
+    SmaTestClient c = Connect(sma, "mover");
+    ASSERT_TRUE(c.Wire().Send(MoveEnvelope(1, 1, std::vector<float>(endFloats.begin(), endFloats.end()))));
+    ASSERT_TRUE(WaitMovedTo(c, arrived).ok()) << sma.process.LogTail();
+    const CameraView view = ViewFromPreset(c.Info().cameras(0), kWidth, kHeight);
+    ASSERT_TRUE(c.SendView(view, 1));
+    ASSERT_TRUE(c.WaitConverged(1, 60s).ok()) << sma.process.LogTail();
+    for (const auto& [id, v] : c.Mesh().Vertices()) moved[id] = v.radiance;
+  }
+  ASSERT_FALSE(moved.empty());
+  EXPECT_EQ(dragged.size(), moved.size()) << "the same triangles are visible at the same pose";
+  size_t differing = 0;
+  for (const auto& [id, radiance] : moved) {
+    auto it = dragged.find(id);
+    if (it == dragged.end()) continue;
+    for (int k = 0; k < 3; ++k)
+      if (std::abs(it->second[k] - radiance[k]) > 1e-5f * std::max(1.0f, radiance[k])) {
+        ++differing;
+        break;
+      }
+  }
+  EXPECT_EQ(differing, 0u) << "vertices whose radiance is not the single move's (a stale sample survived)";
 }
 
 }  // namespace

@@ -135,7 +135,10 @@ CacheSnapshotData CaptureCacheSnapshot(std::shared_mutex& stateMutex, const Hier
     for (; v < stop; ++v) {
       // One consistent copy: samples are improved while the snapshot reads.
       const auto sample = cache.Read(v);
-      if (!sample) continue;
+      // Only samples shaded at the scene's initial pose (epoch 0): a restart
+      // begins there, so a sample shaded after a move might be wrong for it
+      // (moving objects, sma/README.md "Cache on disk").
+      if (!sample || sample->epoch != 0) continue;
       data.samples.push_back(ShadedSample{.vertex = v,
                                           .radiance = sample->radiance,
                                           .irradiance = sample->irradiance,

@@ -50,13 +50,21 @@ Hierarchy::Hierarchy(const Scene& scene) : scene_(scene) {
   vertices_.resize((scene.twoSided ? 2 : 1) * sceneVertices);
   std::unordered_map<PointKey, uint32_t, PointKeyHash> pointOf;
   pointOf.reserve(scene.vertices.size());
+  // Movable objects' vertices are in their own object spaces, stored part
+  // after part: a point of one part is never a point of another (an
+  // object-space corner at the static floor's world corner is no neighbour).
+  std::vector<bool> partStarts(sceneVertices + 1, false);
+  for (const MovableObject& o : scene.objects)
+    if (o.firstVertex < sceneVertices) partStarts[o.firstVertex] = true;
   for (size_t i = 0; i < scene.vertices.size(); ++i) {
+    if (partStarts[i]) pointOf.clear();  // ids keep counting: pointOf.size() below is not the next id
     SampleVertex& v = vertices_[i];
     v.position = scene.vertices[i].position;
     v.normal = scene.vertices[i].normal;
-    v.point = pointOf.try_emplace(KeyOfPosition(v.position), uint32_t(pointOf.size())).first->second;
+    auto [it, added] = pointOf.try_emplace(KeyOfPosition(v.position), pointCount_);
+    pointCount_ += added;
+    v.point = it->second;
   }
-  pointCount_ = uint32_t(pointOf.size());
   // Each base vertex needs a triangle it lies on, for the renderer.
   for (uint32_t t = uint32_t(scene.triangles.size()); t-- > 0;) {
     for (int c = 0; c < 3; ++c) {

@@ -56,6 +56,8 @@ int main(int argc, char** argv) {
   app.add_option("--animation-hz", options.animationHz,
                  "Moves per second the SMA makes of each animated object along its path (0: paths not played)")
       ->check(CLI::Range(0.0, 1000.0))->capture_default_str();
+  app.add_flag("--invalidate-all-on-move", options.invalidateEverythingOnMove,
+               "Every move invalidates every cached sample (a full recomputation: the baseline for benchmarks)");
   app.add_option("--credits", options.pool.creditsPerRenderer, "Batches in flight per renderer")
       ->check(CLI::Range(1u, 1024u))->capture_default_str();
   app.add_option("--max-batch", options.pool.maxBatchSamples, "Largest batch sent to a renderer")

@@ -33,7 +33,26 @@ size_t SampleScheduler::Request(std::span<const SampleRequest> samples, Priority
   for (const SampleRequest& s : samples) {
     auto [it, inserted] = entries_.try_emplace(s.vertex);
     Entry& e = it->second;
-    if (e.improve) continue;  // its improvement is on the way; a shaded vertex is not asked for again
+    if (e.improve) {
+      // A first estimate of a vertex whose improvement is alive: its sample
+      // was invalidated by a move since (the pool asks only for vertices
+      // the cache lacks). One in flight will be refused by the cache and
+      // retried (Retry) with this interest; one still queued becomes the
+      // first estimate now (its copy in the improvement queue is skipped).
+      if (visible) ++e.interest;
+      if (e.state != EntryState::kQueued) continue;
+      e.improve = false;
+      e.request = s;
+      --queuedImprove_;
+      if (visible) {
+        e.inVisibleQueue = true;
+        ++queuedVisible_;
+        visibleQueue_.push_back(s.vertex);
+      } else {
+        backgroundQueue_.push_back(s.vertex);
+      }
+      continue;
+    }
     if (visible) ++e.interest;
     if (inserted) {
       e.request = s;

@@ -639,7 +639,6 @@ void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
   server.pool_->Request(requests, Priority::kVisible);
   server.pool_->ReleaseInterest(interest_);
   interest_ = plan.missing;
-  state_.PruneReshades([this](VertexId v) { return mirror_.HoldsVertex(v); });
   for (NodeId id : state_.BeginShading(plan.pending, server.hierarchy_, server.cache_, newView))
     plan.addCached.push_back(id);
 
@@ -662,6 +661,8 @@ void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
     QueueChanges(wire::DELTA_KIND_REFINED, removals, plan.addCached, /*alwaysSend=*/false, /*last=*/true);
   }
   lock.unlock();
+  // Reshades of vertices the client no longer holds are not awaited.
+  state_.PruneReshades([this](VertexId v) { return mirror_.HoldsVertex(v); });
   Flush();
   SendUpdates();
 }
@@ -1272,12 +1273,17 @@ void SmaServer::Impl::LogStats() {
       viewTimes_.clear();
     }
   }
+  std::string moves;
+  if (!scene_.objects.empty())
+    moves = fmt::format("; scene epoch {}, {} moves, {} samples invalidated, {} re-shaded, {} stale replies refused",
+                        CurrentPose()->epoch, moves_.load(), samplesInvalidated_.load(), cache_.Reshaded(),
+                        samplesStale_.load());
   log_->info("stats: cache {} shaded, hit rate {:.1f}%; {:.0f} requested/s, {:.0f} shaded/s, {} queued; "
-             "renderers:{}; clients:{}; views: {}",
+             "renderers:{}; clients:{}; views: {}{}",
              shaded, hits + misses > 0 ? 100.0 * double(hits) / double(hits + misses) : 0.0,
              double(now.requested - lastStats_.requested) / seconds, double(now.shaded - lastStats_.shaded) / seconds,
              now.queuedVisible + now.queuedBackground, renderers.empty() ? " none" : renderers,
-             clients.empty() ? " none" : clients, views);
+             clients.empty() ? " none" : clients, views, moves);
   lastStats_ = now;
 }
 
@@ -1321,7 +1327,9 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
   const size_t cachedBefore = cache_.ShadedCount();
   {
     std::shared_lock lock(stateMutex_);
-    invalidation = PlanInvalidation(hierarchy_, cache_, *oldPose, *newPose);
+    invalidation = PlanInvalidation(hierarchy_, cache_, *oldPose, *newPose,
+                                    options_.invalidateEverythingOnMove ? InvalidationRule::kEverything
+                                                                       : InvalidationRule::kTest);
   }
   // 3. Invalidate under the exclusive lock: a delta is planned and built
   //    under the shared lock, so it sees each sample either before (then

@@ -218,6 +218,22 @@ TEST(CacheSnapshotTest, AnUnrefinedEmptyCacheRoundTrips) {
   EXPECT_TRUE(restored->samples.empty());
 }
 
+// Moving objects: a restart begins at the initial pose (epoch 0), so only
+// samples shaded there are kept; those shaded after a move are left out.
+TEST(CacheSnapshotTest, OnlySamplesShadedAtTheInitialPoseAreKept) {
+  const Scene scene = RoomScene();
+  Live live(scene);
+  std::vector<ShadedSample> samples;
+  for (VertexId v = 0; v < 6; ++v)
+    samples.push_back(ShadedSample{.vertex = v, .radiance = Rgb(0.5f), .irradiance = Rgb(1.0f), .paths = 16,
+                                   .epoch = v % 2 == 0 ? 0u : 3u});
+  live.cache.Store(samples);
+  const CacheSnapshotData data = CaptureCacheSnapshot(live.mutex, live.hierarchy, live.cache);
+  std::vector<VertexId> kept;
+  for (const ShadedSample& s : data.samples) kept.push_back(s.vertex);
+  EXPECT_EQ(kept, (std::vector<VertexId>{0, 2, 4}));
+}
+
 TEST(CacheSnapshotTest, ATruncatedFileIsRejected) {
   const Scene scene = RoomScene();
   auto live = MakeLive(scene, 20);

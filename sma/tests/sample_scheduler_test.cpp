@@ -424,5 +424,25 @@ TEST(SampleScheduler, RetryRequeuesAnsweredSamplesAsFirstEstimates) {
   EXPECT_EQ(asked, (std::set<std::pair<VertexId, uint16_t>>{{0, 0}, {5, 0}}));
 }
 
+
+// After a move, a vertex whose improvement is alive is asked for a first
+// estimate: a queued improvement becomes one, keeping the view's interest.
+TEST(SampleScheduler, AFirstEstimateReplacesAQueuedImprovement) {
+  FakeClock clock;
+  SampleScheduler s(Options(), clock.Function());
+  s.Request(Requests(3, 1, /*round=*/2), Priority::kImprove);
+  EXPECT_EQ(s.Counters().queuedImprove, 1u);
+  EXPECT_EQ(s.Request(Requests(3, 1), Priority::kVisible), 0u) << "alive: not a new entry";
+  EXPECT_EQ(s.Counters().queuedImprove, 0u);
+  EXPECT_EQ(s.Counters().queuedVisible, 1u);
+  s.RendererReady(1, kOneCredit);
+  auto batches = s.Assemble();
+  ASSERT_EQ(batches.size(), 1u);
+  ASSERT_EQ(batches[0].samples.size(), 1u);
+  EXPECT_EQ(batches[0].samples[0].round, 0u);
+  EXPECT_EQ(batches[0].pathsPerSample, 16u) << "visible: stage 1 paths";
+  EXPECT_EQ(s.Queued(), 0u) << "the improvement's queue copy is gone with it";
+}
+
 }  // namespace
 }  // namespace penumbra::sma

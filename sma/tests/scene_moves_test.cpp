@@ -92,6 +92,14 @@ TEST(SceneMoves, NextPoseCountsEpochsAndSkipsMovesThatChangeNothing) {
   const Scene scene = FloorWithObjects();
   const ScenePose initial = ScenePose::Initial(scene);
   EXPECT_FALSE(NextPose(initial, std::vector{ObjectMove{0, scene.objects[0].objectToWorld}}));
+  // The place as announced (12 floats), read back: re-orthonormalised, the same place.
+  const RigidTransform turned = RigidTransform::FromAxisAngle(Vec3(0, 1, 0), 0.3f, Vec3(1, 2, 3));
+  ScenePose at = initial;
+  at.objectToWorld[0] = turned;
+  const auto m12 = turned.ToRowMajor();
+  auto readBack = RigidTransform::FromRowMajor(m12);
+  ASSERT_TRUE(readBack);
+  EXPECT_FALSE(NextPose(at, std::vector{ObjectMove{0, *readBack}}));
   const RigidTransform away{glm::mat3(1.0f), Vec3(1.0f, 1.0f, 0.0f)};
   auto next = NextPose(initial, std::vector{ObjectMove{0, away}});
   ASSERT_TRUE(next);
@@ -141,11 +149,16 @@ TEST(SceneMoves, PlanInvalidationTakesTheMovedObjectsVerticesAndWhatTheMotionVol
     boxVertices += scene.ObjectOfTriangle(hierarchy.GetVertex(v).baseTriangle) == 0;
   EXPECT_GT(boxVertices, 8u);  // base vertices of both sides and midpoints
   EXPECT_EQ(inv.objectVertices, boxVertices);
-  // The motion-volume test adds the floor vertices the box's move may
-  // change, never more than there are.
+  EXPECT_TRUE(std::is_sorted(inv.vertices.begin(), inv.vertices.end()));
+  EXPECT_TRUE(std::adjacent_find(inv.vertices.begin(), inv.vertices.end()) == inv.vertices.end());
+  // The motion-volume test adds floor vertices the box's move may change,
+  // never more than there are.
   EXPECT_GT(inv.vertices.size(), inv.objectVertices);
   EXPECT_LE(inv.vertices.size(), hierarchy.VertexCount());
-  EXPECT_TRUE(std::is_sorted(inv.vertices.begin(), inv.vertices.end()));
+  // A full recomputation takes every vertex, whatever the test says.
+  const Invalidation full = PlanInvalidation(hierarchy, cache, before, after, InvalidationRule::kEverything);
+  EXPECT_EQ(full.vertices.size(), hierarchy.VertexCount());
+  EXPECT_EQ(full.objectVertices, boxVertices);
 }
 
 TEST(SceneMoves, SceneInfoAndMovedDeltaNameObjectsByIdWithTheirTransforms) {
@@ -250,6 +263,33 @@ TEST(SceneMoves, VisibilityTracesAtThePoseAndSidesFollowTheWorldNormal) {
   (*tracer)->Trace(view, upsideDown, nullptr, posedFlipped->get());
   EXPECT_TRUE(onBox(centre(upsideDown)));
   EXPECT_TRUE(centre(upsideDown).backFace) << "its front now faces the floor";
+}
+
+
+// An object's object-space corners may coincide with static world corners;
+// they are not neighbours: refining the object never splits the floor.
+TEST(SceneMoves, AdjacencyNeverCrossesFromAnObjectToTheStaticPart) {
+  SceneBuilder b;
+  const uint32_t m = b.AddMaterial(Material{});
+  b.AddQuad(Vec3(-0.5f, 0.0f, -0.5f), Vec3(0, 0, 1), Vec3(1, 0, 0), m);
+  MovableObject box;
+  box.name = "box";
+  box.objectToWorld = RigidTransform{glm::mat3(1.0f), Vec3(0.0f, 1.0f, 0.0f)};
+  b.BeginObject(box);
+  b.AddQuad(Vec3(-0.5f, 0.0f, -0.5f), Vec3(0, 0, 1), Vec3(1, 0, 0), m);  // the floor's very corners, object space
+  b.EndObject();
+  Scene scene;
+  scene.twoSided = false;
+  ASSERT_TRUE(b.BuildInto(scene).ok());
+  Hierarchy hierarchy(scene);
+  for (VertexId v = 0; v < scene.staticVertexCount; ++v)
+    for (VertexId w = scene.staticVertexCount; w < scene.vertices.size(); ++w)
+      EXPECT_NE(hierarchy.GetVertex(v).point, hierarchy.GetVertex(w).point) << v << " and " << w;
+  const RefineResult result = hierarchy.Refine(NodeId(scene.objects[0].firstTriangle), RefineOptions{});
+  ASSERT_FALSE(result.split.empty());
+  for (NodeId n : result.split)
+    EXPECT_EQ(scene.ObjectOfTriangle(hierarchy.GetNode(n).baseTriangle), 0u) << "node " << n << " split";
+  EXPECT_TRUE(hierarchy.Conforming());
 }
 
 }  // namespace

@@ -313,5 +313,35 @@ TEST(ViewSessionTest, ArrivingMidpointsAskForARemap) {
   EXPECT_TRUE(arrived.candidates.empty());
 }
 
+
+// Moving objects: after a move, the held vertices whose samples it
+// invalidated are awaited -- the view is not converged until their
+// reshades arrived, or the client let them go.
+TEST(ViewSessionTest, AMoveHoldsConvergenceUntilTheReshadesArrive) {
+  Fixture f;
+  ViewSession s(NoRefinement(), 1000, /*improvementOn=*/false);
+  f.ToShading(s);
+  f.ToStage2(s);
+  ASSERT_TRUE(s.Converged());
+  wire::Delta told;
+  s.FillStatus(told, true, 1, f.now);
+  ASSERT_TRUE(told.converged());
+
+  s.OnSceneMoved(std::vector<VertexId>{0, 1, 2});
+  EXPECT_FALSE(s.Converged());
+  EXPECT_EQ(s.ReshadesAwaited(), 3u);
+  EXPECT_TRUE(s.StatusOutdated());
+  wire::Delta moved;
+  s.FillStatus(moved, true, 1, f.now);
+  EXPECT_FALSE(moved.converged());
+  EXPECT_EQ(moved.pending_samples(), 3u);
+
+  s.OnSamplesArrived(std::vector<VertexId>{0, 1}, f.hierarchy.BaseVertexCount());
+  EXPECT_EQ(s.ReshadesAwaited(), 1u);
+  s.PruneReshades([](VertexId v) { return v != 2; });  // the client let vertex 2 go
+  EXPECT_EQ(s.ReshadesAwaited(), 0u);
+  EXPECT_TRUE(s.Converged());
+}
+
 }  // namespace
 }  // namespace penumbra::sma

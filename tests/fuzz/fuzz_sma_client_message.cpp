@@ -5,12 +5,15 @@
 // common/wire_convert.h), answer
 // a TextureRequest (CheckTextureRequest, then EncodeTextureData of a small
 // texture, with a budget the request's id picks so that the halving loop
-// runs), and read a StatsRequest. Input: one frame payload.
+// runs), check a MoveObject against a scene with a movable and an animated
+// object (CheckMoveObject, then the next pose), and read a StatsRequest.
+// Input: one frame payload.
 
 #include "fuzz_support.h"
 #include "penumbra/common/scene.h"
 #include "penumbra/common/wire_convert.h"
 #include "penumbra/sma/client_requests.h"
+#include "penumbra/sma/scene_moves.h"
 #include "penumbra/sma/texture_frames.h"
 
 namespace {
@@ -25,6 +28,32 @@ const penumbra::Texture& SmallTexture() {
     return t;
   }();
   return texture;
+}
+// A floor, a movable quad and an animated one.
+const penumbra::Scene& SceneWithObjects() {
+  static const penumbra::Scene scene = [] {
+    using namespace penumbra;
+    SceneBuilder b;
+    const uint32_t m = b.AddMaterial(Material{});
+    b.AddQuad(Vec3(-1.0f, 0.0f, -1.0f), Vec3(0, 0, 2), Vec3(2, 0, 0), m);
+    MovableObject box;
+    box.name = "box";
+    b.BeginObject(box);
+    b.AddQuad(Vec3(-0.5f, 0.0f, -0.5f), Vec3(0, 0, 1), Vec3(1, 0, 0), m);
+    MovableObject spinner;
+    spinner.name = "spinner";
+    ObjectAnimation path;
+    path.keys = {ObjectKeyframe{0.0f, RigidTransform{}},
+                 ObjectKeyframe{1.0f, RigidTransform{glm::mat3(1.0f), Vec3(0.0f, 1.0f, 0.0f)}}};
+    spinner.animation = path;
+    b.BeginObject(spinner);
+    b.AddQuad(Vec3(-0.1f, 0.0f, -0.1f), Vec3(0, 0, 0.2f), Vec3(0.2f, 0, 0), m);
+    b.EndObject();
+    Scene s;
+    PENUMBRA_CHECK(b.BuildInto(s).ok(), "the fuzz scene did not build");
+    return s;
+  }();
+  return scene;
 }
 }  // namespace
 
@@ -59,6 +88,18 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
         const size_t budget = size_t(request.texture() + 1) * 61;
         wire::TextureData out = sma::EncodeTextureData(texture, request.texture(), budget);
         PENUMBRA_CHECK(out.rgb8().size() == size_t(out.width()) * out.height() * 3, "texture size mismatch");
+      }
+      break;
+    }
+    case wire::Envelope::kMoveObject: {
+      const Scene& scene = SceneWithObjects();
+      if (auto move = sma::CheckMoveObject(envelope->move_object(), scene)) {
+        PENUMBRA_CHECK(move->object < scene.objects.size(), "a move of an unknown object was accepted");
+        PENUMBRA_CHECK(!scene.objects[move->object].animation, "a move of an animated object was accepted");
+        PENUMBRA_CHECK(IsFinite(move->objectToWorld.translation), "a non-finite move was accepted");
+        const std::vector<sma::ObjectMove> moves{*move};
+        if (auto next = sma::NextPose(ScenePose::Initial(scene), moves))
+          PENUMBRA_CHECK(next->epoch == 1, "a move from epoch 0 did not make epoch 1");
       }
       break;
     }

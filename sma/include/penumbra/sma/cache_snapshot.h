@@ -99,6 +99,12 @@ struct RestoredCache {
 };
 
 /// Copies what a snapshot needs, taking `stateMutex` shared for at most
+/// `chunk` nodes or vertices at a time. Only samples shaded at scene epoch 0
+/// (every movable object where the scene file puts it) are copied: a
+/// restarted SMA starts at that pose, so they are right for it (a sample of
+/// epoch 0 still cached after moves was judged unchanged by them), while
+/// one shaded after a move may not be. Splits are pose-free (object space).
+///
 /// `chunk` nodes or vertices at a time, so that writers (samples arriving,
 /// refinement) wait briefly at most. Consistent because the hierarchy only
 /// grows: the splits below the node count read first are final, and a sample

@@ -19,7 +19,9 @@
 //
 // Conformity. Adjacency is by position: two leaves are neighbours across an
 // edge when their edges join the same two points, whatever the vertices'
-// normals. Refine() splits a leaf 1 -> 4 and then every neighbour that would
+// normals -- within one part of the scene: the static part and each movable
+// object (whose positions are in its own object space, see SampleVertex)
+// have points of their own, so adjacency never crosses between parts. Refine() splits a leaf 1 -> 4 and then every neighbour that would
 // otherwise have a T-vertex: a neighbour whose height over the shared edge is
 // less than `aspectThreshold` times the edge's length splits 1 -> 2 and the
 // propagation stops there; otherwise it splits 1 -> 4 and propagation goes on

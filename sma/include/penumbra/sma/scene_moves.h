@@ -51,7 +51,9 @@ void FillMovedDelta(const ScenePose& pose, std::span<const uint32_t> objects, wi
 Expected<ObjectMove> CheckMoveObject(const wire::MoveObject& move, const Scene& scene);
 
 /// `current` with `moves` applied (later moves of one object win) at epoch
-/// current.epoch + 1; nothing when no object changes place.
+/// current.epoch + 1; nothing when no object changes place (a transform
+/// within 1e-6 of the current one -- the same 12 numbers sent back -- is
+/// no change).
 std::optional<ScenePose> NextPose(const ScenePose& current, std::span<const ObjectMove> moves);
 
 /// Moves waiting to be applied, at most one per object: a move arriving
@@ -76,31 +78,32 @@ class MoveCoalescer {
   uint64_t coalesced_ = 0;
 };
 
-/// A vertex whose sample a move might change, as the invalidation test sees
-/// it: in world space at the pose before the move (its object did not move,
-/// so also after it).
+/// A cached sample a move might change, as the invalidation test sees it:
+/// in world space at the pose before the move (its object did not move, so
+/// also after it).
 struct InvalidationCandidate {
   VertexId vertex = kNoVertex;
   Vec3 position;  // world space
   Vec3 normal;    // world space, unit: the side its sample shades
-  bool shaded = false;  // false: no sample cached (one may be on its way, shaded at the old pose)
   Rgb radiance{0.0f};
   Rgb irradiance{0.0f};
-  float irradianceStdErr = 0.0f;  // the sample's own noise (0 when unshaded)
+  float irradianceStdErr = 0.0f;  // the sample's own noise
   Rgb albedo{0.0f};
+  bool emissive = false;  // on an emitting surface (its radiance includes emission)
 };
 
-/// The vertices, among `candidates` (every vertex not of the moved object:
-/// static ones and those of objects that stayed), whose radiance moving
+/// The vertices, among `candidates` (every cached vertex not of a moved
+/// object: static ones and those of objects that stayed), whose radiance moving the
 /// objects `movedObjects` (indices into scene.objects) from their places in
-/// `oldPose` to their places in `newPose` may change by more than their noise.
-/// An unshaded candidate must be returned when a sample shaded at the old
-/// pose could be wrong: one may be on its way.
+/// `oldPose` to their places in `newPose` may change by more than their
+/// noise. All the objects of one epoch are judged together: their changes
+/// add up at a vertex. Called with at least one candidate.
 ///
-/// The motion-volume test (motion_volume.h): the move's one or two boxes,
-/// exact shafts for direct light and a solid-angle bound for indirect light
-/// (bounded by twice the brightest cached radiance), against each sample's
-/// own noise.
+/// The motion-volume test (motion_volume.h): one MotionVolumes per moved
+/// object from WorldBounds at both poses, one MoveInvalidator over them
+/// (exact shafts for direct light, a solid-angle bound for indirect light
+/// with twice the brightest cached reflected radiance), asked about the
+/// candidates against each sample's own noise.
 std::vector<VertexId> InvalidatedStaticVertices(const Scene& scene, const ScenePose& oldPose,
                                                 const ScenePose& newPose, std::span<const uint32_t> movedObjects,
                                                 std::span<const InvalidationCandidate> candidates);
@@ -111,11 +114,18 @@ struct Invalidation {
   size_t objectVertices = 0;       // of which the moved objects' own
 };
 
-/// Every vertex of a moved object (its world place changed), and for each
-/// the vertices InvalidatedStaticVertices chooses, for all moved objects at once, among the
-/// others. The caller holds the state lock shared (the hierarchy is read;
-/// the cache is read as it is).
+/// How much a move invalidates: what the test chooses, or everything cached
+/// (a full recomputation: the benchmarks' baseline, and a check that needs
+/// every sample shaded at the final pose; --invalidate-all-on-move).
+enum class InvalidationRule { kTest, kEverything };
+
+/// Every vertex of a moved object (its world place changed), every vertex
+/// with no sample cached (only its ValidFrom rises: a sample of it shaded at
+/// the old pose, perhaps on its way, is refused), and the cached vertices
+/// InvalidatedStaticVertices chooses among the others, for all the moved
+/// objects together. The caller holds the state lock shared (the
+/// hierarchy is read; the cache is read as it is).
 Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cache, const ScenePose& oldPose,
-                              const ScenePose& newPose);
+                              const ScenePose& newPose, InvalidationRule rule = InvalidationRule::kTest);
 
 }  // namespace penumbra::sma

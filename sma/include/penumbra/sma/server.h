@@ -93,6 +93,11 @@ struct SmaOptions {
   /// its own clock, one move per animated object every 1/animationHz
   /// seconds (coalesced with other moves like a client's). 0: not played.
   double animationHz = 10.0;
+  /// Every cached sample is invalidated by every move (a full
+  /// recomputation), not only what the invalidation test chooses: the
+  /// baseline benchmarks compare with, and what tests that need every
+  /// sample shaded at the final pose ask for.
+  bool invalidateEverythingOnMove = false;
 };
 
 class SmaServer {
