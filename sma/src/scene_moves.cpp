@@ -1,5 +1,7 @@
 #include "penumbra/sma/scene_moves.h"
 
+#include "penumbra/sma/motion_volume.h"
+
 #include <algorithm>
 #include <array>
 #include <cmath>
