@@ -126,9 +126,9 @@ uint64_t MoveCoalescer::Coalesced() const {
   return coalesced_;
 }
 
-std::vector<VertexId> InvalidatedStaticVertices(const Scene& scene, const ScenePose& oldPose,
-                                                const ScenePose& newPose, std::span<const uint32_t> movedObjects,
-                                                std::span<const InvalidationCandidate> candidates) {
+InvalidatedStatic InvalidatedStaticVertices(const Scene& scene, const ScenePose& oldPose, const ScenePose& newPose,
+                                            std::span<const uint32_t> movedObjects,
+                                            std::span<const InvalidationCandidate> candidates) {
   // The motion volume of each moved object (motion_volume.h): where it was
   // and where it is now, one box or two. All of an epoch's volumes are
   // judged together: two separate tests could each keep a vertex whose
@@ -157,17 +157,19 @@ std::vector<VertexId> InvalidatedStaticVertices(const Scene& scene, const SceneP
   InvalidationParams params;
   params.indirectRadiance = brightest > 0.0f ? 2.0f * brightest : -1.0f;
   const MoveInvalidator invalidator(scene, std::span<const MotionVolume>(volumes), params);
-  auto chosen = invalidator.InvalidatedVertices(VertexSpans{positions, normals, irradiance, stdErr});
-  std::vector<VertexId> out;
+  auto chosen = invalidator.ClassifyInvalidated(VertexSpans{positions, normals, irradiance, stdErr});
+  InvalidatedStatic out;
   if (!chosen) {
     // Spans of equal length by construction; should it ever fail, the safe
-    // answer is every candidate.
-    out.reserve(candidates.size());
-    for (const InvalidationCandidate& c : candidates) out.push_back(c.vertex);
+    // answer is every candidate, urgently.
+    out.direct.reserve(candidates.size());
+    for (const InvalidationCandidate& c : candidates) out.direct.push_back(c.vertex);
     return out;
   }
-  out.reserve(chosen->size());
-  for (uint32_t i : *chosen) out.push_back(candidates[i].vertex);
+  out.direct.reserve(chosen->direct.size());
+  for (uint32_t i : chosen->direct) out.direct.push_back(candidates[i].vertex);
+  out.indirectOnly.reserve(chosen->indirectOnly.size());
+  for (uint32_t i : chosen->indirectOnly) out.indirectOnly.push_back(candidates[i].vertex);
   return out;
 }
 
@@ -218,13 +220,20 @@ Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cac
     candidates.push_back(c);
   }
   out.objectVertices = out.vertices.size();
+  // Urgent: the objects' own vertices, whatever had nothing cached (a held
+  // one of those awaits an earlier move's reshade), and the direct class.
   out.vertices.insert(out.vertices.end(), everythingElse.begin(), everythingElse.end());
+  out.urgent = out.vertices;
   if (!candidates.empty()) {
-    const std::vector<VertexId> chosen = InvalidatedStaticVertices(scene, oldPose, newPose, movedObjects, candidates);
-    out.vertices.insert(out.vertices.end(), chosen.begin(), chosen.end());
+    const InvalidatedStatic chosen = InvalidatedStaticVertices(scene, oldPose, newPose, movedObjects, candidates);
+    out.vertices.insert(out.vertices.end(), chosen.direct.begin(), chosen.direct.end());
+    out.vertices.insert(out.vertices.end(), chosen.indirectOnly.begin(), chosen.indirectOnly.end());
+    out.urgent.insert(out.urgent.end(), chosen.direct.begin(), chosen.direct.end());
   }
-  std::sort(out.vertices.begin(), out.vertices.end());
-  out.vertices.erase(std::unique(out.vertices.begin(), out.vertices.end()), out.vertices.end());
+  for (std::vector<VertexId>* list : {&out.vertices, &out.urgent}) {
+    std::sort(list->begin(), list->end());
+    list->erase(std::unique(list->begin(), list->end()), list->end());
+  }
   return out;
 }
 

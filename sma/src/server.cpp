@@ -54,6 +54,9 @@ bool ChildrenShaded(const Node& node, const void* context) {
 struct MoveNotice {
   std::shared_ptr<const ScenePose> pose;  // the new pose
   std::vector<uint32_t> movedObjects;     // indices into Scene::objects whose place changed
+  /// Invalidation::urgent, sorted: held vertices in it are re-shaded at
+  /// visible priority (a shadow moved there), the others at background.
+  std::shared_ptr<const std::vector<VertexId>> urgent;
 };
 
 // A job of its own in the JobSchedulers' round-robin (not a client's).
@@ -270,6 +273,8 @@ class SmaServer::Impl {
   std::atomic<uint64_t> moves_{0};             // moves applied (scene epochs after 0)
   std::atomic<uint64_t> samplesInvalidated_{0};  // cached samples evicted by moves
   std::atomic<uint64_t> lastMoveInvalidated_{0};
+  std::atomic<uint64_t> samplesInvalidatedUrgent_{0};  // of samplesInvalidated_: the urgent class (MoveNotice)
+  std::atomic<uint64_t> lastMoveInvalidatedUrgent_{0};
   std::atomic<uint64_t> lastMoveCached_{0};    // samples cached just before the last move
   std::atomic<uint64_t> lastMoveReshadedBase_{0};  // cache_.Reshaded() when the last move was applied
   std::atomic<double> lastMoveApplyMs_{0.0};
@@ -938,19 +943,26 @@ void SmaServer::Impl::Session::OnMoved(const MoveNotice& notice) {
   const uint64_t epoch = notice.pose->epoch;
   // Held vertices the move invalidated (a held vertex was shaded when it
   // was sent, so an unshaded one now was invalidated): asked again with
-  // this view's interest -- visible priority -- and awaited.
+  // this view's interest and awaited -- where a shadow or lit patch moved
+  // (the urgent class) at visible priority, the rest (invalidated only by
+  // the indirect-light bound) at background priority, so the shadow
+  // follows the object first.
   std::vector<VertexId> reshade;
   mirror_.ForEachVertex([&](VertexId v) {
     if (!server_.cache_.IsShaded(v)) reshade.push_back(v);
   });
   if (!reshade.empty()) {
     std::sort(reshade.begin(), reshade.end());
-    std::vector<SampleRequest> requests;
-    requests.reserve(reshade.size());
+    std::vector<SampleRequest> urgent, later;
     {
       std::shared_lock lock(server_.stateMutex_);
-      for (VertexId v : reshade) requests.push_back(MakeSampleRequest(server_.hierarchy_, v));
-      server_.pool_->Request(requests, Priority::kVisible);
+      for (VertexId v : reshade) {
+        const bool isUrgent =
+            !notice.urgent || std::binary_search(notice.urgent->begin(), notice.urgent->end(), v);
+        (isUrgent ? urgent : later).push_back(MakeSampleRequest(server_.hierarchy_, v));
+      }
+      if (!urgent.empty()) server_.pool_->Request(urgent, Priority::kVisible);
+      if (!later.empty()) server_.pool_->Request(later, Priority::kBackground);
     }
     interest_.insert(interest_.end(), reshade.begin(), reshade.end());  // released with the view's next plan
   }
@@ -1179,6 +1191,8 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
   AddCounter(reply, "samples_reshaded_after_move", double(cache_.Reshaded()));
   AddCounter(reply, "samples_stale_refused", double(samplesStale_.load()));
   AddCounter(reply, "last_move_invalidated", double(lastMoveInvalidated_.load()));
+  AddCounter(reply, "samples_invalidated_urgent", double(samplesInvalidatedUrgent_.load()));
+  AddCounter(reply, "last_move_invalidated_urgent", double(lastMoveInvalidatedUrgent_.load()));
   AddCounter(reply, "last_move_cached", double(lastMoveCached_.load()));
   AddCounter(reply, "last_move_reshaded", double(cache_.Reshaded() - lastMoveReshadedBase_.load()));
   AddCounter(reply, "last_move_apply_ms", lastMoveApplyMs_.load());
@@ -1338,13 +1352,20 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
   //    between the plan and the delta. Samples shaded before the new epoch
   //    that arrive later are refused by the cache (validFrom).
   size_t evicted = 0;
+  size_t evictedUrgent = 0;  // of which urgent: the moved objects' own and where direct light changed
   {
     std::unique_lock lock(stateMutex_);
-    for (VertexId v : invalidation.vertices) evicted += cache_.Invalidate(v, newPose->epoch);
+    for (VertexId v : invalidation.vertices) {
+      const bool was = cache_.Invalidate(v, newPose->epoch);
+      evicted += was;
+      if (was && std::binary_search(invalidation.urgent.begin(), invalidation.urgent.end(), v)) ++evictedUrgent;
+    }
   }
   ++moves_;
   samplesInvalidated_ += evicted;
   lastMoveInvalidated_ = evicted;
+  samplesInvalidatedUrgent_ += evictedUrgent;
+  lastMoveInvalidatedUrgent_ = evictedUrgent;
   lastMoveCached_ = cachedBefore;
   lastMoveReshadedBase_ = cache_.Reshaded();
   const double ms = Ms(Clock::now() - start);
@@ -1352,6 +1373,7 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
   // 4. Tell every session: MOVED, held vertices asked again, views re-traced.
   auto notice = std::make_shared<MoveNotice>();
   notice->pose = newPose;
+  notice->urgent = std::make_shared<const std::vector<VertexId>>(std::move(invalidation.urgent));
   for (uint32_t o = 0; o < newPose->objectToWorld.size(); ++o)
     if (!(oldPose->objectToWorld[o] == newPose->objectToWorld[o])) notice->movedObjects.push_back(o);
   for (auto& session : Sessions())

@@ -104,14 +104,29 @@ struct InvalidationCandidate {
 /// (exact shafts for direct light, a solid-angle bound for indirect light
 /// with twice the brightest cached reflected radiance), asked about the
 /// candidates against each sample's own noise.
-std::vector<VertexId> InvalidatedStaticVertices(const Scene& scene, const ScenePose& oldPose,
-                                                const ScenePose& newPose, std::span<const uint32_t> movedObjects,
-                                                std::span<const InvalidationCandidate> candidates);
+///
+/// Two classes, each ascending: `direct`, where the exact shaft tests alone
+/// (area lights, the sun) exceed the tolerance -- a shadow or a lit patch
+/// moves there, what a viewer sees first -- and `indirectOnly`, invalidated
+/// by the solid-angle bound of indirect light and the sky, usually far
+/// above the real change. The SMA re-shades held vertices of the first
+/// class at visible priority and of the second at background priority.
+struct InvalidatedStatic {
+  std::vector<VertexId> direct;
+  std::vector<VertexId> indirectOnly;
+};
+InvalidatedStatic InvalidatedStaticVertices(const Scene& scene, const ScenePose& oldPose, const ScenePose& newPose,
+                                            std::span<const uint32_t> movedObjects,
+                                            std::span<const InvalidationCandidate> candidates);
 
 /// What a move from `oldPose` to `newPose` invalidates.
 struct Invalidation {
   std::vector<VertexId> vertices;  // sorted, each once: the moved objects' vertices and those the test chose
   size_t objectVertices = 0;       // of which the moved objects' own
+  /// Sorted: the moved objects' vertices and the test's `direct` class (all
+  /// of `vertices` under InvalidationRule::kEverything): what a viewer
+  /// sees change first, re-shaded at visible priority.
+  std::vector<VertexId> urgent;
 };
 
 /// How much a move invalidates: what the test chooses, or everything cached
