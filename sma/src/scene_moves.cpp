@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <array>
+#include <map>
 #include <cmath>
 
 #include <fmt/format.h>
@@ -128,7 +129,8 @@ uint64_t MoveCoalescer::Coalesced() const {
 
 InvalidatedStatic InvalidatedStaticVertices(const Scene& scene, const ScenePose& oldPose, const ScenePose& newPose,
                                             std::span<const uint32_t> movedObjects,
-                                            std::span<const InvalidationCandidate> candidates) {
+                                            std::span<const InvalidationCandidate> candidates,
+                                            float brightestReflected) {
   // The motion volume of each moved object (motion_volume.h): where it was
   // and where it is now, one box or two. All of an epoch's volumes are
   // judged together: two separate tests could each keep a vertex whose
@@ -152,8 +154,9 @@ InvalidatedStatic InvalidatedStaticVertices(const Scene& scene, const ScenePose&
     normals[i] = c.normal;
     irradiance[i] = Luminance(c.irradiance);
     stdErr[i] = c.irradianceStdErr;
-    brightest = std::max(brightest, Luminance(c.albedo * c.irradiance) * kInvPi);
+    brightest = std::max(brightest, ReflectedLuminance(c));
   }
+  if (brightestReflected >= 0.0f) brightest = brightestReflected;
   InvalidationParams params;
   params.indirectRadiance = brightest > 0.0f ? 2.0f * brightest : -1.0f;
   const MoveInvalidator invalidator(scene, std::span<const MotionVolume>(volumes), params);
@@ -174,20 +177,25 @@ InvalidatedStatic InvalidatedStaticVertices(const Scene& scene, const ScenePose&
 }
 
 Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cache, const ScenePose& oldPose,
-                              const ScenePose& newPose, InvalidationRule rule) {
+                              const ScenePose& newPose, InvalidationRule rule,
+                              std::span<const std::shared_ptr<const ScenePose>> history) {
   const Scene& scene = hierarchy.GetScene();
+  // Objects whose place differs between `from` and the new pose.
+  const auto movedSince = [&](const ScenePose& from) {
+    std::vector<uint32_t> out;
+    for (uint32_t o = 0; o < scene.objects.size(); ++o)
+      if (!(o < from.objectToWorld.size() && o < newPose.objectToWorld.size() &&
+            from.objectToWorld[o] == newPose.objectToWorld[o]))
+        out.push_back(o);
+    return out;
+  };
+  const std::vector<uint32_t> movedObjects = movedSince(oldPose);
   std::vector<bool> moved(scene.objects.size(), false);
-  std::vector<uint32_t> movedObjects;
-  for (uint32_t o = 0; o < scene.objects.size(); ++o) {
-    if (o < oldPose.objectToWorld.size() && o < newPose.objectToWorld.size() &&
-        oldPose.objectToWorld[o] == newPose.objectToWorld[o])
-      continue;
-    moved[o] = true;
-    movedObjects.push_back(o);
-  }
+  for (uint32_t o : movedObjects) moved[o] = true;
   Invalidation out;
   if (movedObjects.empty()) return out;
-  std::vector<InvalidationCandidate> candidates;
+  // Cached candidates grouped by the pose their sample was shaded at.
+  std::map<uint64_t, std::vector<InvalidationCandidate>> candidatesByEpoch;
   std::vector<VertexId> everythingElse;
   const size_t vertexCount = hierarchy.VertexCount();
   for (VertexId v = 0; v < vertexCount; ++v) {
@@ -209,6 +217,8 @@ Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cac
     }
     InvalidationCandidate c;
     c.vertex = v;
+    // The vertex's object did not move in this step, so its place is the
+    // same at the old and the new pose.
     const RigidTransform place = oldPose.Of(object);
     c.position = place.ApplyPoint(sv.position);
     c.normal = place.ApplyVector(sv.normal);
@@ -217,15 +227,25 @@ Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cac
     c.irradianceStdErr = sample->irradianceStdErr;
     c.albedo = scene.AlbedoAt(sv.baseTriangle, sv.bary.x, sv.bary.y);
     c.emissive = scene.MaterialOf(sv.baseTriangle).IsEmissive();
-    candidates.push_back(c);
+    const uint64_t epoch = sample->epoch < history.size() && history[sample->epoch] ? sample->epoch : oldPose.epoch;
+    candidatesByEpoch[epoch].push_back(c);
   }
   out.objectVertices = out.vertices.size();
   // Urgent: the objects' own vertices, whatever had nothing cached (a held
   // one of those awaits an earlier move's reshade), and the direct class.
   out.vertices.insert(out.vertices.end(), everythingElse.begin(), everythingElse.end());
   out.urgent = out.vertices;
-  if (!candidates.empty()) {
-    const InvalidatedStatic chosen = InvalidatedStaticVertices(scene, oldPose, newPose, movedObjects, candidates);
+  // One bound on reflected radiance for every group: the brightest of all.
+  float brightest = 0.0f;
+  for (const auto& [epoch, candidates] : candidatesByEpoch)
+    for (const InvalidationCandidate& c : candidates) brightest = std::max(brightest, ReflectedLuminance(c));
+  for (const auto& [epoch, candidates] : candidatesByEpoch) {
+    const ScenePose& shadedAt =
+        epoch < history.size() && history[epoch] && epoch != oldPose.epoch ? *history[epoch] : oldPose;
+    const std::vector<uint32_t> objects = &shadedAt == &oldPose ? movedObjects : movedSince(shadedAt);
+    if (objects.empty()) continue;  // every object is back where it was when these were shaded
+    const InvalidatedStatic chosen =
+        InvalidatedStaticVertices(scene, shadedAt, newPose, objects, candidates, brightest);
     out.vertices.insert(out.vertices.end(), chosen.direct.begin(), chosen.direct.end());
     out.vertices.insert(out.vertices.end(), chosen.indirectOnly.begin(), chosen.indirectOnly.end());
     out.urgent.insert(out.urgent.end(), chosen.direct.begin(), chosen.direct.end());

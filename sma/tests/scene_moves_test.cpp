@@ -161,6 +161,49 @@ TEST(SceneMoves, PlanInvalidationTakesTheMovedObjectsVerticesAndWhatTheMotionVol
   EXPECT_EQ(full.objectVertices, boxVertices);
 }
 
+// A sample is judged against the pose it was shaded at: a tiny move far
+// away must still invalidate floor samples shaded while the box hung over
+// them (two moves ago), or many small moves, each below the tolerance,
+// would leave them wrong by their sum.
+TEST(SceneMoves, PlanInvalidationJudgesEachSampleAgainstThePoseItWasShadedAt) {
+  const Scene scene = FloorWithObjects();
+  Hierarchy hierarchy(scene);
+  hierarchy.Refine(0, RefineOptions{});
+  SampleCache cache;
+  cache.Reserve(hierarchy.VertexCount());
+  std::vector<ShadedSample> floor;
+  for (VertexId v = 0; v < hierarchy.VertexCount(); ++v)
+    if (scene.ObjectOfTriangle(hierarchy.GetVertex(v).baseTriangle) == kStaticObject &&
+        hierarchy.GetVertex(v).normal.y > 0.0f)
+      floor.push_back(ShadedSample{v, Rgb(0.5f), Rgb(2.0f), 0.01f, 1024, 0, /*epoch=*/0});
+  ASSERT_FALSE(floor.empty());
+  cache.Store(floor);
+
+  const auto at = [&](const ScenePose& from, Vec3 where) {
+    const std::optional<ScenePose> next =
+        NextPose(from, std::vector{ObjectMove{0, RigidTransform{glm::mat3(1.0f), where}}});
+    EXPECT_TRUE(next.has_value()) << "not a move";
+    return next.value_or(from);
+  };
+  auto p0 = std::make_shared<const ScenePose>(ScenePose::Initial(scene));  // box 1 above the floor's middle
+  auto p1 = std::make_shared<const ScenePose>(at(*p0, Vec3(1000.0f, 1.0f, 0.0f)));
+  const ScenePose p2 = at(*p1, Vec3(1000.05f, 1.0f, 0.0f));  // a small move, far away
+  // Of the cached floor samples (uncached vertices are always invalidated: free).
+  std::set<VertexId> cachedFloor;
+  for (const ShadedSample& f : floor) cachedFloor.insert(f.vertex);
+  const auto floorInvalidated = [&](const Invalidation& inv) {
+    size_t n = 0;
+    for (VertexId v : inv.vertices) n += cachedFloor.contains(v);
+    return n;
+  };
+  // Judged against the pose before the move only: the far move changes nothing here.
+  EXPECT_EQ(floorInvalidated(PlanInvalidation(hierarchy, cache, *p1, p2)), 0u);
+  // Judged against the pose they were shaded at (epoch 0, the box overhead).
+  const std::vector<std::shared_ptr<const ScenePose>> history = {p0, p1};
+  EXPECT_EQ(floorInvalidated(PlanInvalidation(hierarchy, cache, *p1, p2, InvalidationRule::kTest, history)),
+            floor.size());
+}
+
 TEST(SceneMoves, SceneInfoAndMovedDeltaNameObjectsByIdWithTheirTransforms) {
   const Scene scene = FloorWithObjects();
   ScenePose pose = ScenePose::Initial(scene);
@@ -216,7 +259,9 @@ TEST(SceneMoves, NewVerticesGoInObjectSpaceWithTheirObject) {
     objects.insert(delta.vertex_objects(i));
     // Object space: the box's corners at y = 0, not at its world y = 1.
     EXPECT_EQ(delta.vertex_positions(3 * i + 1), hierarchy.GetVertex(v).position.y);
-    if (object == 0) EXPECT_EQ(delta.vertex_positions(3 * i + 1), 0.0f);
+    if (object == 0) {
+      EXPECT_EQ(delta.vertex_positions(3 * i + 1), 0.0f);
+    }
   }
   EXPECT_EQ(objects, (std::set<uint32_t>{0, 1, 2}));
 }

@@ -13,6 +13,7 @@
 #include <map>
 #include <mutex>
 #include <optional>
+#include <memory>
 #include <span>
 #include <vector>
 
@@ -115,9 +116,15 @@ struct InvalidatedStatic {
   std::vector<VertexId> direct;
   std::vector<VertexId> indirectOnly;
 };
+/// `brightestReflected`: the brightest reflected radiance (luminance) of
+/// every cached sample, which bounds what the volume can block or reflect;
+/// < 0: taken over `candidates`.
 InvalidatedStatic InvalidatedStaticVertices(const Scene& scene, const ScenePose& oldPose, const ScenePose& newPose,
                                             std::span<const uint32_t> movedObjects,
-                                            std::span<const InvalidationCandidate> candidates);
+                                            std::span<const InvalidationCandidate> candidates,
+                                            float brightestReflected = -1.0f);
+/// Luminance of a candidate's reflected radiance, albedo/pi E.
+inline float ReflectedLuminance(const InvalidationCandidate& c) { return Luminance(c.albedo * c.irradiance) * kInvPi; }
 
 /// What a move from `oldPose` to `newPose` invalidates.
 struct Invalidation {
@@ -140,7 +147,15 @@ enum class InvalidationRule { kTest, kEverything };
 /// InvalidatedStaticVertices chooses among the others, for all the moved
 /// objects together. The caller holds the state lock shared (the
 /// hierarchy is read; the cache is read as it is).
+///
+/// Each cached sample is judged against the pose it was shaded at
+/// (CachedSample::epoch, looked up in `history`: index = epoch, the poses
+/// before `newPose`), not only against `oldPose`: a sample kept through many
+/// small moves, each below the tolerance, would otherwise drift by the sum
+/// of them. A sample whose pose is not in `history` (empty: the caller keeps
+/// none) is judged against `oldPose`.
 Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cache, const ScenePose& oldPose,
-                              const ScenePose& newPose, InvalidationRule rule = InvalidationRule::kTest);
+                              const ScenePose& newPose, InvalidationRule rule = InvalidationRule::kTest,
+                              std::span<const std::shared_ptr<const ScenePose>> history = {});
 
 }  // namespace penumbra::sma
