@@ -21,6 +21,7 @@
 #include "penumbra/renderer/ray_scene.h"
 #include "penumbra/renderer/shading.h"
 #include "penumbra/sma/motion_volume.h"
+#include "test_scenes.h"  // renderer/tests: SampleAt
 
 namespace penumbra {
 namespace {
@@ -81,33 +82,6 @@ Room BuildRoom(const Vec3& boxLo, float half) {
   return room;
 }
 
-// The shading input for `position` on the triangle of the floor or the wall
-// (normal `normal`) that contains it.
-ShadeInput InputAt(const Scene& scene, const Vec3& position, const Vec3& normal, uint64_t sampleId) {
-  for (uint32_t t = 0; t < scene.triangles.size(); ++t) {
-    const Vec3 n = scene.GeometricNormal(t);
-    if (glm::dot(n, normal) < 0.999f) continue;
-    const Vec3 p0 = scene.Position(t, 0);
-    const Vec3 e1 = scene.Position(t, 1) - p0, e2 = scene.Position(t, 2) - p0, d = position - p0;
-    if (std::abs(glm::dot(d, n)) > 1e-5f) continue;
-    const float d11 = glm::dot(e1, e1), d12 = glm::dot(e1, e2), d22 = glm::dot(e2, e2);
-    const float d1 = glm::dot(d, e1), d2 = glm::dot(d, e2);
-    const float det = d11 * d22 - d12 * d12;
-    const float b1 = (d22 * d1 - d12 * d2) / det, b2 = (d11 * d2 - d12 * d1) / det;
-    if (b1 < -1e-6f || b2 < -1e-6f || b1 + b2 > 1.0f + 1e-6f) continue;
-    ShadeInput in;
-    in.sampleId = sampleId;
-    in.position = position;
-    in.normal = normal;
-    in.triangle = t;
-    in.b1 = b1;
-    in.b2 = b2;
-    return in;
-  }
-  ADD_FAILURE() << "no triangle contains (" << position.x << ", " << position.y << ", " << position.z << ")";
-  return {};
-}
-
 struct Point {
   Vec3 position;
   Vec3 normal;
@@ -144,14 +118,14 @@ Shaded ShadeAll(const Room& room, const std::vector<Point>& points, uint64_t see
   Shaded out;
   for (size_t i = 0; i < points.size(); ++i) {
     const ShadeOutput o =
-        shader.Shade(InputAt(room.scene, points[i].position, points[i].normal, seedBase + i), 0, nullptr);
+        shader.Shade(testing::SampleAt(room.scene, points[i].position, points[i].normal, seedBase + i), 0, nullptr);
     out.irradiance.push_back(Luminance(o.irradiance));
     out.stdErr.push_back(o.irradianceStdErr);
     out.brightestRadiance = std::max(out.brightestRadiance, Luminance(o.radiance));
   }
   // The box's own top face, the brightest non-emissive surface here.
   const Vec3 top = room.box.Center() + Vec3(0.0f, 0.5f * kBoxSide, 0.0f);
-  const ShadeOutput o = shader.Shade(InputAt(room.scene, top, Vec3(0.0f, 1.0f, 0.0f), seedBase + 999999), 0, nullptr);
+  const ShadeOutput o = shader.Shade(testing::SampleAt(room.scene, top, Vec3(0.0f, 1.0f, 0.0f), seedBase + 999999), 0, nullptr);
   out.brightestRadiance = std::max(out.brightestRadiance, Luminance(o.radiance));
   return out;
 }

@@ -29,6 +29,7 @@ using testing::AddHorizontalSquare;
 using testing::Agrees;
 using testing::Estimate;
 using testing::Finish;
+using testing::ParallelRectangleIrradiance;
 using testing::MakeMaterial;
 using testing::SampleAt;
 using testing::TestScene;
@@ -38,17 +39,6 @@ constexpr float kInfinity = std::numeric_limits<float>::infinity();
 
 RigidTransform Translation(const Vec3& t) { return RigidTransform{glm::mat3(1.0f), t}; }
 
-// The irradiance at a point a height h below the centre-relative rectangle
-// [x0, x1] x [z0, z1] of a parallel, downward-facing Lambertian emitter of
-// radiance L (as in shading_test.cpp).
-double ParallelRectangleIrradiance(double radiance, double h, double x0, double x1, double z0, double z1) {
-  auto corner = [h](double x, double z) {
-    const double a = x / h, b = z / h;
-    const double sa = std::sqrt(1.0 + a * a), sb = std::sqrt(1.0 + b * b);
-    return a / sa * std::atan(b / sa) + b / sb * std::atan(a / sb);
-  };
-  return 0.5 * radiance * (corner(x1, z1) - corner(x0, z1) - corner(x1, z0) + corner(x0, z0));
-}
 
 // A floor (y = 0, side 20; black unless asked), a static square light of side 0.5 facing
 // down at y = 2, and a movable black "occluder": a unit square in its own

@@ -22,6 +22,7 @@ namespace {
 using testing::AddBox;
 using testing::AddHorizontalSquare;
 using testing::Agrees;
+using testing::ParallelRectangleIrradiance;
 using testing::EstimateOutput;
 using testing::Finish;
 using testing::MakeMaterial;
@@ -189,19 +190,6 @@ TEST(ShadingTest, PlaneUnderGradientSkyMatchesItsCosineIntegral) {
 
 // --- Area lights ----------------------------------------------------------------
 
-// Irradiance at a point from a parallel rectangle of radiance `radiance` at
-// height h spanning [x0, x1] x [z0, z1] relative to the point's foot. The
-// corner term is the classic form factor of a rectangle with one corner
-// above the point, times 2 pi; it is odd in both arguments, so any rectangle
-// is a signed sum of four corners.
-double ParallelRectangleIrradiance(double radiance, double h, double x0, double x1, double z0, double z1) {
-  auto corner = [h](double x, double z) {
-    const double a = x / h, b = z / h;
-    const double sa = std::sqrt(1.0 + a * a), sb = std::sqrt(1.0 + b * b);
-    return a / sa * std::atan(b / sa) + b / sb * std::atan(a / sb);
-  };
-  return 0.5 * radiance * (corner(x1, z1) - corner(x0, z1) - corner(x1, z0) + corner(x0, z0));
-}
 
 struct AreaLightScene {
   TestScene t;

@@ -104,6 +104,20 @@ inline ShadeInput SampleAt(const Scene& scene, const Vec3& position, const Vec3&
   return {};
 }
 
+/// Irradiance at a point from a parallel, downward-facing Lambertian
+/// rectangle of radiance `radiance` at height h spanning [x0, x1] x [z0, z1]
+/// relative to the point's foot. The corner term is the classic form factor
+/// of a rectangle with one corner above the point, times 2 pi; it is odd in
+/// both arguments, so any rectangle is a signed sum of four corners.
+inline double ParallelRectangleIrradiance(double radiance, double h, double x0, double x1, double z0, double z1) {
+  auto corner = [h](double x, double z) {
+    const double a = x / h, b = z / h;
+    const double sa = std::sqrt(1.0 + a * a), sb = std::sqrt(1.0 + b * b);
+    return a / sa * std::atan(b / sa) + b / sb * std::atan(a / sb);
+  };
+  return 0.5 * radiance * (corner(x1, z1) - corner(x0, z1) - corner(x1, z0) + corner(x0, z0));
+}
+
 /// A Monte Carlo estimate and its standard error, per channel.
 struct Estimate {
   Rgb mean{0.0f};
