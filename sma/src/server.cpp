@@ -1226,6 +1226,7 @@ void SmaServer::Impl::Session::SendTextures() {
 
 void SmaServer::Impl::Session::OnClosed(const std::string& reason) {
   refreshTimer_.cancel();
+  if (predictionCancel_) *predictionCancel_ = true;  // nobody will walk there (also at shutdown)
   server_.pool_->ReleaseInterest(interest_);
   interest_.clear();
   server_.visibilityBudget_.Resize(reservedPixels_, 0);
@@ -1375,7 +1376,7 @@ void SmaServer::Impl::LogStats() {
              "renderers:{}; clients:{}; views: {}{}",
              shaded, hits + misses > 0 ? 100.0 * double(hits) / double(hits + misses) : 0.0,
              double(now.requested - lastStats_.requested) / seconds, double(now.shaded - lastStats_.shaded) / seconds,
-             now.queuedVisible + now.queuedBackground, renderers.empty() ? " none" : renderers,
+             now.queuedVisible + now.queuedPredicted + now.queuedBackground, renderers.empty() ? " none" : renderers,
              clients.empty() ? " none" : clients, views, moves);
   lastStats_ = now;
 }
