@@ -20,7 +20,9 @@
 # Usage: bench/prediction_bench.sh [SCENE.json#PATH] [OUT]
 #   default scenes/sponza.json#walk, OUT build/prediction-bench
 # Environment: SPEED (1: the path played at this times its speed), SIZE
-#   (WxH, default the path's), REPEAT (1), EXTRA_SECONDS (4: the client runs
+#   (WxH, default the path's), MAX_FPS (5: the client's frame cap, so that it
+#   sends views at one rate whatever the machine's load, as long as it can
+#   draw that fast), REPEAT (1), EXTRA_SECONDS (4: the client runs
 #   the path's length plus this), RENDERER_THREADS (0: all cores), SMA_FLAGS
 #   (added to every run), HORIZON (0.5), WIDEN (1.15).
 set -euo pipefail
@@ -71,7 +73,7 @@ run() {  # run on|off N: one row of results
   wait_for_file "$logs/s.port"
   wait_for_file "$logs/h.port"
   "$build/client/penumbra-client" --connect "127.0.0.1:$(cat "$logs/s.port")" --headless --gl egl \
-    --camera-path "$out/path.json" --seconds $((duration + extra)) --stats "$logs/client-stats.jsonl" \
+    --camera-path "$out/path.json" --max-fps "${MAX_FPS:-5}" --seconds $((duration + extra)) --stats "$logs/client-stats.jsonl" \
     --log-level warn >"$logs/client.log" 2>&1 || echo "prediction_bench: client exited with $?" >&2
   curl -fsS "http://127.0.0.1:$(cat "$logs/h.port")/metrics" >"$logs/metrics.txt"
   kill "$spid" "$rpid"
@@ -79,7 +81,7 @@ run() {  # run on|off N: one row of results
   python3 "$summary" summary "$mode" "$logs/metrics.txt" "$logs/sma.log"
 }
 
-echo "prediction_bench: $path_spec at speed ${SPEED:-1}${SIZE:+, $SIZE} (${duration} s + ${extra} s), horizon ${horizon} s," \
+echo "prediction_bench: $path_spec at speed ${SPEED:-1}${SIZE:+, $SIZE}, ${MAX_FPS:-5} fps (${duration} s + ${extra} s), horizon ${horizon} s," \
   "widen ${widen}, ${repeat} run(s) each;" \
   "load average $(cut -d' ' -f1-3 /proc/loadavg)" >&2
 printf 'mode\thit_rate\tnew_triangles\tnew_shaded\tcomplete_p50_ms\tcomplete_p99_ms\tviews_applied\tviews_never_complete\tstage1_p50_ms\tviews_stage1\tpredicted_views\tsamples_predicted\n' \

@@ -161,6 +161,9 @@ int main(int argc, char** argv) {
   app.add_option("--prediction-widen", options.prediction.widen,
                  "The predicted view's field of view is widened so that tan(fov/2) grows by this factor")
       ->check(CLI::Range(1.0, 2.0))->capture_default_str();
+  app.add_option("--prediction-resolution", options.predictionResolution,
+                 "The predicted view is traced at this times the view's width and height")
+      ->check(CLI::Range(0.1, 2.0))->capture_default_str();
   std::string rendererAuthTokenFile, rendererTlsCa;
   app.add_option("--renderer-auth-token-file", rendererAuthTokenFile,
                  "Present the token in this file to renderers (their --auth-token-file): a second secret, so that "

@@ -913,8 +913,11 @@ void SmaServer::Impl::Session::MaybePredict() {
         if (seen.insert(v).second && !server.cache_.IsShaded(v))
           requests.push_back(MakeSampleRequest(server.hierarchy_, v));
     const size_t added = requests.empty() ? 0 : server.pool_->Request(requests, Priority::kPredicted);
+    lock.unlock();
     ++server.predictedViews_;
     server.samplesPredicted_ += added;
+    self->log_->debug("{}: predicted view {}x{}: {} nodes, {} corners unshaded, {} samples asked",
+                      self->connection_->Id(), view.width, view.height, visible.nodes.size(), requests.size(), added);
   });
 }
 
