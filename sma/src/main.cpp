@@ -149,6 +149,21 @@ int main(int argc, char** argv) {
                                                      "split from, [1, 20]")
           ->capture_default_str();
   maxRefineDepth->excludes(maxDepthAlias);
+  // Camera movement prediction (issue 15; sma/README.md, "Movement prediction")
+  std::string prediction = options.predictionOn ? "on" : "off";
+  double predictionHorizon = options.prediction.horizon.count();
+  app.add_option("--prediction", prediction,
+                 "Camera movement prediction: once a view is shaded, shade early what the client's camera is expected "
+                 "to see next (on|off)")
+      ->check(CLI::IsMember({"on", "off"}))->capture_default_str();
+  app.add_option("--prediction-horizon", predictionHorizon, "Seconds ahead of the latest view the camera is predicted")
+      ->check(CLI::Range(0.01, 10.0))->capture_default_str();
+  app.add_option("--prediction-widen", options.prediction.widen,
+                 "The predicted view's field of view is widened so that tan(fov/2) grows by this factor")
+      ->check(CLI::Range(1.0, 2.0))->capture_default_str();
+  app.add_option("--prediction-resolution", options.predictionResolution,
+                 "The predicted view is traced at this times the view's width and height")
+      ->check(CLI::Range(0.1, 2.0))->capture_default_str();
   std::string rendererAuthTokenFile, rendererTlsCa;
   app.add_option("--renderer-auth-token-file", rendererAuthTokenFile,
                  "Present the token in this file to renderers (their --auth-token-file): a second secret, so that "
@@ -157,6 +172,8 @@ int main(int argc, char** argv) {
                  "Connect to renderers with TLS, trusting the CA certificate(s) in this PEM file; each renderer's "
                  "certificate must name its --renderer host");
   CLI11_PARSE(app, argc, argv);
+  options.predictionOn = prediction == "on";
+  options.prediction.horizon = std::chrono::duration<double>(predictionHorizon);
 
   if (auto failed = serverMain.Setup()) return *failed;
   if (maxDepthAlias->count() > 0)

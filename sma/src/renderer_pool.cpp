@@ -324,6 +324,7 @@ RendererPoolStats RendererPool::Stats() const {
   RendererPoolStats s;
   const SchedulerCounters c = scheduler_.Counters();
   s.queuedVisible = c.queuedVisible;
+  s.queuedPredicted = c.queuedPredicted;
   s.queuedBackground = c.queuedBackground;
   s.queuedImprove = c.queuedImprove;
   s.inFlight = c.inFlight;

@@ -44,18 +44,20 @@ size_t SampleScheduler::Request(std::span<const SampleRequest> samples, Priority
       e.improve = false;
       e.request = s;
       --queuedImprove_;
+      if (priority == Priority::kPredicted) e.predicted = true;
       if (visible) {
         e.inVisibleQueue = true;
         ++queuedVisible_;
         visibleQueue_.push_back(s.vertex);
       } else {
-        backgroundQueue_.push_back(s.vertex);
+        QueueBelowVisible(s.vertex, e, /*front=*/false);
       }
       continue;
     }
     if (visible) ++e.interest;
     if (inserted) {
       e.request = s;
+      e.predicted = priority == Priority::kPredicted;
       ++requested_;
       ++queuedTotal_;
       ++added;
@@ -64,14 +66,20 @@ size_t SampleScheduler::Request(std::span<const SampleRequest> samples, Priority
         ++queuedVisible_;
         visibleQueue_.push_back(s.vertex);
       } else {
-        backgroundQueue_.push_back(s.vertex);
+        QueueBelowVisible(s.vertex, e, /*front=*/false);
       }
     } else if (visible && e.state == EntryState::kQueued && !e.inVisibleQueue) {
-      // Queued for refinement or a past view, now wanted by a view: promote.
-      // Its copy in the background queue is skipped when met.
+      // Queued for refinement, a prediction or a past view, now wanted by a
+      // view: promote. Its copy in the lower queue is skipped when met.
+      if (e.predicted) --queuedPredicted_;
       e.inVisibleQueue = true;
       ++queuedVisible_;
       visibleQueue_.push_back(s.vertex);
+    } else if (priority == Priority::kPredicted && !e.predicted) {
+      // Queued for refinement (or a past view): a prediction wants it
+      // sooner. Where a view wants it too, the visible queue keeps it.
+      e.predicted = true;
+      if (e.state == EntryState::kQueued && !e.inVisibleQueue) QueueBelowVisible(s.vertex, e, /*front=*/false);
     }
   }
   return added;
@@ -108,7 +116,7 @@ void SampleScheduler::Retry(std::span<const VertexId> vertices) {
       visibleQueue_.push_front(v);
     } else {
       e.inVisibleQueue = false;
-      backgroundQueue_.push_front(v);
+      QueueBelowVisible(v, e, /*front=*/true);
     }
   }
 }
@@ -179,7 +187,7 @@ void SampleScheduler::Requeue(uint64_t batchId, const Batch& batch, std::vector<
       ++queuedVisible_;
       visibleQueue_.push_front(*v);
     } else {
-      backgroundQueue_.push_front(*v);
+      QueueBelowVisible(*v, entry, /*front=*/true);
     }
   }
 }
@@ -293,6 +301,13 @@ bool SampleScheduler::Accepts(const Renderer& r, Clock::time_point now) const {
   return r.ready && !r.draining && r.batches.size() < r.capacity.maxBatchesInFlight && now >= r.quarantinedUntil;
 }
 
+void SampleScheduler::QueueBelowVisible(VertexId v, Entry& e, bool front) {
+  std::deque<VertexId>& queue = e.predicted ? predictedQueue_ : backgroundQueue_;
+  if (e.predicted) ++queuedPredicted_;
+  if (front) queue.push_front(v);
+  else queue.push_back(v);
+}
+
 bool SampleScheduler::TakeNext(Priority priority, VertexId& out) {
   if (priority == Priority::kImprove) {
     while (!improveQueue_.empty()) {
@@ -314,9 +329,21 @@ bool SampleScheduler::TakeNext(Priority priority, VertexId& out) {
     it->second.inVisibleQueue = false;
     --queuedVisible_;
     if (it->second.interest == 0) {  // every view that wanted it has moved on
-      backgroundQueue_.push_back(v);
+      QueueBelowVisible(v, it->second, /*front=*/false);
       continue;
     }
+    out = v;
+    return true;
+  }
+  while (priority == Priority::kPredicted && !predictedQueue_.empty()) {
+    const VertexId v = predictedQueue_.front();
+    predictedQueue_.pop_front();
+    auto it = entries_.find(v);
+    // A copy also in the visible queue is taken from there.
+    if (it == entries_.end() || it->second.state != EntryState::kQueued || it->second.inVisibleQueue ||
+        it->second.improve || !it->second.predicted)
+      continue;
+    --queuedPredicted_;
     out = v;
     return true;
   }
@@ -324,9 +351,9 @@ bool SampleScheduler::TakeNext(Priority priority, VertexId& out) {
     const VertexId v = backgroundQueue_.front();
     backgroundQueue_.pop_front();
     auto it = entries_.find(v);
-    // A copy also in the visible queue is taken from there.
+    // A copy also in the visible or predicted queue is taken from there.
     if (it == entries_.end() || it->second.state != EntryState::kQueued || it->second.inVisibleQueue ||
-        it->second.improve)
+        it->second.improve || it->second.predicted)
       continue;
     out = v;
     return true;
@@ -354,7 +381,7 @@ std::vector<AssignedBatch> SampleScheduler::Assemble() {
       // One priority per batch, the most urgent one queued.
       VertexId v = kNoVertex;
       Priority priority = Priority::kVisible;
-      for (Priority p : {Priority::kVisible, Priority::kBackground, Priority::kImprove}) {
+      for (Priority p : {Priority::kVisible, Priority::kPredicted, Priority::kBackground, Priority::kImprove}) {
         if (TakeNext(p, v)) {
           priority = p;
           break;
@@ -362,9 +389,11 @@ std::vector<AssignedBatch> SampleScheduler::Assemble() {
       }
       // Every queued entry sits in one of the queues.
       PENUMBRA_CHECK(v != kNoVertex, fmt::format("{} samples counted as queued but none found", queuedTotal_));
-      const uint32_t paths = priority == Priority::kImprove                               ? options_.improvePaths
-                             : priority == Priority::kVisible && options_.firstPaths > 0 ? options_.firstPaths
-                                                                                          : options_.pathsPerSample;
+      // Predicted samples are the first estimates a coming view will show.
+      const bool firstEstimate = priority == Priority::kVisible || priority == Priority::kPredicted;
+      const uint32_t paths = priority == Priority::kImprove                  ? options_.improvePaths
+                             : firstEstimate && options_.firstPaths > 0 ? options_.firstPaths
+                                                                        : options_.pathsPerSample;
       AssignedBatch assigned{id, nextBatchId_++, epoch_, paths, {}};
       Batch batch;
       batch.paths = paths > 0 ? paths : r.capacity.defaultPaths;
@@ -403,7 +432,9 @@ SchedulerCounters SampleScheduler::Counters() const {
   SchedulerCounters c;
   c.queuedVisible = queuedVisible_;
   c.queuedImprove = queuedImprove_;
-  c.queuedBackground = queuedTotal_ >= queuedVisible_ + queuedImprove_ ? queuedTotal_ - queuedVisible_ - queuedImprove_ : 0;
+  c.queuedPredicted = queuedPredicted_;
+  const uint64_t above = queuedVisible_ + queuedPredicted_ + queuedImprove_;
+  c.queuedBackground = queuedTotal_ >= above ? queuedTotal_ - above : 0;
   c.inFlight = inFlight_;
   c.requested = requested_;
   c.shaded = shaded_;

@@ -182,6 +182,14 @@ class SmaServer::Impl {
                       std::shared_ptr<const std::vector<VertexId>> improved);
   std::atomic<uint64_t> samplesImproved_{0};
   std::atomic<uint64_t> samplesStale_{0};  // refused as shaded before their vertex's invalidation
+  // Camera movement prediction (issue 15): predicted views traced and the
+  // samples they asked for; and, with prediction on or off alike, the
+  // triangles new views newly displayed and how many of those had their
+  // corners shaded already when the view's visibility was applied.
+  std::atomic<uint64_t> predictedViews_{0};
+  std::atomic<uint64_t> samplesPredicted_{0};
+  std::atomic<uint64_t> viewTrianglesNew_{0};
+  std::atomic<uint64_t> viewTrianglesNewShaded_{0};
 
   // --- Moving objects (issue 14; scene_moves.h) ---
   /// The current pose and the visibility scene at it. Thread-safe copies.
@@ -380,6 +388,10 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
       server_.latencies_.toConverged.Observe(*ms / 1000.0);
   }
   void NoteStage1();
+  /// Camera movement prediction: once the latest view reached stage 1, a
+  /// low-priority job traces where the camera is expected next and asks for
+  /// what that view lacks (SmaOptions::predictionOn). Once per view.
+  void MaybePredict();
   // Improvement of the view's samples (SmaOptions::improveTargetError).
   void MaybeImprove();
   void SendUpdates();
@@ -435,6 +447,13 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   // Textures asked for and not yet queued: null while being encoded.
   std::map<uint32_t, TextureFrames::Frame> texturesOutstanding_;
   uint64_t textureRequestsRefused_ = 0;
+
+  // Camera movement prediction (issue 15): the client's recent views, the
+  // view last predicted from, and the flag that abandons its job when a
+  // newer view arrives.
+  CameraPredictor predictor_{server_.options_.prediction};
+  uint64_t predictedForView_ = 0;
+  std::shared_ptr<std::atomic<bool>> predictionCancel_;
 };
 
 void SmaServer::Impl::NotifyArrived(const std::shared_ptr<Session>& session,
@@ -539,6 +558,9 @@ void SmaServer::Impl::Session::OnView(const wire::View& v) {
   // refinement and improvement wait for the new view's stage 1).
   hits_.reset();
   visible_.reset();
+  // A prediction made from the old view is abandoned: a real view is here.
+  if (predictionCancel_) *predictionCancel_ = true;
+  predictor_.Observe(view, Clock::now());
   // A new view supersedes whatever this client was waiting for: a running
   // job's result is dropped when it lands, and StartJob picks this view.
   state_.OnNewView(v.view_id(), view, Clock::now());
@@ -647,6 +669,10 @@ void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
   server.pool_->Request(requests, Priority::kVisible);
   server.pool_->ReleaseInterest(interest_);
   interest_ = plan.missing;
+  if (newView) {  // the prediction hit rate, counted with prediction on or off
+    server.viewTrianglesNew_ += plan.addCached.size() + plan.pending.size();
+    server.viewTrianglesNewShaded_ += plan.addCached.size();
+  }
   for (NodeId id : state_.BeginShading(plan.pending, server.hierarchy_, server.cache_, newView))
     plan.addCached.push_back(id);
 
@@ -846,7 +872,52 @@ void SmaServer::Impl::Session::NoteStage1() {
                 mirror_.TriangleCount());
     // Tell the client at once that stage 2 (refinement) has begun.
     SyncStatus();
+    MaybePredict();
   }
+}
+
+void SmaServer::Impl::Session::MaybePredict() {
+  const SmaOptions& o = server_.options_;
+  if (!o.predictionOn || !connection_->IsOpen() || Blocked() || !state_.Stage1Done()) return;
+  const uint64_t viewId = state_.ViewId();
+  if (predictedForView_ == viewId) return;
+  predictedForView_ = viewId;
+  const std::optional<PredictedView> predicted = predictor_.Predict(Clock::now());
+  if (!predicted || predicted->atRest) return;  // nothing to prepare
+  CameraView view = predicted->view;
+  view.width = std::max(1, int(double(view.width) * o.predictionResolution));
+  view.height = std::max(1, int(double(view.height) * o.predictionResolution));
+  auto cancel = std::make_shared<std::atomic<bool>>(false);
+  predictionCancel_ = cancel;
+  // Behind every new view and re-map of any client (JobClass order), and
+  // abandoned when this client's next view arrives; the buffers are the
+  // job's own (a fraction of the view's pixels) and go with it.
+  JobsFor(state_.View()).Post(id_, JobClass::kPrediction, [self = shared_from_this(), view, cancel] {
+    Impl& server = self->server_;
+    if (*cancel || server.shuttingDown_) return;
+    HitBuffer hits;
+    const std::shared_ptr<const PosedEmbreeScene> posed = server.CurrentPosed();
+    server.tracer_->Trace(view, hits, cancel.get(), posed.get());
+    if (*cancel || server.shuttingDown_) return;
+    VisibleSet visible;
+    std::shared_lock lock(server.stateMutex_);
+    MapHitsToNodes(server.hierarchy_, hits, &ChildrenShaded, &server.cache_, visible, cancel.get());
+    if (*cancel || server.shuttingDown_) return;
+    // The corners a view there would wait for; the pool skips those alive
+    // or stored. Requested under the state lock like every request.
+    std::vector<SampleRequest> requests;
+    std::unordered_set<VertexId> seen;
+    for (NodeId id : visible.nodes)
+      for (VertexId v : server.hierarchy_.GetNode(id).v)
+        if (seen.insert(v).second && !server.cache_.IsShaded(v))
+          requests.push_back(MakeSampleRequest(server.hierarchy_, v));
+    const size_t added = requests.empty() ? 0 : server.pool_->Request(requests, Priority::kPredicted);
+    lock.unlock();
+    ++server.predictedViews_;
+    server.samplesPredicted_ += added;
+    self->log_->debug("{}: predicted view {}x{}: {} nodes, {} corners unshaded, {} samples asked",
+                      self->connection_->Id(), view.width, view.height, visible.nodes.size(), requests.size(), added);
+  });
 }
 
 void SmaServer::Impl::Session::MaybeRefine() {
@@ -1157,6 +1228,7 @@ void SmaServer::Impl::Session::SendTextures() {
 
 void SmaServer::Impl::Session::OnClosed(const std::string& reason) {
   refreshTimer_.cancel();
+  if (predictionCancel_) *predictionCancel_ = true;  // nobody will walk there (also at shutdown)
   server_.pool_->ReleaseInterest(interest_);
   interest_.clear();
   server_.visibilityBudget_.Resize(reservedPixels_, 0);
@@ -1208,9 +1280,16 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
   AddCounter(reply, "samples_failed", double(pool.failed));
   AddCounter(reply, "samples_rejected", double(pool.rejected));
   AddCounter(reply, "samples_queued_visible", double(pool.queuedVisible));
+  AddCounter(reply, "samples_queued_predicted", double(pool.queuedPredicted));
   AddCounter(reply, "samples_queued_background", double(pool.queuedBackground));
   AddCounter(reply, "samples_queued_improve", double(pool.queuedImprove));
   AddCounter(reply, "samples_in_flight", double(pool.inFlight));
+  AddCounter(reply, "predicted_views", double(predictedViews_.load()));
+  AddCounter(reply, "samples_requested_predicted", double(samplesPredicted_.load()));
+  const uint64_t newTriangles = viewTrianglesNew_.load(), newShaded = viewTrianglesNewShaded_.load();
+  AddCounter(reply, "view_triangles_new", double(newTriangles));
+  AddCounter(reply, "view_triangles_new_shaded", double(newShaded));
+  AddCounter(reply, "prediction_hit_rate", newTriangles > 0 ? double(newShaded) / double(newTriangles) : 0.0);
   size_t connected = 0;
   for (const RendererStatus& r : pool.renderers) {
     connected += r.connected;
@@ -1299,7 +1378,7 @@ void SmaServer::Impl::LogStats() {
              "renderers:{}; clients:{}; views: {}{}",
              shaded, hits + misses > 0 ? 100.0 * double(hits) / double(hits + misses) : 0.0,
              double(now.requested - lastStats_.requested) / seconds, double(now.shaded - lastStats_.shaded) / seconds,
-             now.queuedVisible + now.queuedBackground, renderers.empty() ? " none" : renderers,
+             now.queuedVisible + now.queuedPredicted + now.queuedBackground, renderers.empty() ? " none" : renderers,
              clients.empty() ? " none" : clients, views, moves);
   lastStats_ = now;
 }

@@ -35,6 +35,20 @@ TEST(FairJobQueueTest, ANewViewGoesBeforeEveryQueuedRefinementStep) {
   EXPECT_FALSE(queue.Pop());
 }
 
+TEST(FairJobQueueTest, APredictedViewGoesAfterViewsAndRemapsAndBeforeRefinement) {
+  FairJobQueue queue;
+  std::vector<std::string> ran;
+  auto job = [&ran](std::string label) { return [&ran, label] { ran.push_back(label); }; };
+  queue.Push(1, JobClass::kRefinement, job("1:step"));
+  queue.Push(1, JobClass::kPrediction, job("1:predicted"));
+  queue.Push(2, JobClass::kPrediction, job("2:predicted"));
+  queue.Push(2, JobClass::kRefresh, job("2:remap"));
+  queue.Push(3, JobClass::kNewView, job("3:view"));
+  EXPECT_EQ(queue.Size(JobClass::kPrediction), 2u);
+  EXPECT_EQ(Drain(queue, ran),
+            (std::vector<std::string>{"3:view", "2:remap", "1:predicted", "2:predicted", "1:step"}));
+}
+
 TEST(FairJobQueueTest, SessionsTakeTurnsWithinAClassAndKeepTheirOwnOrder) {
   FairJobQueue queue;
   std::vector<std::string> ran;

@@ -153,6 +153,90 @@ TEST(SampleScheduler, InterestReleasedDemotesAndANewViewPromotes) {
   EXPECT_EQ(second[0].pathsPerSample, 100u);
 }
 
+// Movement prediction (issue 15): what a predicted view needs goes after
+// what current views need and before refinement and improvement.
+TEST(SampleScheduler, PredictedBetweenVisibleAndBackground) {
+  FakeClock clock;
+  SampleScheduler s(Options(), clock.Function());
+  s.Request(Requests(100, 3, 2), Priority::kImprove);
+  s.Request(Requests(0, 3), Priority::kBackground);
+  EXPECT_EQ(s.Request(Requests(20, 3), Priority::kPredicted), 3u);
+  s.Request(Requests(10, 3), Priority::kVisible);
+  EXPECT_EQ(s.Counters().queuedVisible, 3u);
+  EXPECT_EQ(s.Counters().queuedPredicted, 3u);
+  EXPECT_EQ(s.Counters().queuedBackground, 3u);
+  EXPECT_EQ(s.Counters().queuedImprove, 3u);
+  s.RendererReady(1, kOneCredit);
+  std::vector<std::pair<VertexId, uint32_t>> order;  // first vertex and paths of each batch
+  for (int i = 0; i < 4; ++i) {
+    auto batches = s.Assemble();
+    ASSERT_EQ(batches.size(), 1u) << "one credit";
+    const AssignedBatch& b = batches[0];
+    ASSERT_EQ(b.samples.size(), 3u);
+    for (const auto& sample : b.samples) EXPECT_EQ(sample.vertex / 10, b.samples[0].vertex / 10);
+    order.emplace_back(b.samples[0].vertex, b.pathsPerSample);
+    auto outcome = s.OnReply(1, Answer(b));
+    ASSERT_FALSE(outcome.badReply) << *outcome.badReply;
+    s.Complete(outcome.results);
+  }
+  EXPECT_EQ(order[0], std::make_pair(VertexId(10), 16u));   // visible: first paths
+  EXPECT_EQ(order[1], std::make_pair(VertexId(20), 16u));   // predicted: first estimates too
+  EXPECT_EQ(order[2], std::make_pair(VertexId(0), 100u));   // background
+  EXPECT_EQ(order[3], std::make_pair(VertexId(100), 64u));  // improvement
+  EXPECT_EQ(s.Outstanding(), 0u);
+}
+
+TEST(SampleScheduler, PredictionPromotesBackgroundAndAViewPromotesAPrediction) {
+  FakeClock clock;
+  SampleScheduler s(Options(), clock.Function());
+  s.Request(Requests(0, 4), Priority::kBackground);  // refinement: 0..3
+  EXPECT_EQ(s.Request(Requests(2, 4), Priority::kPredicted), 2u) << "2, 3 alive already, 4, 5 new";
+  EXPECT_EQ(s.Request(Requests(5, 1), Priority::kVisible), 0u) << "5 promoted, not asked twice";
+  EXPECT_EQ(s.Request(Requests(0, 1), Priority::kBackground), 0u);
+  EXPECT_EQ(s.Counters().queuedVisible, 1u);
+  EXPECT_EQ(s.Counters().queuedPredicted, 3u);  // 2, 3, 4
+  EXPECT_EQ(s.Counters().queuedBackground, 2u);  // 0, 1
+  s.RendererReady(1, kOneCredit);
+  std::vector<std::set<VertexId>> batches;
+  for (int i = 0; i < 3; ++i) {
+    auto assigned = s.Assemble();
+    ASSERT_EQ(assigned.size(), 1u);
+    batches.push_back(VerticesOf(assigned));
+    s.Complete(s.OnReply(1, Answer(assigned[0])).results);
+  }
+  EXPECT_EQ(batches[0], (std::set<VertexId>{5}));        // the view's
+  EXPECT_EQ(batches[1], (std::set<VertexId>{2, 3, 4}));  // the prediction's, each once
+  EXPECT_EQ(batches[2], (std::set<VertexId>{0, 1}));     // refinement's
+  EXPECT_EQ(s.Counters().requested, 6u);
+  EXPECT_EQ(s.Outstanding(), 0u);
+}
+
+TEST(SampleScheduler, AViewThatMovesOnDemotesToPredictedIfPredictedAndRequeueKeepsThePlace) {
+  FakeClock clock;
+  SampleScheduler s(Options(), clock.Function());
+  s.Request(Requests(0, 2), Priority::kVisible);
+  s.Request(Requests(1, 1), Priority::kPredicted);  // 1: wanted by the view and predicted
+  s.Request(Requests(10, 1), Priority::kBackground);
+  std::vector<VertexId> released{0, 1};
+  s.ReleaseInterest(released);
+  s.RendererReady(1, kOneCredit);
+  auto first = s.Assemble();
+  ASSERT_EQ(first.size(), 1u);
+  EXPECT_EQ(VerticesOf(first), (std::set<VertexId>{1})) << "demoted to predicted, before background";
+  // The renderer is lost: its sample goes back to the front of the predicted queue.
+  EXPECT_EQ(s.RendererLost(1), 1u);
+  EXPECT_EQ(s.Counters().queuedPredicted, 1u);
+  s.RendererReady(1, kOneCredit);
+  auto again = s.Assemble();
+  ASSERT_EQ(again.size(), 1u);
+  EXPECT_EQ(VerticesOf(again), (std::set<VertexId>{1}));
+  s.Complete(s.OnReply(1, Answer(again[0])).results);
+  auto rest = s.Assemble();
+  ASSERT_EQ(rest.size(), 1u);
+  EXPECT_EQ(VerticesOf(rest), (std::set<VertexId>{0, 10}));  // both background now
+  EXPECT_EQ(s.Counters().queuedPredicted, 0u);
+}
+
 TEST(SampleScheduler, CreditsBoundBatchesInFlight) {
   FakeClock clock;
   SampleSchedulerOptions o = Options();

@@ -6,7 +6,11 @@
 // the refinement steps other clients had queued. Jobs now carry a class and
 // the session they are for:
 //
-//   new view  >  refresh (re-map of the same view)  >  refinement step
+//   new view  >  refresh (re-map of the same view)  >  predicted view  >  refinement step
+//
+// (A predicted view -- issue 15's camera movement prediction -- traces where
+// the client's camera is expected next, to ask early for what it will need:
+// after every real view's work, before refinement.)
 //
 // A waiting job of a higher class always runs first; within a class the
 // sessions take turns (round-robin), and one session's jobs run in the order
@@ -31,9 +35,10 @@ namespace penumbra::sma {
 enum class JobClass : uint8_t {
   kNewView = 0,     // trace and map a view the client has not seen yet (and texture encodings)
   kRefresh = 1,     // re-map the view already traced (new splits shaded, the client caught up)
-  kRefinement = 2,  // one refinement step
+  kPrediction = 2,  // trace and map a predicted view, ask for what it lacks (nothing is sent)
+  kRefinement = 3,  // one refinement step
 };
-inline constexpr size_t kJobClasses = 3;
+inline constexpr size_t kJobClasses = 4;
 
 /// The order of waiting jobs: by class, then round-robin across sessions,
 /// then FIFO per session. No threads, no locks: JobScheduler guards it.

@@ -81,6 +81,7 @@ struct RendererStatus {
 
 struct RendererPoolStats {
   uint64_t queuedVisible = 0;
+  uint64_t queuedPredicted = 0;
   uint64_t queuedBackground = 0;
   uint64_t queuedImprove = 0;
   uint64_t inFlight = 0;

@@ -6,14 +6,20 @@
 //  * Every vertex is requested at most once while its request is alive:
 //    queued, in flight, or answered but not yet stored (Complete). Asking
 //    again for such a vertex only raises its interest.
-//  * Three priorities. Visible requests (a client's view needs the vertex)
-//    go before background ones (refinement, or views since superseded), and
-//    both before improvements (a further estimate of a shaded vertex;
+//  * Four priorities. Visible requests (a client's view needs the vertex)
+//    go before predicted ones (a view the client is expected to send soon
+//    will need it; camera_prediction.h), which go before background ones
+//    (refinement, or views since superseded), and all three before
+//    improvements (a further estimate of a shaded vertex;
 //    SampleCache::Improve). A batch holds one priority only, and asks for
-//    that priority's paths per sample. A visible request carries one unit of
-//    *interest* per asking view; when every view that asked has moved on
-//    (ReleaseInterest), it is demoted to background the next time the
-//    scheduler meets it.
+//    that priority's paths per sample (predicted samples are first
+//    estimates like visible ones: stage-1 paths). A visible request carries
+//    one unit of *interest* per asking view; when every view that asked has
+//    moved on (ReleaseInterest), it is demoted -- to predicted if a
+//    prediction also asked for it, else to background -- the next time the
+//    scheduler meets it. A predicted request never demotes: a prediction
+//    that was wrong has asked for little, and what it asked for is shaded
+//    before refinement, which is what the paper's background process does.
 //  * Credits: each renderer has a bounded number of batches in flight, so a
 //    faster renderer gets its credits back sooner and gets more work; batch
 //    sizes follow each renderer's measured rate so a batch takes about
@@ -43,7 +49,7 @@
 
 namespace penumbra::sma {
 
-enum class Priority : uint8_t { kVisible, kBackground, kImprove };
+enum class Priority : uint8_t { kVisible, kPredicted, kBackground, kImprove };
 
 struct SampleSchedulerOptions {
   uint32_t pathsPerSample = 0;      // background samples (refinement); 0: each renderer's default
@@ -100,6 +106,7 @@ struct RendererLoad {
 
 struct SchedulerCounters {
   uint64_t queuedVisible = 0;
+  uint64_t queuedPredicted = 0;
   uint64_t queuedBackground = 0;
   uint64_t queuedImprove = 0;
   uint64_t inFlight = 0;
@@ -188,6 +195,9 @@ class SampleScheduler {
     uint32_t interest = 0;
     EntryState state = EntryState::kQueued;
     bool inVisibleQueue = false;
+    // A prediction asked for it: when not in the visible queue, its place is
+    // the predicted queue (not the background one).
+    bool predicted = false;
     bool improve = false;  // an improvement (request.round > 0), in the improvement queue
     uint8_t invalidReplies = 0;
     uint64_t batch = 0;  // while in flight: the batch carrying it
@@ -215,6 +225,9 @@ class SampleScheduler {
 
   bool Accepts(const Renderer& r, Clock::time_point now) const;
   bool TakeNext(Priority priority, VertexId& out);
+  // A queued first estimate not wanted by a view: to the predicted queue if
+  // a prediction asked for it, else to the background queue.
+  void QueueBelowVisible(VertexId v, Entry& e, bool front);
   // The one requeue path: a batch's unanswered samples back to the front of
   // their queues, oldest first.
   // `givenUpIfInvalid`: the batch was refused as invalid; entries refused
@@ -227,11 +240,13 @@ class SampleScheduler {
   Now now_;
   std::unordered_map<VertexId, Entry> entries_;
   std::deque<VertexId> visibleQueue_;
+  std::deque<VertexId> predictedQueue_;
   std::deque<VertexId> backgroundQueue_;
   std::deque<VertexId> improveQueue_;
   std::map<RendererId, Renderer> renderers_;  // by id: dispatch order is stable
   uint64_t nextBatchId_ = 1;
   uint64_t queuedVisible_ = 0;
+  uint64_t queuedPredicted_ = 0;
   uint64_t queuedImprove_ = 0;
   uint64_t queuedTotal_ = 0;
   uint64_t inFlight_ = 0;

@@ -35,6 +35,7 @@
 #include "penumbra/common/expected.h"
 #include "penumbra/common/metrics.h"
 #include "penumbra/common/scene.h"
+#include "penumbra/sma/camera_prediction.h"
 #include "penumbra/sma/client_limits.h"
 #include "penumbra/sma/refinement.h"
 #include "penumbra/sma/renderer_pool.h"
@@ -98,6 +99,15 @@ struct SmaOptions {
   /// baseline benchmarks compare with, and what tests that need every
   /// sample shaded at the final pose ask for.
   bool invalidateEverythingOnMove = false;
+  /// Camera movement prediction (issue 15; camera_prediction.h). Once a
+  /// client's view is shaded (stage 1), the view its camera is expected to
+  /// show `prediction.horizon` later (widened by `prediction.widen`) is
+  /// traced at `predictionResolution` times the view's width and height, and
+  /// what it would display unshaded is asked for at predicted priority
+  /// (after every view's samples, before refinement's). Nothing is sent.
+  bool predictionOn = true;
+  CameraPredictionOptions prediction;
+  double predictionResolution = 0.5;
 };
 
 class SmaServer {
