@@ -589,7 +589,16 @@ Expected<SceneDescription> ParseSceneFile(const fs::path& path) {
 }
 
 Status ApplyToBuilder(const SceneDescription& d, SceneBuilder& builder) {
+  // The scale is for the meshes' own emission, so it comes before the quads;
+  // the overrides come after them, so that one can also set a quad's albedo
+  // (a quad of radiance 0 is a plain surface: a street's paving).
   for (Material& m : builder.Materials()) m.emission *= d.emissionScale;
+  for (const QuadLight& q : d.quadLights) {
+    Material m;
+    m.name = q.name;
+    m.emission = q.radiance;
+    builder.AddQuad(q.corner, q.edge1, q.edge2, builder.AddMaterial(std::move(m)));
+  }
   for (const MaterialOverride& o : d.materialOverrides) {
     bool found = false;
     for (Material& m : builder.Materials()) {
@@ -601,12 +610,6 @@ Status ApplyToBuilder(const SceneDescription& d, SceneBuilder& builder) {
     if (!found)
       return Fail(fmt::format("{}: materials: no triangle of {} uses a material named \"{}\"", d.sourcePath.string(),
                               d.meshPath.string(), o.name));
-  }
-  for (const QuadLight& q : d.quadLights) {
-    Material m;
-    m.name = q.name;
-    m.emission = q.radiance;
-    builder.AddQuad(q.corner, q.edge1, q.edge2, builder.AddMaterial(std::move(m)));
   }
   return Status::Ok();
 }

@@ -99,9 +99,10 @@ struct SceneDescription {
 /// \"irradience\"").
 Expected<SceneDescription> ParseSceneFile(const std::filesystem::path& path);
 
-/// Applies the description's emission scale and material overrides to the
-/// mesh materials already in `builder`, then adds its quad lights. An
-/// override that names no material of the mesh is an error.
+/// Applies the description's emission scale to the mesh materials already in
+/// `builder`, adds its quad lights, then applies its material overrides (to
+/// every material of that name: the main mesh's, the instanced meshes', a
+/// quad's). An override that names no material is an error.
 Status ApplyToBuilder(const SceneDescription& description, SceneBuilder& builder);
 
 }  // namespace penumbra

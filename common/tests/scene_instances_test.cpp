@@ -30,6 +30,22 @@ fs::path WriteSceneWithInstances(const ScratchDir& dir, const std::string& insta
                                               instances, extra));
 }
 
+TEST(SceneInstancesTest, AQuadOfRadianceZeroIsAPlainSurfaceWhoseAlbedoAnOverrideSets) {
+  ScratchDir dir;
+  const fs::path file = WriteSceneWithInstances(
+      dir, "[]",
+      R"(, "quad_lights": [{"name": "paving", "corner": [0, -1, 0], "edge1": [0, 0, 4], "edge2": [4, 0, 0],
+                            "radiance": [0, 0, 0]}],
+          "materials": {"paving": {"albedo": [0.3, 0.25, 0.2]}})");
+  auto scene = LoadScene(file);
+  ASSERT_TRUE(scene.ok()) << scene.error().message;
+  EXPECT_TRUE(scene->instances.empty());
+  const Material& paving = scene->MaterialOf(uint32_t(scene->triangles.size() - 1));
+  EXPECT_EQ(paving.name, "paving");
+  EXPECT_FALSE(paving.IsEmissive());
+  EXPECT_FLOAT_EQ(paving.albedo.g, 0.25f);
+}
+
 // An OBJ of `quads` unit squares in a row (2 triangles each).
 std::string RowOfQuads(int quads) {
   std::string obj;
