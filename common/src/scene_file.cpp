@@ -608,8 +608,9 @@ Status ApplyToBuilder(const SceneDescription& d, SceneBuilder& builder) {
       if (o.emission) m.emission = *o.emission;
     }
     if (!found)
-      return Fail(fmt::format("{}: materials: no triangle of {} uses a material named \"{}\"", d.sourcePath.string(),
-                              d.meshPath.string(), o.name));
+      return Fail(fmt::format("{}: materials: no material of {}{}{} is named \"{}\"", d.sourcePath.string(),
+                              d.meshPath.string(), d.instances.empty() ? "" : ", the instanced meshes",
+                              d.quadLights.empty() ? "" : ", the quad lights", o.name));
   }
   return Status::Ok();
 }
