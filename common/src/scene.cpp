@@ -207,7 +207,9 @@ uint64_t ComputeIdentity(const Scene& s) {
     const auto m = o.objectToWorld.ToRowMajor();
     h.Update(m.data(), sizeof m);
   }
-  h.Update(uint64_t(s.instances.size()));
+  // Only when there are instances: a scene without them keeps the identity
+  // it had before they existed (saved cache snapshots stay valid).
+  if (!s.instances.empty()) h.Update(uint64_t(s.instances.size()));
   for (const StaticInstance& i : s.instances) {
     for (uint32_t x : {i.firstTriangle, i.triangleCount, i.firstVertex, i.vertexCount, i.prototype})
       h.Update(uint64_t(x));
