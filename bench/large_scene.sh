@@ -20,13 +20,23 @@
 # triangles" and the street/sponza ratios, and the marginal cost per million
 # triangles (street - sponza) / (triangles street - triangles sponza), which
 # leaves out the fixed cost of a process (code, libraries, thread stacks).
-# Not in ctest: the street takes seconds and ~1 GB.
+# Then bench/instancing_bench (build/bench/instancing_bench) on street.json:
+# the BVH that shares one bottom level among Sponza's 28 copies against one
+# flat BVH over all 2.14 million triangles, as the SMA builds it (not robust)
+# and as the renderer does (robust), each variant in a process of its own.
+# Last, stage 1 of the same view in both scenes (bench/sma_bench
+# --stage1-only, real processes, 640x360, 2 renderer threads): sponza.json's
+# "atrium" camera and street.json's "sponza_atrium", the same view in its
+# first Sponza copy, RUNS times alternately.
+# Not in ctest: the street takes seconds and ~1.5 GB.
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 runs="${1:-1}"
 renderer="$root/build/renderer/penumbra-renderer"
 sma="$root/build/sma/penumbra-sma"
-for exe in "$renderer" "$sma"; do
+instancing="$root/build/bench/instancing_bench"
+sma_bench="$root/build/bench/sma_bench"
+for exe in "$renderer" "$sma" "$instancing" "$sma_bench"; do
   [[ -x "$exe" ]] || { echo "large_scene.sh: $exe missing (run scripts/build.sh)" >&2; exit 1; }
 done
 work="$(mktemp -d)"
@@ -105,3 +115,24 @@ for kind in ("renderer", "sma"):
     print(f"| {kind} | {b[3] / a[3]:.1f} | {b[0] / a[0]:.1f} | {b[1] / a[1]:.1f} | {b[2] / a[2]:.1f} | "
           f"{(b[2] / b[3]) / (a[2] / a[3]):.2f} | {(b[2] - a[2]) / dmt:.0f} | {(b[0] - a[0]) / dmt:.2f} |")
 EOF
+
+# Shared BVHs against one flat BVH.
+echo
+echo "| BVH over street.json | build (s) | VmRSS it adds (MB) | primary rays (M/s, 1 thread) | hits |"
+echo "|---|---|---|---|---|"
+for robust in "" --robust; do
+  for flat in "" --flat; do
+    out="$("$instancing" --scene "$root/scenes/street.json" $flat $robust)"
+    field() { awk -F'\t' -v k="$1" '$1 == k { print $2 }' <<<"$out"; }
+    echo "| $(field variant)${robust:+, robust} | $(field build_s) | $(field bvh_rss_mb) | $(field mrays_per_s) | $(field hits) of $(field rays) |"
+  done
+done
+
+# Stage 1 of the same view.
+echo
+for run in $(seq 1 "$runs"); do
+  "$sma_bench" --scene "$root/scenes/sponza.json" --camera atrium --stage1-only --width 640 --height 360 --threads 2 \
+    2>&1 | grep "^new view"
+  "$sma_bench" --scene "$root/scenes/street.json" --camera sponza_atrium --stage1-only --width 640 --height 360 \
+    --threads 2 2>&1 | grep "^new view"
+done

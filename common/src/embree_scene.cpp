@@ -5,6 +5,7 @@
 
 #include <chrono>
 #include <cstring>
+#include <string>
 
 #include "penumbra/common/logging.h"
 
@@ -149,16 +150,19 @@ Expected<std::unique_ptr<EmbreeScene>> EmbreeScene::Build(const Scene& scene, co
   out->initial_ = *initial;
   out->last_ = out->initial_;
   Logger(options.logger)
-      ->info("BVH over {} triangles ({} vertices, {} movable objects, {} static instances of {} meshes sharing their "
-             "BVHs: {} triangles in bottom-level BVHs) built in {:.2f} s",
-             scene.triangles.size(), scene.vertices.size(), scene.objects.size(), scene.instances.size(),
-             out->meshScenes_.size(), [&] {
-               size_t inBvhs = staticTriangles;
-               for (const MovableObject& o : scene.objects) inBvhs += o.triangleCount;
-               for (size_t k = 0; k < scene.instances.size(); ++k)
-                 if (scene.instances[k].prototype == k) inBvhs += scene.instances[k].triangleCount;
-               return inBvhs;
-             }(),
+      ->info("BVH over {} triangles ({} vertices, {} movable objects{}) built in {:.2f} s", scene.triangles.size(),
+             scene.vertices.size(), scene.objects.size(),
+             scene.instances.empty()
+                 ? std::string()
+                 : fmt::format(", {} static instances of {} meshes sharing their BVHs: {} triangles in bottom-level "
+                               "BVHs",
+                               scene.instances.size(), out->meshScenes_.size(), [&] {
+                                 size_t inBvhs = staticTriangles;
+                                 for (const MovableObject& o : scene.objects) inBvhs += o.triangleCount;
+                                 for (size_t k = 0; k < scene.instances.size(); ++k)
+                                   if (scene.instances[k].prototype == k) inBvhs += scene.instances[k].triangleCount;
+                                 return inBvhs;
+                               }()),
              std::chrono::duration<double>(std::chrono::steady_clock::now() - buildStart).count());
   return out;
 }

@@ -9,6 +9,7 @@
 #include <chrono>
 #include <cmath>
 #include <exception>
+#include <map>
 #include <optional>
 #include <string>
 #include <vector>
@@ -115,15 +116,14 @@ Status AddInstances(const SceneDescription& description, float creaseAngleDeg, S
   // Meshes in order of first use; copies of one mesh named by equal paths.
   std::vector<fs::path> meshes;
   std::vector<std::vector<RigidTransform>> placements;
+  std::map<fs::path, size_t> meshIndex;
   for (const InstanceDescription& i : description.instances) {
-    const fs::path key = i.meshPath.lexically_normal();
-    const auto found = std::find(meshes.begin(), meshes.end(), key);
-    if (found == meshes.end()) {
-      meshes.push_back(key);
-      placements.push_back({i.meshToWorld});
-    } else {
-      placements[size_t(found - meshes.begin())].push_back(i.meshToWorld);
+    const auto [it, added] = meshIndex.try_emplace(i.meshPath.lexically_normal(), meshes.size());
+    if (added) {
+      meshes.push_back(it->first);
+      placements.emplace_back();
     }
+    placements[it->second].push_back(i.meshToWorld);
   }
   const auto log = Logger("scene");
   const auto start = std::chrono::steady_clock::now();
