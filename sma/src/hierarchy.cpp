@@ -6,6 +6,7 @@
 #include <fmt/format.h>
 
 #include "penumbra/common/hash.h"
+#include "penumbra/sma/memory_usage.h"
 
 namespace penumbra::sma {
 
@@ -291,6 +292,17 @@ boost::container::small_vector<NodeId, 2> Hierarchy::EdgeNeighbours(NodeId leaf,
   for (NodeId n : it->second)
     if (n != leaf) out.push_back(n);
   return out;
+}
+
+size_t Hierarchy::MemoryBytes() const {
+  size_t bytes = nodes_.capacity() * sizeof(Node) + vertices_.capacity() * sizeof(SampleVertex);
+  bytes += UnorderedMapBytes(midpointOfVertexEdge_) + UnorderedMapBytes(midpointOfPointEdge_) +
+           UnorderedMapBytes(leavesOfPointEdge_);
+  // A list of more than two leaves on one point edge (non-manifold input)
+  // leaves the small_vector's inline storage; rare, and counted here whole.
+  for (const auto& [key, leaves] : leavesOfPointEdge_)
+    if (leaves.capacity() > leaves.static_capacity) bytes += leaves.capacity() * sizeof(NodeId);
+  return bytes;
 }
 
 float Hierarchy::Area(NodeId id) const {

@@ -55,9 +55,14 @@ void SampleCache::Reserve(size_t vertexCount) {
   while (chunks_.size() < chunksNeeded) {
     chunks_.push_back(std::make_unique<Slot[]>(kChunkSlots));
     directory_[chunks_.size() - 1].store(chunks_.back().get(), std::memory_order_release);
+    chunksAllocated_.fetch_add(1, kRelaxed);
   }
   // Published after the chunks: a reader that sees the size finds them.
   size_.store(vertexCount, std::memory_order_release);
+}
+
+size_t SampleCache::MemoryBytes() const {
+  return kMaxChunks * sizeof(std::atomic<Slot*>) + chunksAllocated_.load(kRelaxed) * kChunkSlots * sizeof(Slot);
 }
 
 SampleCache::Slot& SampleCache::SlotFor(VertexId v) {

@@ -197,6 +197,13 @@ class Hierarchy {
   /// Texture coordinates of a node's corner, interpolated from the base triangle.
   Vec2 CornerUv(NodeId id, int corner) const;
 
+  /// Bytes the hierarchy's tables occupy: node and vertex arrays by capacity,
+  /// and its hash maps estimated from their bucket arrays and entries (one
+  /// heap node per entry: the entry, a next pointer, rounded up to the
+  /// allocator's 16 bytes). An estimate, not a malloc count: what issue 15's
+  /// memory budget compares. Const: callers hold the state lock shared.
+  size_t MemoryBytes() const;
+
   /// Calls f(leafId) for every leaf under `root` (or under every root, both sides).
   template <class F>
   void ForEachLeaf(NodeId root, F&& f) const;

@@ -167,6 +167,9 @@ class SampleCache {
   bool Invalidate(VertexId v, uint64_t epoch);
 
   size_t ShadedCount() const { return shadedCount_.load(std::memory_order_relaxed); }
+  /// Bytes the cache occupies: its chunk directory and the slot chunks
+  /// allocated so far (issue 15's memory accounting). Any thread.
+  size_t MemoryBytes() const;
   /// First estimates stored into vertices awaiting a reshade (a move
   /// invalidated their sample), since the cache was made.
   uint64_t Reshaded() const { return reshaded_.load(std::memory_order_relaxed); }
@@ -219,6 +222,7 @@ class SampleCache {
   std::mutex growthMutex_;  // Reserve only
   std::vector<std::unique_ptr<Slot[]>> chunks_;  // owned; under growthMutex_
   std::atomic<size_t> size_{0};
+  std::atomic<size_t> chunksAllocated_{0};
   std::atomic<size_t> shadedCount_{0};
   std::atomic<uint64_t> changes_{0};
   std::atomic<uint64_t> reshaded_{0};
