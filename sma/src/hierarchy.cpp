@@ -1,5 +1,6 @@
 #include "penumbra/sma/hierarchy.h"
 
+#include <algorithm>
 #include <cstring>
 #include <deque>
 
@@ -87,13 +88,11 @@ Hierarchy::Hierarchy(const Scene& scene) : scene_(scene) {
   }
   const uint32_t triangles = uint32_t(scene.triangles.size());
   nodes_.resize(RootCount());
-  leavesOfPointEdge_.reserve(nodes_.size() * 2);
   for (uint32_t t = 0; t < triangles; ++t) {
     Node& n = nodes_[t];
     n.baseTriangle = t;
     n.v = scene.triangles[t].v;
     n.bary = kRootBary;
-    LinkEdges(t);
   }
   if (scene.twoSided) {
     for (uint32_t t = 0; t < triangles; ++t) {
@@ -103,8 +102,18 @@ Hierarchy::Hierarchy(const Scene& scene) : scene_(scene) {
       n.back = true;
       n.v = {VertexId(sceneVertices + v[0]), VertexId(sceneVertices + v[2]), VertexId(sceneVertices + v[1])};
       n.bary = kBackRootBary;
-      LinkEdges(triangles + t);
     }
+  }
+  std::vector<std::pair<EdgeKey, NodeId>> rootEdges;
+  rootEdges.reserve(3 * nodes_.size());
+  for (NodeId r = 0; r < nodes_.size(); ++r)
+    for (int k = 0; k < 3; ++k) rootEdges.emplace_back(PointEdge(r, k), r);
+  std::sort(rootEdges.begin(), rootEdges.end());
+  rootEdgeKeys_.reserve(rootEdges.size());
+  rootEdgeRoots_.reserve(rootEdges.size());
+  for (const auto& [key, root] : rootEdges) {
+    rootEdgeKeys_.push_back(key);
+    rootEdgeRoots_.push_back(root);
   }
 }
 
@@ -114,10 +123,12 @@ Hierarchy::EdgeKey Hierarchy::PointEdge(NodeId id, int edge) const {
 }
 
 void Hierarchy::LinkEdges(NodeId id) {
+  if (IsRoot(id)) return;
   for (int k = 0; k < 3; ++k) leavesOfPointEdge_[PointEdge(id, k)].push_back(id);
 }
 
 void Hierarchy::UnlinkEdges(NodeId id) {
+  if (IsRoot(id)) return;  // a split root leaves the table's leaves by having children
   for (int k = 0; k < 3; ++k) {
     auto it = leavesOfPointEdge_.find(PointEdge(id, k));
     if (it == leavesOfPointEdge_.end()) continue;
@@ -125,6 +136,18 @@ void Hierarchy::UnlinkEdges(NodeId id) {
     leaves.erase(std::remove(leaves.begin(), leaves.end(), id), leaves.end());
     if (leaves.empty()) leavesOfPointEdge_.erase(it);
   }
+}
+
+boost::container::small_vector<NodeId, 2> Hierarchy::LeavesOnPointEdge(EdgeKey key) const {
+  boost::container::small_vector<NodeId, 2> out;
+  const auto first = std::lower_bound(rootEdgeKeys_.begin(), rootEdgeKeys_.end(), key);
+  for (auto it = first; it != rootEdgeKeys_.end() && *it == key; ++it) {
+    const NodeId root = rootEdgeRoots_[size_t(it - rootEdgeKeys_.begin())];
+    if (nodes_[root].IsLeaf()) out.push_back(root);
+  }
+  if (auto it = leavesOfPointEdge_.find(key); it != leavesOfPointEdge_.end())
+    out.insert(out.end(), it->second.begin(), it->second.end());
+  return out;
 }
 
 VertexId Hierarchy::MidpointVertex(NodeId id, int edge) {
@@ -236,9 +259,9 @@ RefineResult Hierarchy::Refine(NodeId leaf, const RefineOptions& options) {
     const EdgeKey key = splitEdges.front();
     splitEdges.pop_front();
     while (true) {
-      auto it = leavesOfPointEdge_.find(key);
-      if (it == leavesOfPointEdge_.end()) break;
-      const NodeId neighbour = it->second.front();  // splitting it removes it from the list
+      const auto leaves = LeavesOnPointEdge(key);
+      if (leaves.empty()) break;
+      const NodeId neighbour = leaves.front();  // splitting it removes it from the list
       int edge = 0;
       while (edge < 2 && PointEdge(neighbour, edge) != key) ++edge;
       const bool tall = HeightToEdgeRatio(neighbour, edge) >= options.aspectThreshold;
@@ -282,20 +305,21 @@ void Hierarchy::Reserve(size_t nodes, size_t vertices) {
 bool Hierarchy::Conforming() const {
   for (const auto& [key, leaves] : leavesOfPointEdge_)
     if (!leaves.empty() && midpointOfPointEdge_.contains(key)) return false;
+  for (size_t i = 0; i < rootEdgeKeys_.size(); ++i)
+    if (nodes_[rootEdgeRoots_[i]].IsLeaf() && midpointOfPointEdge_.contains(rootEdgeKeys_[i])) return false;
   return true;
 }
 
 boost::container::small_vector<NodeId, 2> Hierarchy::EdgeNeighbours(NodeId leaf, int edge) const {
   boost::container::small_vector<NodeId, 2> out;
-  auto it = leavesOfPointEdge_.find(PointEdge(leaf, edge));
-  if (it == leavesOfPointEdge_.end()) return out;
-  for (NodeId n : it->second)
+  for (NodeId n : LeavesOnPointEdge(PointEdge(leaf, edge)))
     if (n != leaf) out.push_back(n);
   return out;
 }
 
 size_t Hierarchy::MemoryBytes() const {
-  size_t bytes = nodes_.capacity() * sizeof(Node) + vertices_.capacity() * sizeof(SampleVertex);
+  size_t bytes = nodes_.capacity() * sizeof(Node) + vertices_.capacity() * sizeof(SampleVertex) +
+                 rootEdgeKeys_.capacity() * sizeof(EdgeKey) + rootEdgeRoots_.capacity() * sizeof(NodeId);
   bytes += UnorderedMapBytes(midpointOfVertexEdge_) + UnorderedMapBytes(midpointOfPointEdge_) +
            UnorderedMapBytes(leavesOfPointEdge_);
   // A list of more than two leaves on one point edge (non-manifold input)

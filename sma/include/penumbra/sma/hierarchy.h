@@ -218,8 +218,13 @@ class Hierarchy {
   NodeId AddChild(NodeId parent, const std::array<VertexId, 3>& v, const std::array<Vec2, 3>& bary);
   void Split4(NodeId id, RefineResult& result);
   void Split2(NodeId id, int edge, RefineResult& result);
-  void LinkEdges(NodeId id);
+  bool IsRoot(NodeId id) const { return id < RootCount(); }
+  void LinkEdges(NodeId id);    // non-root leaves only: roots are in the root edge table
   void UnlinkEdges(NodeId id);
+  /// The leaves whose edge joins the two points of `key`: unsplit roots
+  /// from the root edge table (by root id), then other leaves (in the
+  /// order they were made) -- the order Refine() splits them in.
+  boost::container::small_vector<NodeId, 2> LeavesOnPointEdge(EdgeKey key) const;
   float HeightToEdgeRatio(NodeId id, int edge) const;
 
   const Scene& scene_;
@@ -228,7 +233,14 @@ class Hierarchy {
   uint32_t pointCount_ = 0;
   std::unordered_map<EdgeKey, VertexId> midpointOfVertexEdge_;  // vertex edge -> midpoint vertex
   std::unordered_map<EdgeKey, uint32_t> midpointOfPointEdge_;   // point edge -> midpoint point
+  // Leaves by point edge, for leaves that are not roots.
   std::unordered_map<EdgeKey, boost::container::small_vector<NodeId, 2>> leavesOfPointEdge_;
+  // Roots' edges by point edge (issue 15: a base triangle costs no hash map
+  // entries until it is split): two parallel arrays sorted by (key, root),
+  // three entries per root, made once; a root in them is a leaf while it
+  // has no children.
+  std::vector<EdgeKey> rootEdgeKeys_;
+  std::vector<NodeId> rootEdgeRoots_;
 };
 
 // --- Template definitions ---------------------------------------------------
