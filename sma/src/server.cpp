@@ -1,5 +1,7 @@
 #include "penumbra/sma/server.h"
 
+#include <malloc.h>
+
 #include <array>
 #include <map>
 #include <mutex>
@@ -1478,8 +1480,14 @@ Expected<std::unique_ptr<SmaServer>> SmaServer::Create(const Scene& scene, SmaOp
   }
   std::optional<RestoredCache> restored =
       snapshots ? snapshots->Restore(scene, RadianceBounds::ForScene(scene)) : std::optional<RestoredCache>();
-  return std::unique_ptr<SmaServer>(new SmaServer(std::make_unique<Impl>(
+  auto server = std::unique_ptr<SmaServer>(new SmaServer(std::make_unique<Impl>(
       scene, std::move(options), std::move(*tracer), std::move(snapshots), std::move(restored))));
+  // Issue 15: loading the scene and building Embree's and the hierarchy's
+  // structures peak above what stays; glibc keeps the freed heap pages
+  // resident (and the SMA's memory budget is compared with what is left), so
+  // hand them back once, here.
+  malloc_trim(0);
+  return server;
 }
 
 SmaServer::SmaServer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
