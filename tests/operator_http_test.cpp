@@ -233,6 +233,19 @@ TEST_F(OperatorHttpTest, MetricsAreValidAndSaneAfterAClientConverged) {
   const double rss = Value(sma, "penumbra_sma_resident_memory_bytes");
   EXPECT_GT(rss, 4e6);
   EXPECT_LT(rss, 8e9);
+  // The SMA's data (issue 15): the parts add up to the whole, each is there
+  // (the client holds triangles, so its mirror is not empty), and the whole
+  // is within what the process holds; no budget was given.
+  const double memory = Value(sma, "penumbra_sma_memory_bytes");
+  const double cacheBytes = Value(sma, "penumbra_sma_memory_part_bytes", {{"part", "cache"}});
+  const double hierarchyBytes = Value(sma, "penumbra_sma_memory_part_bytes", {{"part", "hierarchy"}});
+  const double clientBytes = Value(sma, "penumbra_sma_memory_part_bytes", {{"part", "clients"}});
+  EXPECT_GT(cacheBytes, 0.0);
+  EXPECT_GT(hierarchyBytes, 0.0);
+  EXPECT_GT(clientBytes, 0.0);
+  EXPECT_EQ(memory, cacheBytes + hierarchyBytes + clientBytes);
+  EXPECT_LT(memory, rss);
+  EXPECT_EQ(Value(sma, "penumbra_sma_memory_budget_bytes"), 0.0);
   // The same counters a client's StatsRequest reads.
   auto viaProtocol = client->Counter("samples_shaded");
   ASSERT_TRUE(viaProtocol);

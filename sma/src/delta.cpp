@@ -5,6 +5,7 @@
 #include <google/protobuf/io/coded_stream.h>
 
 #include "penumbra/common/framing.h"
+#include "penumbra/sma/memory_usage.h"
 
 namespace penumbra::sma {
 
@@ -85,9 +86,12 @@ size_t ClientMirror::AppendUpdates(std::span<const VertexId> vertices, const Sam
   return n;
 }
 
+size_t ClientMirror::MemoryBytes() const { return UnorderedMapBytes(held_) + UnorderedMapBytes(vertexRefs_); }
+
 void ClientMirror::Clear() {
-  held_.clear();
-  vertexRefs_.clear();
+  // Assigned, not clear()ed: clear() keeps the bucket arrays.
+  held_ = {};
+  vertexRefs_ = {};
 }
 
 ViewPlan PlanView(const VisibleSet& visible, const ClientMirror& mirror, const Hierarchy& hierarchy,

@@ -1,11 +1,13 @@
 #include "penumbra/sma/hierarchy.h"
 
+#include <algorithm>
 #include <cstring>
 #include <deque>
 
 #include <fmt/format.h>
 
 #include "penumbra/common/hash.h"
+#include "penumbra/sma/memory_usage.h"
 
 namespace penumbra::sma {
 
@@ -84,39 +86,67 @@ Hierarchy::Hierarchy(const Scene& scene) : scene_(scene) {
     }
     pointCount_ *= 2;
   }
-  const uint32_t triangles = uint32_t(scene.triangles.size());
-  nodes_.resize(RootCount());
-  leavesOfPointEdge_.reserve(nodes_.size() * 2);
-  for (uint32_t t = 0; t < triangles; ++t) {
-    Node& n = nodes_[t];
-    n.baseTriangle = t;
-    n.v = scene.triangles[t].v;
-    n.bary = kRootBary;
-    LinkEdges(t);
+  // Root records are made on first use (RootNode), a chunk at a time.
+  rootChunks_.reset(new std::atomic<Node*>[(RootCount() + kRootChunkNodes - 1) / kRootChunkNodes]());
+  rootMutex_ = std::make_unique<std::mutex>();
+  std::vector<std::pair<EdgeKey, NodeId>> rootEdges;
+  rootEdges.reserve(3 * RootCount());
+  for (NodeId r = 0; r < RootCount(); ++r) {
+    const std::array<VertexId, 3> v = RootCorners(r);
+    for (int k = 0; k < 3; ++k)
+      rootEdges.emplace_back(KeyOf(vertices_[v[(k + 1) % 3]].point, vertices_[v[(k + 2) % 3]].point), r);
   }
-  if (scene.twoSided) {
-    for (uint32_t t = 0; t < triangles; ++t) {
-      const auto& v = scene.triangles[t].v;
-      Node& n = nodes_[triangles + t];
-      n.baseTriangle = t;
-      n.back = true;
-      n.v = {VertexId(sceneVertices + v[0]), VertexId(sceneVertices + v[2]), VertexId(sceneVertices + v[1])};
-      n.bary = kBackRootBary;
-      LinkEdges(triangles + t);
-    }
+  std::sort(rootEdges.begin(), rootEdges.end());
+  rootEdgeKeys_.reserve(rootEdges.size());
+  rootEdgeRoots_.reserve(rootEdges.size());
+  for (const auto& [key, root] : rootEdges) {
+    rootEdgeKeys_.push_back(key);
+    rootEdgeRoots_.push_back(root);
   }
 }
 
+std::array<VertexId, 3> Hierarchy::RootCorners(NodeId root) const {
+  const size_t triangles = BaseTriangleCount();
+  if (root < triangles) return scene_.triangles[root].v;
+  const auto& v = scene_.triangles[root - triangles].v;
+  const VertexId offset = VertexId(scene_.vertices.size());
+  return {offset + v[0], offset + v[2], offset + v[1]};
+}
+
+Node* Hierarchy::MakeRootChunk(size_t chunk) const {
+  std::lock_guard lock(*rootMutex_);
+  Node* nodes = rootChunks_[chunk].load(std::memory_order_relaxed);
+  if (nodes) return nodes;  // another reader made it meanwhile
+  auto made = std::make_unique<Node[]>(kRootChunkNodes);
+  const size_t triangles = BaseTriangleCount();
+  for (size_t i = 0; i < kRootChunkNodes; ++i) {
+    const NodeId root = NodeId(chunk * kRootChunkNodes + i);
+    if (root >= RootCount()) break;
+    Node& n = made[i];
+    n.back = root >= triangles;
+    n.baseTriangle = uint32_t(n.back ? root - triangles : root);
+    n.v = RootCorners(root);
+    n.bary = n.back ? kBackRootBary : kRootBary;
+  }
+  nodes = made.get();
+  rootChunkStore_.push_back(std::move(made));
+  // Release: a reader that finds the pointer finds the records whole.
+  rootChunks_[chunk].store(nodes, std::memory_order_release);
+  return nodes;
+}
+
 Hierarchy::EdgeKey Hierarchy::PointEdge(NodeId id, int edge) const {
-  const Node& n = nodes_[id];
+  const Node& n = NodeRef(id);
   return KeyOf(vertices_[n.v[(edge + 1) % 3]].point, vertices_[n.v[(edge + 2) % 3]].point);
 }
 
 void Hierarchy::LinkEdges(NodeId id) {
+  if (IsRoot(id)) return;
   for (int k = 0; k < 3; ++k) leavesOfPointEdge_[PointEdge(id, k)].push_back(id);
 }
 
 void Hierarchy::UnlinkEdges(NodeId id) {
+  if (IsRoot(id)) return;  // a split root leaves the table's leaves by having children
   for (int k = 0; k < 3; ++k) {
     auto it = leavesOfPointEdge_.find(PointEdge(id, k));
     if (it == leavesOfPointEdge_.end()) continue;
@@ -126,9 +156,21 @@ void Hierarchy::UnlinkEdges(NodeId id) {
   }
 }
 
+boost::container::small_vector<NodeId, 2> Hierarchy::LeavesOnPointEdge(EdgeKey key) const {
+  boost::container::small_vector<NodeId, 2> out;
+  const auto first = std::lower_bound(rootEdgeKeys_.begin(), rootEdgeKeys_.end(), key);
+  for (auto it = first; it != rootEdgeKeys_.end() && *it == key; ++it) {
+    const NodeId root = rootEdgeRoots_[size_t(it - rootEdgeKeys_.begin())];
+    if (RootIsLeaf(root)) out.push_back(root);
+  }
+  if (auto it = leavesOfPointEdge_.find(key); it != leavesOfPointEdge_.end())
+    out.insert(out.end(), it->second.begin(), it->second.end());
+  return out;
+}
+
 VertexId Hierarchy::MidpointVertex(NodeId id, int edge) {
   const int i = (edge + 1) % 3, j = (edge + 2) % 3;
-  const Node& n = nodes_[id];
+  const Node& n = NodeRef(id);
   const VertexId a = n.v[i], b = n.v[j];
   auto [it, inserted] = midpointOfVertexEdge_.try_emplace(KeyOf(a, b), VertexId(vertices_.size()));
   if (!inserted) return it->second;
@@ -153,14 +195,15 @@ VertexId Hierarchy::MidpointVertex(NodeId id, int edge) {
 
 NodeId Hierarchy::AddChild(NodeId parent, const std::array<VertexId, 3>& v, const std::array<Vec2, 3>& bary) {
   Node child;
-  child.baseTriangle = nodes_[parent].baseTriangle;
-  child.back = nodes_[parent].back;
+  const Node& p = NodeRef(parent);
+  child.baseTriangle = p.baseTriangle;
+  child.back = p.back;
   child.v = v;
   child.bary = bary;
   child.parent = parent;
-  child.depth = uint8_t(std::min(255, nodes_[parent].depth + 1));
-  nodes_.push_back(child);
-  const NodeId id = NodeId(nodes_.size() - 1);
+  child.depth = uint8_t(std::min(255, p.depth + 1));
+  nodes_.push_back(child);  // after the last use of p: it may be in nodes_
+  const NodeId id = NodeId(RootCount() + nodes_.size() - 1);
   LinkEdges(id);
   return id;
 }
@@ -172,14 +215,14 @@ void Hierarchy::Split4(NodeId id, RefineResult& result) {
   for (VertexId v = VertexId(verticesBefore); v < vertices_.size(); ++v) result.newVertices.push_back(v);
   UnlinkEdges(id);
   // Copies: AddChild grows nodes_, which would invalidate a reference.
-  const std::array<VertexId, 3> c = nodes_[id].v;
-  const std::array<Vec2, 3> b = nodes_[id].bary;
+  const std::array<VertexId, 3> c = NodeRef(id).v;
+  const std::array<Vec2, 3> b = NodeRef(id).bary;
   const std::array<Vec2, 3> mb = {0.5f * (b[1] + b[2]), 0.5f * (b[2] + b[0]), 0.5f * (b[0] + b[1])};
   const NodeId first = AddChild(id, {c[0], m[2], m[1]}, {b[0], mb[2], mb[1]});
   AddChild(id, {m[2], c[1], m[0]}, {mb[2], b[1], mb[0]});
   AddChild(id, {m[1], m[0], c[2]}, {mb[1], mb[0], b[2]});
   AddChild(id, {m[0], m[1], m[2]}, {mb[0], mb[1], mb[2]});
-  Node& n = nodes_[id];
+  Node& n = MutableNode(id);
   n.firstChild = first;
   n.childCount = 4;
   n.mid = m;
@@ -192,12 +235,12 @@ void Hierarchy::Split2(NodeId id, int k, RefineResult& result) {
   if (vertices_.size() > verticesBefore) result.newVertices.push_back(m);
   UnlinkEdges(id);
   const int i = (k + 1) % 3, j = (k + 2) % 3;
-  const std::array<VertexId, 3> c = nodes_[id].v;
-  const std::array<Vec2, 3> b = nodes_[id].bary;
+  const std::array<VertexId, 3> c = NodeRef(id).v;
+  const std::array<Vec2, 3> b = NodeRef(id).bary;
   const Vec2 mb = 0.5f * (b[i] + b[j]);
   const NodeId first = AddChild(id, {c[k], c[i], m}, {b[k], b[i], mb});
   AddChild(id, {c[k], m, c[j]}, {b[k], mb, b[j]});
-  Node& n = nodes_[id];
+  Node& n = MutableNode(id);
   n.firstChild = first;
   n.childCount = 2;
   n.splitEdge = uint8_t(k);
@@ -206,7 +249,7 @@ void Hierarchy::Split2(NodeId id, int k, RefineResult& result) {
 }
 
 float Hierarchy::HeightToEdgeRatio(NodeId id, int edge) const {
-  const Node& n = nodes_[id];
+  const Node& n = NodeRef(id);
   const Vec3& pk = vertices_[n.v[edge]].position;
   const Vec3& pi = vertices_[n.v[(edge + 1) % 3]].position;
   const Vec3& pj = vertices_[n.v[(edge + 2) % 3]].position;
@@ -218,7 +261,7 @@ float Hierarchy::HeightToEdgeRatio(NodeId id, int edge) const {
 
 RefineResult Hierarchy::Refine(NodeId leaf, const RefineOptions& options) {
   RefineResult result;
-  if (leaf >= nodes_.size() || !nodes_[leaf].IsLeaf() || nodes_[leaf].depth >= options.maxDepth) return result;
+  if (leaf >= NodeCount() || !NodeRef(leaf).IsLeaf() || NodeRef(leaf).depth >= options.maxDepth) return result;
 
   // Point edges that have just received a midpoint: every leaf still having
   // such an edge whole must be split on it.
@@ -235,13 +278,13 @@ RefineResult Hierarchy::Refine(NodeId leaf, const RefineOptions& options) {
     const EdgeKey key = splitEdges.front();
     splitEdges.pop_front();
     while (true) {
-      auto it = leavesOfPointEdge_.find(key);
-      if (it == leavesOfPointEdge_.end()) break;
-      const NodeId neighbour = it->second.front();  // splitting it removes it from the list
+      const auto leaves = LeavesOnPointEdge(key);
+      if (leaves.empty()) break;
+      const NodeId neighbour = leaves.front();  // splitting it removes it from the list
       int edge = 0;
       while (edge < 2 && PointEdge(neighbour, edge) != key) ++edge;
       const bool tall = HeightToEdgeRatio(neighbour, edge) >= options.aspectThreshold;
-      if (tall && budget > 0 && nodes_[neighbour].depth < options.maxDepth) {
+      if (tall && budget > 0 && NodeRef(neighbour).depth < options.maxDepth) {
         split4(neighbour);
         --budget;
       } else {
@@ -253,12 +296,12 @@ RefineResult Hierarchy::Refine(NodeId leaf, const RefineOptions& options) {
 }
 
 Status Hierarchy::ApplySplit(NodeId node, uint8_t childCount, uint8_t splitEdge) {
-  if (node >= nodes_.size()) return Fail(fmt::format("node {} does not exist ({} nodes)", node, nodes_.size()));
-  if (!nodes_[node].IsLeaf()) return Fail(fmt::format("node {} is split already", node));
+  if (node >= NodeCount()) return Fail(fmt::format("node {} does not exist ({} nodes)", node, NodeCount()));
+  if (!NodeRef(node).IsLeaf()) return Fail(fmt::format("node {} is split already", node));
   RefineResult ignored;
   if (childCount == 4) {
-    if (nodes_[node].depth >= kMaxSplitDepth)
-      return Fail(fmt::format("node {} is at depth {}, too deep for a 1 -> 4 split", node, nodes_[node].depth));
+    if (NodeRef(node).depth >= kMaxSplitDepth)
+      return Fail(fmt::format("node {} is at depth {}, too deep for a 1 -> 4 split", node, NodeRef(node).depth));
     Split4(node, ignored);
   } else if (childCount == 2 && splitEdge < 3) {
     Split2(node, splitEdge, ignored);
@@ -269,7 +312,7 @@ Status Hierarchy::ApplySplit(NodeId node, uint8_t childCount, uint8_t splitEdge)
 }
 
 void Hierarchy::Reserve(size_t nodes, size_t vertices) {
-  nodes_.reserve(nodes);
+  nodes_.reserve(nodes > RootCount() ? nodes - RootCount() : 0);
   vertices_.reserve(vertices);
   const size_t midpoints = vertices > vertices_.size() ? vertices - vertices_.size() : 0;
   midpointOfVertexEdge_.reserve(midpointOfVertexEdge_.size() + midpoints);
@@ -281,26 +324,45 @@ void Hierarchy::Reserve(size_t nodes, size_t vertices) {
 bool Hierarchy::Conforming() const {
   for (const auto& [key, leaves] : leavesOfPointEdge_)
     if (!leaves.empty() && midpointOfPointEdge_.contains(key)) return false;
+  for (size_t i = 0; i < rootEdgeKeys_.size(); ++i)
+    if (RootIsLeaf(rootEdgeRoots_[i]) && midpointOfPointEdge_.contains(rootEdgeKeys_[i])) return false;
   return true;
 }
 
 boost::container::small_vector<NodeId, 2> Hierarchy::EdgeNeighbours(NodeId leaf, int edge) const {
   boost::container::small_vector<NodeId, 2> out;
-  auto it = leavesOfPointEdge_.find(PointEdge(leaf, edge));
-  if (it == leavesOfPointEdge_.end()) return out;
-  for (NodeId n : it->second)
+  for (NodeId n : LeavesOnPointEdge(PointEdge(leaf, edge)))
     if (n != leaf) out.push_back(n);
   return out;
 }
 
+size_t Hierarchy::MemoryBytes() const {
+  size_t rootChunks;
+  {
+    std::lock_guard lock(*rootMutex_);
+    rootChunks = rootChunkStore_.size();
+  }
+  size_t bytes = nodes_.capacity() * sizeof(Node) + vertices_.capacity() * sizeof(SampleVertex) +
+                 rootChunks * kRootChunkNodes * sizeof(Node) +
+                 (RootCount() + kRootChunkNodes - 1) / kRootChunkNodes * sizeof(std::atomic<Node*>) +
+                 rootEdgeKeys_.capacity() * sizeof(EdgeKey) + rootEdgeRoots_.capacity() * sizeof(NodeId);
+  bytes += UnorderedMapBytes(midpointOfVertexEdge_) + UnorderedMapBytes(midpointOfPointEdge_) +
+           UnorderedMapBytes(leavesOfPointEdge_);
+  // A list of more than two leaves on one point edge (non-manifold input)
+  // leaves the small_vector's inline storage; rare, and counted here whole.
+  for (const auto& [key, leaves] : leavesOfPointEdge_)
+    if (leaves.capacity() > leaves.static_capacity) bytes += leaves.capacity() * sizeof(NodeId);
+  return bytes;
+}
+
 float Hierarchy::Area(NodeId id) const {
-  const Node& n = nodes_[id];
+  const Node& n = NodeRef(id);
   const Vec3& p0 = vertices_[n.v[0]].position;
   return 0.5f * glm::length(glm::cross(vertices_[n.v[1]].position - p0, vertices_[n.v[2]].position - p0));
 }
 
 Vec2 Hierarchy::CornerUv(NodeId id, int corner) const {
-  const Node& n = nodes_[id];
+  const Node& n = NodeRef(id);
   const Triangle& t = scene_.triangles[n.baseTriangle];
   const Vec2 b = n.bary[corner];
   return (1.0f - b.x - b.y) * t.uv[0] + b.x * t.uv[1] + b.y * t.uv[2];

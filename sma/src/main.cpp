@@ -143,6 +143,14 @@ int main(int argc, char** argv) {
   app.add_option("--max-texture-requests", options.maxTextureRequests,
                  "TextureRequests a client may have unanswered; more are refused with LIMIT_EXCEEDED")
       ->check(CLI::Range(1u, 1u << 20))->capture_default_str();
+  // Memory (issue 15)
+  app.add_option_function<uint64_t>(
+         "--memory-budget",
+         [&options](const uint64_t& mib) { options.memoryBudgetBytes = mib << 20; },
+         "MiB the SMA's data (sample cache, hierarchy, clients' mirrors) should stay within; 0: unbounded. "
+         "Reported in the stats; nothing is evicted to keep it yet")
+      ->check(CLI::Range(uint64_t(0), uint64_t(1) << 24))
+      ->default_str("0");
   // Operability (issue 16)
   auto* maxRefineDepth =
       app.add_option("--max-refine-depth", maxDepth, "Refinement: deepest level of the triangle hierarchy a leaf is "

@@ -43,26 +43,48 @@ void StoreRgb(std::atomic<float> (&c)[3], const Rgb& value) {
 }
 }  // namespace
 
-SampleCache::SampleCache() : directory_(new std::atomic<Slot*>[kMaxChunks]()) {}
+SampleCache::SampleCache() : directory_(new std::atomic<std::atomic<Slot*>*>[kTopEntries]()) {}
 SampleCache::~SampleCache() = default;
 
 void SampleCache::Reserve(size_t vertexCount) {
   if (vertexCount <= Size()) return;
   std::lock_guard lock(growthMutex_);
   if (vertexCount <= size_.load(kRelaxed)) return;
-  const size_t chunksNeeded = (vertexCount + kChunkSlots - 1) >> kChunkBits;
-  PENUMBRA_CHECK(chunksNeeded <= kMaxChunks, fmt::format("sample cache of {} vertices", vertexCount));
-  while (chunks_.size() < chunksNeeded) {
-    chunks_.push_back(std::make_unique<Slot[]>(kChunkSlots));
-    directory_[chunks_.size() - 1].store(chunks_.back().get(), std::memory_order_release);
-  }
-  // Published after the chunks: a reader that sees the size finds them.
+  PENUMBRA_CHECK(vertexCount - 1 <= std::numeric_limits<VertexId>::max(),
+                 fmt::format("sample cache of {} vertices", vertexCount));
   size_.store(vertexCount, std::memory_order_release);
+}
+
+size_t SampleCache::MemoryBytes() const {
+  return kTopEntries * sizeof(std::atomic<std::atomic<Slot*>*>) +
+         pagesAllocated_.load(kRelaxed) * kPageEntries * sizeof(std::atomic<Slot*>) +
+         chunksAllocated_.load(kRelaxed) * kChunkSlots * sizeof(Slot);
 }
 
 SampleCache::Slot& SampleCache::SlotFor(VertexId v) {
   if (v >= Size()) Reserve(size_t(v) + 1);
-  return const_cast<Slot&>(*Find(v));
+  if (const Slot* found = Find(v)) return const_cast<Slot&>(*found);
+  // The first write into this chunk (and maybe this page): made under the
+  // growth mutex, published with release so that a reader that finds a
+  // pointer sees what it points to initialised.
+  std::lock_guard lock(growthMutex_);
+  std::atomic<std::atomic<Slot*>*>& top = directory_[v >> kTopShift];
+  std::atomic<Slot*>* page = top.load(kRelaxed);
+  if (!page) {
+    pages_.push_back(std::make_unique<std::atomic<Slot*>[]>(kPageEntries));
+    page = pages_.back().get();
+    top.store(page, std::memory_order_release);
+    pagesAllocated_.fetch_add(1, kRelaxed);
+  }
+  std::atomic<Slot*>& entry = page[(v >> kChunkBits) & (kPageEntries - 1)];
+  Slot* chunk = entry.load(kRelaxed);
+  if (!chunk) {
+    chunks_.push_back(std::make_unique<Slot[]>(kChunkSlots));
+    chunk = chunks_.back().get();
+    entry.store(chunk, std::memory_order_release);
+    chunksAllocated_.fetch_add(1, kRelaxed);
+  }
+  return chunk[v & (kChunkSlots - 1)];
 }
 
 uint32_t SampleCache::BeginWrite(Slot& s) {
@@ -154,8 +176,12 @@ std::vector<VertexId> SampleCache::Improve(std::span<const ShadedSample> samples
   std::vector<VertexId> changed;
   changed.reserve(samples.size());
   for (const ShadedSample& sample : samples) {
-    if (sample.vertex >= Size() || sample.paths == 0) continue;
-    Slot& s = SlotFor(sample.vertex);
+    if (sample.paths == 0) continue;
+    // A vertex whose chunk was never written is unshaded, never invalidated:
+    // an improvement has nothing to do there.
+    Slot* found = const_cast<Slot*>(Find(sample.vertex));
+    if (!found) continue;
+    Slot& s = *found;
     const uint32_t sequence = BeginWrite(s);
     const uint16_t rounds = s.rounds.load(kRelaxed);
     if (sample.epoch < s.validFrom.load(kRelaxed) || s.awaitingReshade.load(kRelaxed)) {
@@ -215,8 +241,9 @@ size_t SampleCache::Store(std::span<const ShadedSample> samples, std::vector<Ver
 size_t SampleCache::Restore(std::span<const ShadedSample> samples) { return Put(samples, true, nullptr); }
 
 bool SampleCache::Evict(VertexId v) {
-  if (v >= Size()) return false;
-  Slot& s = SlotFor(v);
+  Slot* found = const_cast<Slot*>(Find(v));
+  if (!found) return false;  // never written: nothing to evict, and no chunk made for it
+  Slot& s = *found;
   const uint32_t sequence = BeginWrite(s);
   const bool wasShaded = s.shaded.load(kRelaxed) != 0;
   if (wasShaded) {

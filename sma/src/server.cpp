@@ -1,5 +1,7 @@
 #include "penumbra/sma/server.h"
 
+#include <malloc.h>
+
 #include <array>
 #include <map>
 #include <mutex>
@@ -12,6 +14,7 @@
 #include "penumbra/common/auth.h"
 #include "penumbra/common/embree_scene.h"
 #include "penumbra/common/logging.h"
+#include "penumbra/common/metrics.h"
 #include "penumbra/common/messages.h"
 #include "penumbra/common/server_skeleton.h"
 #include "penumbra/common/wire_convert.h"
@@ -20,6 +23,7 @@
 #include "penumbra/sma/delta.h"
 #include "penumbra/sma/hierarchy.h"
 #include "penumbra/sma/job_scheduler.h"
+#include "penumbra/sma/memory_usage.h"
 #include "penumbra/sma/refinement.h"
 #include "penumbra/sma/sample_cache.h"
 #include "penumbra/sma/refinement_driver.h"
@@ -210,6 +214,10 @@ class SmaServer::Impl {
   std::atomic<uint64_t> movesRefused_{0};
 
   void AddGlobalCounters(wire::StatsReply* reply);
+  // What the cache, the hierarchy and the clients' mirrors occupy (issue 15):
+  // takes the state lock shared, briefly. Any thread but an I/O thread's
+  // hot path (stats, metrics).
+  MemoryUsage Memory();
   // Timings of the views answered since the last stats line (any session).
   void RecordView(double traceMs, double mapMs, double firstDeltaMs) {
     latencies_.toFirstDelta.Observe(firstDeltaMs / 1000.0);
@@ -316,6 +324,8 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   }
 
   net::Connection& Connection() { return *connection_; }
+  /// The client's mirror's bytes as of its last change (any thread).
+  size_t MirrorBytes() const { return mirrorBytes_.load(std::memory_order_relaxed); }
 
   // Strand: samples were stored in the cache.
   void OnSamplesArrived(const std::vector<VertexId>& vertices);
@@ -416,6 +426,7 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   std::shared_ptr<HitBuffer> hits_;        // base hits of the applied view
   std::shared_ptr<VisibleSet> visible_;    // latest mapping of hits_
   ClientMirror mirror_;
+  std::atomic<size_t> mirrorBytes_{0};     // mirror_.MemoryBytes() as of its last change (memory accounting)
   std::vector<VertexId> interest_;         // vertices we asked the pool for
   std::vector<wire::Envelope> outbox_;     // built under the state lock, sent by Flush after it
   uint64_t sequence_ = 0;
@@ -722,6 +733,7 @@ void SmaServer::Impl::Session::QueueChanges(wire::DeltaKind kind, std::span<cons
     FillStatus(delta, last && offset >= additions.size());
     outbox_.push_back(std::move(envelope));
   }
+  mirrorBytes_.store(mirror_.MemoryBytes(), std::memory_order_relaxed);  // read by the stats (any thread)
 }
 
 void SmaServer::Impl::Session::Flush() {
@@ -1241,6 +1253,17 @@ void SmaServer::Impl::Session::OnClosed(const std::string& reason) {
 
 // --- Server -----------------------------------------------------------------
 
+MemoryUsage SmaServer::Impl::Memory() {
+  MemoryUsage usage;
+  {
+    std::shared_lock lock(stateMutex_);
+    usage.hierarchy = hierarchy_.MemoryBytes();
+  }
+  usage.cache = cache_.MemoryBytes();
+  for (const auto& s : Sessions()) usage.clients += s->MirrorBytes();
+  return usage;
+}
+
 void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
   size_t nodes, vertices, shaded;
   uint64_t hits, misses;
@@ -1274,6 +1297,13 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
   AddCounter(reply, "cache_hits", double(hits));
   AddCounter(reply, "cache_misses", double(misses));
   AddCounter(reply, "cache_hit_rate", hits + misses > 0 ? double(hits) / double(hits + misses) : 0.0);
+  const MemoryUsage memory = Memory();
+  AddCounter(reply, "memory_bytes", double(memory.Total()));
+  AddCounter(reply, "memory_cache_bytes", double(memory.cache));
+  AddCounter(reply, "memory_hierarchy_bytes", double(memory.hierarchy));
+  AddCounter(reply, "memory_clients_bytes", double(memory.clients));
+  AddCounter(reply, "memory_budget_bytes", double(options_.memoryBudgetBytes));
+  if (const auto rss = metrics::ResidentMemoryBytes()) AddCounter(reply, "process_resident_bytes", double(*rss));
   AddCounter(reply, "samples_requested", double(pool.requested));
   AddCounter(reply, "samples_shaded", double(pool.shaded));
   AddCounter(reply, "samples_requeued", double(pool.requeued));
@@ -1374,9 +1404,18 @@ void SmaServer::Impl::LogStats() {
     moves = fmt::format("; scene epoch {}, {} moves, {} samples invalidated, {} re-shaded, {} stale replies refused",
                         CurrentPose()->epoch, moves_.load(), samplesInvalidated_.load(), cache_.Reshaded(),
                         samplesStale_.load());
-  log_->info("stats: cache {} shaded, hit rate {:.1f}%; {:.0f} requested/s, {:.0f} shaded/s, {} queued; "
+  const MemoryUsage memory = Memory();
+  constexpr double kMiB = 1024.0 * 1024.0;
+  std::string budget;
+  if (options_.memoryBudgetBytes > 0)
+    budget = fmt::format(" of a {:.0f} MiB budget{}", double(options_.memoryBudgetBytes) / kMiB,
+                         memory.Total() > options_.memoryBudgetBytes ? " (OVER: nothing is collected yet)" : "");
+  log_->info("stats: cache {} shaded, hit rate {:.1f}%; memory {:.1f} MiB{} (cache {:.1f}, hierarchy {:.1f}, "
+             "clients {:.1f}; resident {:.1f}); {:.0f} requested/s, {:.0f} shaded/s, {} queued; "
              "renderers:{}; clients:{}; views: {}{}",
              shaded, hits + misses > 0 ? 100.0 * double(hits) / double(hits + misses) : 0.0,
+             double(memory.Total()) / kMiB, budget, double(memory.cache) / kMiB, double(memory.hierarchy) / kMiB,
+             double(memory.clients) / kMiB, double(metrics::ResidentMemoryBytes().value_or(0)) / kMiB,
              double(now.requested - lastStats_.requested) / seconds, double(now.shaded - lastStats_.shaded) / seconds,
              now.queuedVisible + now.queuedPredicted + now.queuedBackground, renderers.empty() ? " none" : renderers,
              clients.empty() ? " none" : clients, views, moves);
@@ -1516,8 +1555,14 @@ Expected<std::unique_ptr<SmaServer>> SmaServer::Create(const Scene& scene, SmaOp
   }
   std::optional<RestoredCache> restored =
       snapshots ? snapshots->Restore(scene, RadianceBounds::ForScene(scene)) : std::optional<RestoredCache>();
-  return std::unique_ptr<SmaServer>(new SmaServer(std::make_unique<Impl>(
+  auto server = std::unique_ptr<SmaServer>(new SmaServer(std::make_unique<Impl>(
       scene, std::move(options), std::move(*tracer), std::move(snapshots), std::move(restored))));
+  // Issue 15: loading the scene and building Embree's and the hierarchy's
+  // structures peak above what stays; glibc keeps the freed heap pages
+  // resident (and the SMA's memory budget is compared with what is left), so
+  // hand them back once, here.
+  malloc_trim(0);
+  return server;
 }
 
 SmaServer::SmaServer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}

@@ -172,6 +172,41 @@ TEST(ClientMirrorTest, TexturedTrianglesCarryTheirUvs) {
   EXPECT_EQ(d.triangle_materials(1), 1u);
 }
 
+// Memory accounting (issue 15): the mirror's bytes follow what it holds,
+// and the hierarchy's follow its refinement.
+TEST(MemoryAccountingTest, MirrorAndHierarchyBytesFollowWhatTheyHold) {
+  const Scene s = QuadScene();
+  Hierarchy h(s);
+  const size_t bare = h.MemoryBytes();
+  // Root records are made on first use: none yet, then one chunk.
+  EXPECT_GE(bare, h.VertexCount() * sizeof(SampleVertex));
+  EXPECT_LT(bare, 1000 * sizeof(Node));
+  EXPECT_TRUE(h.GetNode(0).IsLeaf());
+  EXPECT_GE(h.MemoryBytes(), bare + 1000 * sizeof(Node));
+  const size_t withRoots = h.MemoryBytes();
+  RefineOptions options;
+  for (int i = 0; i < 4; ++i) {
+    std::vector<NodeId> leaves;
+    h.ForEachLeaf(kNoNode, [&](NodeId id) { leaves.push_back(id); });
+    for (NodeId id : leaves) h.Refine(id, options);
+  }
+  ASSERT_GT(h.NodeCount(), 200u);
+  EXPECT_GT(h.MemoryBytes(), withRoots + (h.NodeCount() - 2) * sizeof(Node));
+
+  SampleCache cache;
+  ShadeAll(h, cache);
+  ClientMirror mirror;
+  const size_t empty = mirror.MemoryBytes();
+  std::vector<NodeId> leaves;
+  h.ForEachLeaf(kNoNode, [&](NodeId id) { leaves.push_back(id); });
+  wire::Delta d;
+  mirror.AppendChanges({}, leaves, h, cache, d);
+  // At least one heap entry per held triangle and per held vertex.
+  EXPECT_GE(mirror.MemoryBytes(), empty + 16 * (mirror.TriangleCount() + mirror.VertexCount()));
+  mirror.Clear();
+  EXPECT_LT(mirror.MemoryBytes(), 16 * leaves.size());
+}
+
 TEST(PlanViewTest, SortsTheDifferenceIntoThePapersLists) {
   const Scene s = QuadScene();
   Hierarchy h(s);

@@ -1,8 +1,10 @@
 #include "penumbra/sma/hierarchy.h"
 
+#include <atomic>
 #include <map>
 #include <random>
 #include <set>
+#include <thread>
 
 #include <gtest/gtest.h>
 
@@ -95,6 +97,36 @@ TEST(HierarchyTest, RootsAndBaseVerticesKeepSceneIndices) {
     // Its base triangle and barycentrics point back at the vertex.
     EXPECT_LT(glm::length(s.PointAt(sv.baseTriangle, sv.bary.x, sv.bary.y) - sv.position), 1e-6f);
   }
+}
+
+// Issue 15: root records are made on first use, by const readers too (the
+// SMA's views read under the shared state lock). Readers racing to make the
+// same chunks all see whole, correct roots; splits after that find them.
+// (Meant for ThreadSanitizer too: scripts/test.sh --tsan.)
+TEST(HierarchyTest, RootRecordsMadeByConcurrentReadersAreWholeAndShared) {
+  const Scene s = GridScene(40);  // 3200 triangles: several chunks of roots
+  Hierarchy h(s);
+  const size_t bare = h.MemoryBytes();
+  std::vector<std::thread> readers;
+  std::atomic<int> wrong{0};
+  for (int r = 0; r < 4; ++r)
+    readers.emplace_back([&, r] {
+      for (size_t i = 0; i < s.triangles.size(); ++i) {
+        const NodeId t = NodeId((i * 7 + size_t(r) * 811) % s.triangles.size());  // each its own order
+        const Node& n = h.GetNode(t);
+        if (n.baseTriangle != t || n.v != s.triangles[t].v || !n.IsLeaf() || n.parent != kNoNode) ++wrong;
+        if (h.Locate(t, false, 0.25f, 0.25f, [](const Node&) { return true; }) != t) ++wrong;
+      }
+    });
+  for (auto& t : readers) t.join();
+  EXPECT_EQ(wrong.load(), 0);
+  EXPECT_GT(h.MemoryBytes(), bare + s.triangles.size() * sizeof(Node) / 2);
+  // Splits and conformity work on the records the readers made.
+  RefineOptions options;
+  const RefineResult result = h.Refine(NodeId(100), options);
+  EXPECT_FALSE(result.newVertices.empty());
+  EXPECT_EQ(h.GetNode(100).childCount, 4);
+  EXPECT_TRUE(h.Conforming());
 }
 
 TEST(HierarchyTest, IdsAreStableAcrossRefinement) {

@@ -83,6 +83,41 @@ TEST(SampleCache, GrowsPastChunksWithoutLosingSamples) {
   EXPECT_EQ(cache.Size(), size_t(kCount));
 }
 
+// Issue 15: memory follows what has been written, not the id range.
+TEST(SampleCache, ChunksAreAllocatedByTheFirstWriteOnly) {
+  SampleCache cache;
+  const size_t empty = cache.MemoryBytes();
+  cache.Reserve(10'000'000);
+  EXPECT_EQ(cache.Size(), 10'000'000u);
+  EXPECT_EQ(cache.MemoryBytes(), empty);  // the range, no slots
+  // Reads, improvements and evictions of unwritten vertices allocate nothing.
+  EXPECT_FALSE(cache.IsShaded(9'000'000));
+  EXPECT_FALSE(cache.Read(9'000'000));
+  EXPECT_EQ(cache.Generation(9'000'000), 0u);
+  EXPECT_FALSE(cache.AwaitingReshade(9'000'000));
+  EXPECT_EQ(cache.ValidFrom(9'000'000), 0u);
+  EXPECT_TRUE(cache.Improve(std::vector{Sample(9'000'000, 1.0f, 1)}).empty());
+  EXPECT_FALSE(cache.Evict(9'000'000));
+  EXPECT_EQ(cache.MemoryBytes(), empty);
+  // One store: one chunk, whatever the id.
+  EXPECT_EQ(cache.Store(std::vector{Sample(9'000'000, 3.0f)}), 1u);
+  const size_t oneChunk = cache.MemoryBytes() - empty;
+  EXPECT_GT(oneChunk, 0u);
+  EXPECT_EQ(cache.Radiance(9'000'000).r, 3.0f);
+  EXPECT_FALSE(cache.IsShaded(9'000'001));  // a neighbour in the chunk: unshaded
+  EXPECT_EQ(cache.Store(std::vector{Sample(9'000'001, 4.0f)}), 1u);
+  EXPECT_EQ(cache.MemoryBytes(), empty + oneChunk);
+  // An invalidation is a write (it keeps the vertex's ValidFrom): it makes
+  // the chunk of a vertex never shaded, and a stale sample is then refused.
+  cache.Invalidate(5, 2);
+  EXPECT_EQ(cache.MemoryBytes(), empty + 2 * oneChunk);
+  std::vector<VertexId> stale;
+  ShadedSample old = Sample(5, 1.0f);
+  old.epoch = 1;
+  EXPECT_EQ(cache.Store(std::vector{old}, &stale), 0u);
+  EXPECT_EQ(stale, std::vector<VertexId>{5});
+}
+
 // Two writers store and improve, while the cache grows under them, and
 // readers check that every sample they see is whole and that what was
 // shaded stays shaded with its rounds and paths only rising.

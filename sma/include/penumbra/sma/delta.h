@@ -54,6 +54,9 @@ class ClientMirror {
   /// no sample now (invalidated by a move: their reshade is sent when it
   /// arrives). Returns how many.
   size_t AppendUpdates(std::span<const VertexId> vertices, const SampleCache& cache, wire::Delta& delta) const;
+  /// Estimated heap bytes of what the mirror keeps (its two hash tables;
+  /// memory_usage.h). Not synchronised: the owner's thread (the session's strand).
+  size_t MemoryBytes() const;
   /// Forgets everything (the client reconnected or was reset).
   void Clear();
 

@@ -48,11 +48,20 @@
 // restart. A change to how Split4/Split2 number children or midpoints must
 // bump CacheSnapshot's format version.
 //
+// Storage (issue 15). Root records are made on first use, a chunk at a time,
+// and roots' adjacency lives in a compact table sorted by point edge, so an
+// unvisited base triangle costs 36 bytes of that table and its two sides'
+// records nothing (base vertices are still made for the whole scene).
+//
 // Threads: not synchronised. The SMA guards a Hierarchy with its state lock;
-// const member functions may run concurrently with each other.
+// const member functions may run concurrently with each other (making root
+// records on first use is synchronised inside).
 
 #include <array>
+#include <atomic>
 #include <cstdint>
+#include <memory>
+#include <mutex>
 #include <span>
 #include <unordered_map>
 #include <vector>
@@ -135,7 +144,7 @@ class Hierarchy {
   explicit Hierarchy(const Scene& scene);
 
   const Scene& GetScene() const { return scene_; }
-  size_t NodeCount() const { return nodes_.size(); }
+  size_t NodeCount() const { return RootCount() + nodes_.size(); }
   size_t VertexCount() const { return vertices_.size(); }
   size_t BaseTriangleCount() const { return scene_.triangles.size(); }
   /// Whether base triangles have back roots (the scene is two-sided).
@@ -151,8 +160,13 @@ class Hierarchy {
     return backFace && TwoSided() ? NodeId(BaseTriangleCount() + baseTriangle) : NodeId(baseTriangle);
   }
   /// Whether `id` belongs to a back root's tree.
-  bool IsBack(NodeId id) const { return nodes_[id].back; }
-  const Node& GetNode(NodeId id) const { return nodes_[id]; }
+  bool IsBack(NodeId id) const { return NodeRef(id).back; }
+  /// A root's record is made on first use, with the others of its chunk
+  /// (from the scene: it is a pure function of it until the root is split),
+  /// under a small leaf mutex of its own, so that const readers under the
+  /// shared state lock may make it; the reference stays valid for the life
+  /// of the hierarchy, like every other node's until the next split.
+  const Node& GetNode(NodeId id) const { return NodeRef(id); }
   const SampleVertex& GetVertex(VertexId id) const { return vertices_[id]; }
 
   /// The node containing point (b1, b2) of `baseTriangle`, on the side
@@ -197,6 +211,13 @@ class Hierarchy {
   /// Texture coordinates of a node's corner, interpolated from the base triangle.
   Vec2 CornerUv(NodeId id, int corner) const;
 
+  /// Bytes the hierarchy's tables occupy: node and vertex arrays by capacity,
+  /// and its hash maps estimated from their bucket arrays and entries (one
+  /// heap node per entry: the entry, a next pointer, rounded up to the
+  /// allocator's 16 bytes). An estimate, not a malloc count: what issue 15's
+  /// memory budget compares. Const: callers hold the state lock shared.
+  size_t MemoryBytes() const;
+
   /// Calls f(leafId) for every leaf under `root` (or under every root, both sides).
   template <class F>
   void ForEachLeaf(NodeId root, F&& f) const;
@@ -211,17 +232,53 @@ class Hierarchy {
   NodeId AddChild(NodeId parent, const std::array<VertexId, 3>& v, const std::array<Vec2, 3>& bary);
   void Split4(NodeId id, RefineResult& result);
   void Split2(NodeId id, int edge, RefineResult& result);
-  void LinkEdges(NodeId id);
+  bool IsRoot(NodeId id) const { return id < RootCount(); }
+  static constexpr size_t kRootChunkNodes = 1024;  // root records made together (64 KiB)
+  const Node& NodeRef(NodeId id) const {
+    if (id >= RootCount()) return nodes_[id - RootCount()];
+    const Node* chunk = rootChunks_[id / kRootChunkNodes].load(std::memory_order_acquire);
+    if (!chunk) chunk = MakeRootChunk(id / kRootChunkNodes);
+    return chunk[id % kRootChunkNodes];
+  }
+  // Writers (splits) hold the state lock exclusively.
+  Node& MutableNode(NodeId id) { return const_cast<Node&>(NodeRef(id)); }
+  // Whether a root has no children, without making its record.
+  bool RootIsLeaf(NodeId root) const {
+    const Node* chunk = rootChunks_[root / kRootChunkNodes].load(std::memory_order_acquire);
+    return !chunk || chunk[root % kRootChunkNodes].IsLeaf();
+  }
+  std::array<VertexId, 3> RootCorners(NodeId root) const;
+  Node* MakeRootChunk(size_t chunk) const;
+  void LinkEdges(NodeId id);    // non-root leaves only: roots are in the root edge table
   void UnlinkEdges(NodeId id);
+  /// The leaves whose edge joins the two points of `key`: unsplit roots
+  /// from the root edge table (by root id), then other leaves (in the
+  /// order they were made) -- the order Refine() splits them in.
+  boost::container::small_vector<NodeId, 2> LeavesOnPointEdge(EdgeKey key) const;
   float HeightToEdgeRatio(NodeId id, int edge) const;
 
   const Scene& scene_;
-  std::vector<Node> nodes_;
+  std::vector<Node> nodes_;  // nodes made by splits: id RootCount() + i
+  // Root records (issue 15: a base triangle costs no node record until
+  // something needs it): chunk pointers, null until made; made chunks are
+  // owned by rootChunkStore_ and never freed while the hierarchy lives.
+  // rootMutex_ (a leaf) guards rootChunkStore_ and serialises making; held
+  // in unique_ptrs so that a Hierarchy stays movable.
+  std::unique_ptr<std::atomic<Node*>[]> rootChunks_;
+  std::unique_ptr<std::mutex> rootMutex_;
+  mutable std::vector<std::unique_ptr<Node[]>> rootChunkStore_;
   std::vector<SampleVertex> vertices_;
   uint32_t pointCount_ = 0;
   std::unordered_map<EdgeKey, VertexId> midpointOfVertexEdge_;  // vertex edge -> midpoint vertex
   std::unordered_map<EdgeKey, uint32_t> midpointOfPointEdge_;   // point edge -> midpoint point
+  // Leaves by point edge, for leaves that are not roots.
   std::unordered_map<EdgeKey, boost::container::small_vector<NodeId, 2>> leavesOfPointEdge_;
+  // Roots' edges by point edge (issue 15: a base triangle costs no hash map
+  // entries until it is split): two parallel arrays sorted by (key, root),
+  // three entries per root, made once; a root in them is a leaf while it
+  // has no children.
+  std::vector<EdgeKey> rootEdgeKeys_;
+  std::vector<NodeId> rootEdgeRoots_;
 };
 
 // --- Template definitions ---------------------------------------------------
@@ -230,7 +287,7 @@ template <class DescendPredicate>
 NodeId Hierarchy::Descend(NodeId from, std::array<float, 3>& l, DescendPredicate descend) const {
   NodeId id = from;
   while (true) {
-    const Node& n = nodes_[id];
+    const Node& n = NodeRef(id);
     if (n.childCount == 0 || !descend(n)) return id;
     if (n.childCount == 4) {
       // Child order and the barycentric maps are derived in hierarchy.cpp.
@@ -266,7 +323,7 @@ template <class DescendPredicate>
 NodeId Hierarchy::Locate(uint32_t baseTriangle, bool backFace, float b1, float b2, DescendPredicate descend) const {
   const NodeId root = RootOf(baseTriangle, backFace);
   // A back root's corners are the base triangle's in the order (0, 2, 1).
-  std::array<float, 3> lambda = nodes_[root].back ? std::array<float, 3>{1.0f - b1 - b2, b2, b1}
+  std::array<float, 3> lambda = NodeRef(root).back ? std::array<float, 3>{1.0f - b1 - b2, b2, b1}
                                                   : std::array<float, 3>{1.0f - b1 - b2, b1, b2};
   return Descend(root, lambda, descend);
 }
@@ -282,7 +339,7 @@ void Hierarchy::ForEachLeaf(NodeId root, F&& f) const {
   while (!stack.empty()) {
     const NodeId id = stack.back();
     stack.pop_back();
-    const Node& n = nodes_[id];
+    const Node& n = NodeRef(id);
     if (n.childCount == 0) {
       f(id);
       continue;

@@ -14,6 +14,11 @@
 //    directory allocated once, so a reader's slot stays where it is while
 //    the hierarchy's growth grows the cache (only growth takes a mutex, and
 //    readers never take it).
+//  * Storage is lazy (issue 15: memory follows what has been seen, not the
+//    model's size): Reserve() only extends the id range; a chunk is
+//    allocated by the first write into it (Store, Restore, Invalidate), and
+//    a read of a vertex whose chunk does not exist reads an unshaded slot
+//    of generation 0 -- what the chunk's slots hold when it is made.
 //  * Each slot is a sequence lock: a writer makes its sequence odd, writes,
 //    and makes it even again (release); Read() retries until it saw one even
 //    sequence before and after, so it returns a whole sample, never half of
@@ -98,8 +103,8 @@ class SampleCache {
   SampleCache(const SampleCache&) = delete;
   SampleCache& operator=(const SampleCache&) = delete;
 
-  /// Grows to cover `vertexCount` vertices (new ones unshaded). Takes the
-  /// growth mutex; existing slots do not move.
+  /// Grows to cover `vertexCount` vertices (new ones unshaded). Allocates
+  /// nothing: chunks come with their first write. Takes the growth mutex.
   void Reserve(size_t vertexCount);
   size_t Size() const { return size_.load(std::memory_order_acquire); }
 
@@ -167,6 +172,9 @@ class SampleCache {
   bool Invalidate(VertexId v, uint64_t epoch);
 
   size_t ShadedCount() const { return shadedCount_.load(std::memory_order_relaxed); }
+  /// Bytes the cache occupies: its chunk directory and the slot chunks
+  /// allocated so far (issue 15's memory accounting). Any thread.
+  size_t MemoryBytes() const;
   /// First estimates stored into vertices awaiting a reshade (a move
   /// invalidated their sample), since the cache was made.
   uint64_t Reshaded() const { return reshaded_.load(std::memory_order_relaxed); }
@@ -198,15 +206,26 @@ class SampleCache {
     std::atomic<uint64_t> epoch{0};      // of the stored sample
     std::atomic<uint64_t> validFrom{0};  // samples shaded before this epoch are refused
   };
-  static constexpr unsigned kChunkBits = 14;  // 16 Ki slots per chunk
+  // Chunks are small (64 KiB) so that lazy storage follows what was seen
+  // closely; the directory has two levels so that its own size stays small
+  // for any id range: a fixed top level of 1 Ki entries, each a page of
+  // 4 Ki chunk pointers (covering 4 Mi vertices) made with its first chunk.
+  static constexpr unsigned kChunkBits = 10;  // 1 Ki slots per chunk
   static constexpr size_t kChunkSlots = size_t(1) << kChunkBits;
-  static constexpr size_t kMaxChunks = (size_t(std::numeric_limits<VertexId>::max()) >> kChunkBits) + 1;
+  static constexpr unsigned kPageBits = 12;   // chunk pointers per directory page: 4 Ki
+  static constexpr size_t kPageEntries = size_t(1) << kPageBits;
+  static constexpr unsigned kTopShift = kChunkBits + kPageBits;
+  static constexpr size_t kTopEntries = (size_t(std::numeric_limits<VertexId>::max()) >> kTopShift) + 1;
 
+  // Null for a vertex beyond Size() or whose chunk was never written.
   const Slot* Find(VertexId v) const {
     if (v >= Size()) return nullptr;
-    return &directory_[v >> kChunkBits].load(std::memory_order_acquire)[v & (kChunkSlots - 1)];
+    const std::atomic<Slot*>* page = directory_[v >> kTopShift].load(std::memory_order_acquire);
+    if (!page) return nullptr;
+    const Slot* chunk = page[(v >> kChunkBits) & (kPageEntries - 1)].load(std::memory_order_acquire);
+    return chunk ? &chunk[v & (kChunkSlots - 1)] : nullptr;
   }
-  Slot& SlotFor(VertexId v);  // grows the cache when needed
+  Slot& SlotFor(VertexId v);  // grows the cache and allocates the slot's chunk when needed
   // Writer side of a slot's sequence lock (writers of one slot serialize on it).
   static uint32_t BeginWrite(Slot& s);
   static void EndWrite(Slot& s, uint32_t sequence) { s.sequence.store(sequence + 2, std::memory_order_release); }
@@ -215,10 +234,13 @@ class SampleCache {
   template <typename F>
   auto ReadConsistent(VertexId v, F&& read) const -> decltype(read(std::declval<const Slot&>()));
 
-  std::unique_ptr<std::atomic<Slot*>[]> directory_;
+  std::unique_ptr<std::atomic<std::atomic<Slot*>*>[]> directory_;  // kTopEntries pages, null until made
+  std::vector<std::unique_ptr<std::atomic<Slot*>[]>> pages_;        // owned; under growthMutex_
   std::mutex growthMutex_;  // Reserve only
-  std::vector<std::unique_ptr<Slot[]>> chunks_;  // owned; under growthMutex_
+  std::vector<std::unique_ptr<Slot[]>> chunks_;  // owned, in allocation order; under growthMutex_
   std::atomic<size_t> size_{0};
+  std::atomic<size_t> chunksAllocated_{0};  // chunks_.size(), pages_.size() for MemoryBytes (no lock)
+  std::atomic<size_t> pagesAllocated_{0};
   std::atomic<size_t> shadedCount_{0};
   std::atomic<uint64_t> changes_{0};
   std::atomic<uint64_t> reshaded_{0};

@@ -108,6 +108,11 @@ struct SmaOptions {
   bool predictionOn = true;
   CameraPredictionOptions prediction;
   double predictionResolution = 0.5;
+  /// Memory budget (issue 15) for the SMA's data -- sample cache, hierarchy,
+  /// clients' mirrors (memory_usage.h) -- in bytes; 0: unbounded. Reported
+  /// in the stats (memory_budget_bytes) and the stats log, which says when
+  /// the data is over it; nothing is evicted to keep it yet.
+  uint64_t memoryBudgetBytes = 0;
 };
 
 class SmaServer {
