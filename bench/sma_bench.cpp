@@ -10,6 +10,8 @@
 //                 [complete display <= 50 ms];
 //  * walk:        the scene's camera path at 30 views/s, view -> first delta
 //                 per frame and bytes per frame.
+// Every measurement starts once the SMA has encoded the scene's textures
+// (its start-up tail; figures from before a833eaa include it in the new view).
 // Baselines measured in the same run: the renderer's own rate on the same
 // samples, fed directly over the wire (so stage 1 reads as a fraction of
 // what the renderer alone could do), and a stats round trip to the SMA (the
