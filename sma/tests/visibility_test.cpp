@@ -391,6 +391,90 @@ TEST(TwoSidedVisibilityTest, AHitMapsToTheSideTheRayMet) {
   }
 }
 
+// Static instances (issue 15): copies of one mesh share one Embree BVH, so a
+// hit names its copy by instID and the mesh's triangle by primID; the tracer
+// must turn the two into the copy's own triangle of Scene::triangles (where
+// the copies are stored in world space) and judge the side met with the
+// copy's world normal. Every pixel against brute force over all triangles
+// of the same scene, with a movable object before the copies in Embree's
+// instance numbering, and copies turned (one upside down, so its floor quad
+// is seen from behind).
+TEST(InstanceVisibilityTest, EachHitNamesItsCopysOwnTriangleAndSide) {
+  SceneBuilder meshBuilder;
+  {
+    std::mt19937 rng(23);
+    std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+    const uint32_t m = meshBuilder.AddMaterial(Material{});
+    meshBuilder.AddQuad(Vec3(-0.6f, 0.0f, -0.6f), Vec3(0.0f, 0.0f, 1.2f), Vec3(1.2f, 0.0f, 0.0f), m);  // up
+    for (int i = 0; i < 8; ++i) {
+      const Vec3 c(0.5f * u(rng), 0.3f + 0.2f * u(rng), 0.5f * u(rng));
+      meshBuilder.AddTriangle({c + 0.4f * Vec3(u(rng), u(rng), u(rng)), c + 0.4f * Vec3(u(rng), u(rng), u(rng)),
+                               c + 0.4f * Vec3(u(rng), u(rng), u(rng))},
+                              m);
+    }
+  }
+  Scene mesh = Finish(meshBuilder);
+  const uint32_t meshTriangles = uint32_t(mesh.triangles.size());
+
+  SceneBuilder b;
+  const uint32_t m = b.AddMaterial(Material{});
+  for (int i = -3; i < 3; ++i)  // the scene's own static triangles: a floor
+    for (int j = -3; j < 3; ++j) b.AddQuad(Vec3(float(i), 0.0f, float(j)), Vec3(0, 0, 1), Vec3(1, 0, 0), m);
+  const RigidTransform places[] = {
+      RigidTransform::FromAxisAngle(Vec3(0, 1, 0), 0.0f, Vec3(-1.4f, 0.05f, 0.0f)),
+      RigidTransform::FromAxisAngle(Vec3(0, 1, 0), kPi / 2, Vec3(1.4f, 0.05f, 0.2f)),
+      RigidTransform::FromAxisAngle(Vec3(1, 0, 0), kPi, Vec3(0.0f, 1.9f, -1.2f)),  // upside down, in the air
+  };
+  EXPECT_EQ(b.AddInstances(std::move(mesh), places), 3u * meshTriangles);
+  MovableObject crate;  // at its own object space's place, so brute force may read its positions as world ones
+  crate.name = "crate";
+  b.BeginObject(crate);
+  b.AddQuad(Vec3(-0.3f, 0.0f, 1.4f), Vec3(0.6f, 0.0f, 0.0f), Vec3(0.0f, 0.8f, 0.0f), m);
+  b.EndObject();
+  const Scene scene = Finish(b);
+  ASSERT_EQ(scene.instances.size(), 3u);
+  ASSERT_EQ(scene.objects.size(), 1u);
+  const auto tracer = TracerFor(scene);
+  ASSERT_TRUE(tracer);
+
+  // Which copy (0-2), the floor (-1) or the object (3) a triangle belongs to.
+  const auto partOf = [&](uint32_t t) {
+    for (int k = 0; k < 3; ++k)
+      if (t >= scene.instances[k].firstTriangle && t < scene.instances[k].firstTriangle + scene.instances[k].triangleCount)
+        return k;
+    return t >= scene.objects[0].firstTriangle ? 3 : -1;
+  };
+  std::map<int, int> pixelsOfPart;
+  int backFaces = 0, hitsCompared = 0;
+  for (const CameraView& view : {View(Vec3(0.3f, 2.2f, 4.0f), Vec3(0.0f, 0.5f, -0.3f), 50.0f, 128, 80),
+                                 View(Vec3(0.4f, 3.4f, 0.3f), Vec3(0.0f, 1.0f, -1.0f), 70.0f, 90, 60)}) {
+    SCOPED_TRACE(::testing::Message() << "eye " << view.pose.eye.x << ", " << view.pose.eye.y);
+    HitBuffer traced;
+    tracer->Trace(view, traced);
+    const Comparison r = CompareWithBruteForce(scene, view, traced);
+    EXPECT_LT(r.ties, (r.compared + r.ties) / 20 + 1);
+    hitsCompared += r.hits;
+    const PinholeCamera camera(view);
+    for (int y = 0; y < view.height; ++y)
+      for (int x = 0; x < view.width; ++x) {
+        const PixelHit& hit = traced.hits[size_t(y) * size_t(view.width) + size_t(x)];
+        if (hit.triangle == kNoHit) continue;
+        ++pixelsOfPart[partOf(hit.triangle)];
+        const float along = glm::dot(camera.DirectionThrough(float(x) + 0.5f, float(y) + 0.5f),
+                                     scene.GeometricNormal(hit.triangle));
+        if (std::abs(along) > 1e-3f) {
+          EXPECT_EQ(hit.backFace, along > 0.0f) << "pixel (" << x << ", " << y << ")";
+        }
+        backFaces += hit.backFace;
+      }
+  }
+  // Every copy, the floor and the object were seen, on many pixels, and
+  // some surfaces from behind (the upside-down copy's quad from above).
+  EXPECT_GT(hitsCompared, 2000);
+  for (int part = -1; part <= 3; ++part) EXPECT_GT(pixelsOfPart[part], 200) << "part " << part;
+  EXPECT_GT(backFaces, 100);
+}
+
 TEST_F(MapHitsToNodesTest, RefusingToDescendYieldsTheRoots) {
   const HitBuffer hits = Trace(64, 48);
   VisibleSet visible;
