@@ -9,6 +9,8 @@
 #include <map>
 #include <random>
 #include <tuple>
+#include <unordered_map>
+#include <vector>
 
 namespace penumbra::sma {
 namespace {
@@ -170,14 +172,21 @@ Comparison CompareWithBruteForce(const Scene& s, const CameraView& view, const H
 bool DescendAlways(const Node&, const void*) { return true; }
 bool DescendNever(const Node&, const void*) { return false; }
 
-// A yes or no per node, drawn at random.
+// A yes or no per node, drawn at random. Nodes are not one array (root
+// records are made in chunks on first use), so a node is known by its
+// address: Index() maps every node's record to its id once marks are drawn.
 struct Marks {
   const Hierarchy* hierarchy;
   std::vector<uint8_t> descend;  // per NodeId
+  std::unordered_map<const Node*, NodeId> idOf;
+  void Index() {
+    idOf.clear();
+    for (NodeId id = 0; id < hierarchy->NodeCount(); ++id) idOf.emplace(&hierarchy->GetNode(id), id);
+  }
 };
 bool DescendIfMarked(const Node& n, const void* context) {
   const auto& marks = *static_cast<const Marks*>(context);
-  return marks.descend[size_t(&n - &marks.hierarchy->GetNode(0))] != 0;
+  return marks.descend[marks.idOf.at(&n)] != 0;
 }
 
 // The smallest barycentric of world point `p` on node `id` (negative
@@ -301,6 +310,7 @@ class MapHitsToNodesTest : public ::testing::Test {
     marks_.hierarchy = &hierarchy_;
     marks_.descend.resize(hierarchy_.NodeCount());
     for (uint8_t& m : marks_.descend) m = rng() % 4 != 0;
+    marks_.Index();
   }
 
   HitBuffer Trace(int width, int height) const {
