@@ -52,6 +52,7 @@ struct Options {
   int maxBounces = 8;
   double horizon = 0.5;
   double widen = 1.15;
+  double resolution = 0.5;  // the predicted view's size, times the view's
   double tailSeconds = 4.0;  // after the path's end, the client keeps reading
 };
 
@@ -71,7 +72,8 @@ Expected<RunFigures> RunOnce(const Options& o, const CameraPath& path, bool pred
   so.spp = o.spp;
   so.maxBounces = o.maxBounces;
   so.smaArgs = {"--prediction", prediction ? "on" : "off", "--prediction-horizon", std::to_string(o.horizon),
-                "--prediction-widen", std::to_string(o.widen)};
+                "--prediction-widen", std::to_string(o.widen), "--prediction-resolution",
+                std::to_string(o.resolution)};
   auto stack = bench::StartSmaStack(so);
   if (!stack) return stack.error();
   auto client = SmaTestClient::Connect(stack->sma.port, "prediction-bench");
@@ -148,9 +150,9 @@ int Run(const Options& o) {
     return 1;
   }
   std::printf("prediction_bench: %s#%s at %.2fx its speed (%.1f s), %dx%d, %.1f views/s, horizon %.2f s, widen %.2f, "
-              "%d run(s) each; load average %s\n",
+              "resolution %.2f, %d run(s) each; load average %s\n",
               o.scene.c_str(), o.path.c_str(), o.speed, path->DurationSeconds() / o.speed, o.width, o.height, o.rate,
-              o.horizon, o.widen, o.repeat, bench::LoadAverage().c_str());
+              o.horizon, o.widen, o.resolution, o.repeat, bench::LoadAverage().c_str());
   std::map<bool, std::vector<RunFigures>> runs;
   for (int r = 0; r < o.repeat; ++r) {
     for (bool prediction : {false, true}) {
@@ -218,6 +220,8 @@ int main(int argc, char** argv) {
   app.add_option("--max-bounces", o.maxBounces)->check(CLI::Range(1, 64))->capture_default_str();
   app.add_option("--horizon", o.horizon)->check(CLI::Range(0.01, 10.0))->capture_default_str();
   app.add_option("--widen", o.widen)->check(CLI::Range(1.0, 2.0))->capture_default_str();
+  app.add_option("--resolution", o.resolution, "The predicted view's width and height, times the view's")
+      ->check(CLI::Range(0.1, 2.0))->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   return penumbra::Run(o);
 }
