@@ -38,8 +38,11 @@ namespace {
 // Commits triangles [firstTriangle, firstTriangle + count) of `scene` (their
 // vertices [firstVertex, firstVertex + vertexCount), in object space) as
 // geometry 0 of a new scene; primitive id = triangle - firstTriangle.
+// `toObject` takes the stored positions to the space the scene is built in
+// (a static instance's mesh coordinates; identity otherwise).
 Expected<RTCScene> CommitTriangles(RTCDevice device, const Scene& scene, uint32_t firstTriangle, uint32_t count,
-                                   uint32_t firstVertex, uint32_t vertexCount, bool robust) {
+                                   uint32_t firstVertex, uint32_t vertexCount, bool robust,
+                                   const RigidTransform& toObject = RigidTransform::Identity()) {
   auto check = [&](const char* step) -> Status {
     const RTCError code = rtcGetDeviceError(device);
     if (code == RTC_ERROR_NONE) return Status::Ok();
@@ -68,7 +71,7 @@ Expected<RTCScene> CommitTriangles(RTCDevice device, const Scene& scene, uint32_
     return ok ? Fail("Embree: no vertex or index buffer") : ok.error();
   }
   for (uint32_t i = 0; i < vertexCount; ++i) {
-    const Vec3& p = scene.vertices[firstVertex + i].position;
+    const Vec3 p = toObject.ApplyPoint(scene.vertices[firstVertex + i].position);
     positions[3 * i + 0] = p.x;
     positions[3 * i + 1] = p.y;
     positions[3 * i + 2] = p.z;
@@ -106,8 +109,13 @@ Expected<std::unique_ptr<EmbreeScene>> EmbreeScene::Build(const Scene& scene, co
 
   Logger(options.logger)->info("building the ray-tracing BVH over {} triangles", scene.triangles.size());
   const auto buildStart = std::chrono::steady_clock::now();
-  const uint32_t staticTriangles = scene.objects.empty() ? uint32_t(scene.triangles.size()) : scene.staticTriangleCount;
-  const uint32_t staticVertices = scene.objects.empty() ? uint32_t(scene.vertices.size()) : scene.staticVertexCount;
+  // The static scene holds the static triangles that are no instance's.
+  uint32_t staticTriangles = scene.objects.empty() ? uint32_t(scene.triangles.size()) : scene.staticTriangleCount;
+  uint32_t staticVertices = scene.objects.empty() ? uint32_t(scene.vertices.size()) : scene.staticVertexCount;
+  if (!scene.instances.empty()) {
+    staticTriangles = scene.instances.front().firstTriangle;
+    staticVertices = scene.instances.front().firstVertex;
+  }
   if (staticTriangles > 0) {
     auto committed = CommitTriangles(out->device_, scene, 0, staticTriangles, 0, staticVertices, options.robust);
     if (!committed) return committed.error();
@@ -121,13 +129,36 @@ Expected<std::unique_ptr<EmbreeScene>> EmbreeScene::Build(const Scene& scene, co
     out->objectScenes_.push_back(*committed);
     out->firstTriangleOfInstance_.push_back(o.firstTriangle);
   }
+  // One bottom-level scene per instanced mesh, from its first copy brought
+  // back to the mesh's own coordinates; every copy is an instance of it.
+  std::vector<size_t> meshOfPrototype(scene.instances.size(), 0);
+  for (size_t k = 0; k < scene.instances.size(); ++k) {
+    const StaticInstance& i = scene.instances[k];
+    if (i.prototype == k) {
+      auto committed = CommitTriangles(out->device_, scene, i.firstTriangle, i.triangleCount, i.firstVertex,
+                                       i.vertexCount, options.robust, i.meshToWorld.Inverse());
+      if (!committed) return committed.error();
+      meshOfPrototype[k] = out->meshScenes_.size();
+      out->meshScenes_.push_back(*committed);
+    }
+    out->instances_.push_back(PlacedMesh{out->meshScenes_[meshOfPrototype[i.prototype]], i.meshToWorld});
+    out->firstTriangleOfInstance_.push_back(i.firstTriangle);
+  }
   auto initial = out->BuildPose(ScenePose::Initial(scene));
   if (!initial) return initial.error();
   out->initial_ = *initial;
   out->last_ = out->initial_;
   Logger(options.logger)
-      ->info("BVH over {} triangles ({} vertices, {} movable objects) built in {:.2f} s", scene.triangles.size(),
-             scene.vertices.size(), scene.objects.size(),
+      ->info("BVH over {} triangles ({} vertices, {} movable objects, {} static instances of {} meshes sharing their "
+             "BVHs: {} triangles in bottom-level BVHs) built in {:.2f} s",
+             scene.triangles.size(), scene.vertices.size(), scene.objects.size(), scene.instances.size(),
+             out->meshScenes_.size(), [&] {
+               size_t inBvhs = staticTriangles;
+               for (const MovableObject& o : scene.objects) inBvhs += o.triangleCount;
+               for (size_t k = 0; k < scene.instances.size(); ++k)
+                 if (scene.instances[k].prototype == k) inBvhs += scene.instances[k].triangleCount;
+               return inBvhs;
+             }(),
              std::chrono::duration<double>(std::chrono::steady_clock::now() - buildStart).count());
   return out;
 }
@@ -135,7 +166,7 @@ Expected<std::unique_ptr<EmbreeScene>> EmbreeScene::Build(const Scene& scene, co
 Expected<std::shared_ptr<const PosedEmbreeScene>> EmbreeScene::BuildPose(const ScenePose& pose) const {
   std::shared_ptr<PosedEmbreeScene> posed(new PosedEmbreeScene());
   posed->pose_ = pose;
-  if (objectScenes_.empty()) {
+  if (objectScenes_.empty() && instances_.empty()) {
     posed->top_ = staticScene_;  // owned by this EmbreeScene
     return std::shared_ptr<const PosedEmbreeScene>(std::move(posed));
   }
@@ -144,6 +175,11 @@ Expected<std::shared_ptr<const PosedEmbreeScene>> EmbreeScene::BuildPose(const S
                             objectScenes_.size()));
   posed->instanced_ = true;
   posed->firstTriangleOfInstance_ = firstTriangleOfInstance_;
+  posed->objectCount_ = unsigned(objectScenes_.size());
+  posed->instanceToWorld_.reserve(firstTriangleOfInstance_.size());
+  posed->instanceToWorld_.push_back(RigidTransform::Identity());
+  for (const RigidTransform& t : pose.objectToWorld) posed->instanceToWorld_.push_back(t);
+  for (const PlacedMesh& m : instances_) posed->instanceToWorld_.push_back(m.meshToWorld);
   posed->top_ = rtcNewScene(device_);
   posed->ownsTop_ = true;
   if (robust_) rtcSetSceneFlags(posed->top_, RTC_SCENE_FLAG_ROBUST);
@@ -161,6 +197,9 @@ Expected<std::shared_ptr<const PosedEmbreeScene>> EmbreeScene::BuildPose(const S
   };
   if (staticScene_) attach(staticScene_, RigidTransform::Identity(), 0);
   for (size_t i = 0; i < objectScenes_.size(); ++i) attach(objectScenes_[i], pose.objectToWorld[i], unsigned(i + 1));
+  const unsigned firstStaticInstanceId = unsigned(1 + objectScenes_.size());
+  for (size_t k = 0; k < instances_.size(); ++k)
+    attach(instances_[k].mesh, instances_[k].meshToWorld, unsigned(firstStaticInstanceId + k));
   rtcCommitScene(posed->top_);
   if (const RTCError code = rtcGetDeviceError(device_); code != RTC_ERROR_NONE)
     return Fail(fmt::format("Embree: building the instances of a pose failed: {}", ErrorName(code)));
@@ -188,6 +227,7 @@ EmbreeScene::~EmbreeScene() {
   initial_.reset();
   last_.reset();
   for (RTCScene s : objectScenes_) rtcReleaseScene(s);
+  for (RTCScene s : meshScenes_) rtcReleaseScene(s);
   if (staticScene_) rtcReleaseScene(staticScene_);
   if (device_) rtcReleaseDevice(device_);
 }

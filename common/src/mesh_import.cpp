@@ -8,6 +8,9 @@
 #include <thread>
 #include <fstream>
 #include <iterator>
+#include <map>
+#include <mutex>
+#include <tuple>
 #include <optional>
 #include <span>
 #include <string>
@@ -15,6 +18,7 @@
 #include <unordered_set>
 #include <vector>
 
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -300,6 +304,37 @@ Status ReadsWithoutCrashing(const fs::path& meshPath, bool keepHierarchy) {
   return Status::Ok();
 }
 
+// The probe's verdict, remembered per file for the life of the process: a
+// scene that places one mesh file many times (movable objects, instances)
+// forks once for it, not once per use. Forking is cheap in a release build
+// but not under AddressSanitizer (its shadow mappings make each fork of a
+// large process take a second or more: 64 objects of one mesh took 2.5 min
+// in the scene-file fuzzer, whose inputs then timed out). A file is known by
+// device, inode, size and modification time, so a file changed or replaced
+// since is probed again. (Only the mesh file is in the key, not the .mtl
+// files it names; a crashing .mtl swapped in under an unchanged OBJ within
+// one process's life is not caught.)
+Status ProbedReadsWithoutCrashing(const fs::path& meshPath, bool keepHierarchy) {
+  struct stat info {};
+  if (stat(meshPath.c_str(), &info) != 0) return ReadsWithoutCrashing(meshPath, keepHierarchy);
+  using Key = std::tuple<dev_t, ino_t, off_t, int64_t, int64_t, bool>;
+  const Key key{info.st_dev, info.st_ino, info.st_size, int64_t(info.st_mtim.tv_sec), int64_t(info.st_mtim.tv_nsec),
+                keepHierarchy};
+  static std::mutex mutex;
+  static std::map<Key, Status> verdicts;
+  {
+    std::lock_guard lock(mutex);
+    if (auto it = verdicts.find(key); it != verdicts.end()) return it->second;
+  }
+  Status verdict = ReadsWithoutCrashing(meshPath, keepHierarchy);
+  std::lock_guard lock(mutex);
+  // At most a few hundred distinct files are ever read by one process; keep
+  // the map bounded anyway (a long-lived process reloading changed files).
+  if (verdicts.size() >= 4096) verdicts.clear();
+  verdicts.emplace(key, verdict);
+  return verdict;
+}
+
 constexpr size_t kNoGroup = ~size_t(0);
 
 // The group (index into `groups`) each of the file's meshes belongs to, or
@@ -397,7 +432,7 @@ Status ImportMesh(const fs::path& meshPath, SceneBuilder& builder, std::span<con
   // Groups need the file's nodes, which pre-transforming otherwise merges
   // away (meshes sharing a material become one).
   const bool keepHierarchy = !groups.empty();
-  if (auto ok = ReadsWithoutCrashing(meshPath, keepHierarchy); !ok) return ok;
+  if (auto ok = ProbedReadsWithoutCrashing(meshPath, keepHierarchy); !ok) return ok;
 
   Assimp::Importer importer;
   importer.SetPropertyBool(AI_CONFIG_PP_PTV_KEEP_HIERARCHY, keepHierarchy);

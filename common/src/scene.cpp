@@ -3,6 +3,7 @@
 
 #include "penumbra/common/scene.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <numeric>
@@ -206,6 +207,13 @@ uint64_t ComputeIdentity(const Scene& s) {
     const auto m = o.objectToWorld.ToRowMajor();
     h.Update(m.data(), sizeof m);
   }
+  h.Update(uint64_t(s.instances.size()));
+  for (const StaticInstance& i : s.instances) {
+    for (uint32_t x : {i.firstTriangle, i.triangleCount, i.firstVertex, i.vertexCount, i.prototype})
+      h.Update(uint64_t(x));
+    const auto m = i.meshToWorld.ToRowMajor();
+    h.Update(m.data(), sizeof m);
+  }
   return h.Digest();
 }
 
@@ -271,6 +279,41 @@ Status Scene::CheckObjects(const std::string& where) {
   return Status::Ok();
 }
 
+Status Scene::CheckInstances(const std::string& where) {
+  if (instances.empty()) return Status::Ok();
+  uint32_t nextTriangle = instances.front().firstTriangle, nextVertex = instances.front().firstVertex;
+  for (uint32_t k = 0; k < instances.size(); ++k) {
+    const StaticInstance& i = instances[k];
+    if (i.firstTriangle != nextTriangle || i.firstVertex != nextVertex || i.triangleCount == 0 || i.vertexCount == 0 ||
+        uint64_t(i.firstTriangle) + i.triangleCount > staticTriangleCount ||
+        uint64_t(i.firstVertex) + i.vertexCount > staticVertexCount)
+      return Fail(fmt::format("{}: instance {} has no triangles, or its ranges do not follow the part before it "
+                              "within the static part", where, k));
+    nextTriangle = i.firstTriangle + i.triangleCount;
+    nextVertex = i.firstVertex + i.vertexCount;
+    if (i.prototype > k || instances[i.prototype].prototype != i.prototype)
+      return Fail(fmt::format("{}: instance {} names instance {} as its prototype, which is not a first copy", where,
+                              k, i.prototype));
+    const StaticInstance& p = instances[i.prototype];
+    if (p.triangleCount != i.triangleCount || p.vertexCount != i.vertexCount)
+      return Fail(fmt::format("{}: instance {} has {} triangles and {} vertices, its prototype {} and {}", where, k,
+                              i.triangleCount, i.vertexCount, p.triangleCount, p.vertexCount));
+    // The ray tracers share the prototype's acceleration structure among the
+    // copies and name a hit by (copy, triangle of the prototype): the same
+    // triangles must use the same vertices.
+    for (uint32_t j = 0; j < i.triangleCount; ++j)
+      for (int c = 0; c < 3; ++c) {
+        const uint32_t v = triangles[i.firstTriangle + j].v[c];
+        if (v < i.firstVertex || v - i.firstVertex >= i.vertexCount ||
+            v - i.firstVertex != triangles[p.firstTriangle + j].v[c] - p.firstVertex)
+          return Fail(fmt::format("{}: triangle {} of instance {} does not match its prototype's", where, j, k));
+      }
+  }
+  if (nextTriangle != staticTriangleCount || nextVertex != staticVertexCount)
+    return Fail(fmt::format("{}: the instances' ranges do not end where the static part does", where));
+  return Status::Ok();
+}
+
 Status Scene::Finalize() {
   const std::string where = sourcePath.empty() ? name : sourcePath.string();
   if (triangles.empty()) return Fail(fmt::format("{}: the scene has no triangles", where));
@@ -313,6 +356,7 @@ Status Scene::Finalize() {
   if (sky) sky->up = glm::normalize(sky->up);
 
   if (auto ok = CheckObjects(where); !ok) return ok;
+  if (auto ok = CheckInstances(where); !ok) return ok;
 
   emissiveTriangles.clear();
   bounds = Bounds3{};
@@ -373,6 +417,23 @@ void SceneBuilder::AddTriangle(const std::array<Vec3, 3>& positions, uint32_t ma
   objectOf_.push_back(currentObject_);
 }
 
+size_t SceneBuilder::AddInstances(Scene mesh, std::span<const RigidTransform> meshToWorld) {
+  const uint32_t materialBase = uint32_t(materials_.size());
+  const int32_t textureBase = int32_t(textures_.size());
+  for (Material& m : mesh.materials) {
+    if (m.albedoTexture >= 0) m.albedoTexture += textureBase;
+    materials_.push_back(std::move(m));
+  }
+  for (Texture& t : mesh.textures) textures_.push_back(std::move(t));
+  mesh.materials.clear();
+  mesh.textures.clear();
+  for (Triangle& t : mesh.triangles) t.material += materialBase;
+  const size_t added = mesh.triangles.size() * meshToWorld.size();
+  instanceTriangles_ += added;
+  instancedMeshes_.push_back(InstancedMesh{std::move(mesh), {meshToWorld.begin(), meshToWorld.end()}});
+  return added;
+}
+
 void SceneBuilder::AddQuad(const Vec3& corner, const Vec3& edge1, const Vec3& edge2,
                            uint32_t material) {
   const Vec3 p0 = corner, p1 = corner + edge1, p2 = corner + edge1 + edge2, p3 = corner + edge2;
@@ -424,6 +485,52 @@ struct DisjointSets {
 };
 
 }  // namespace
+
+// Copies every instanced mesh into `scene` at each of its places, between the
+// builder's own static part ([0, staticTriangles), [0, staticVertices)) and
+// the movable objects, whose ranges and vertex indices move up.
+void SceneBuilder::PlaceInstances(Scene& scene, uint32_t staticTriangles, uint32_t staticVertices) {
+  size_t addedTriangles = 0, addedVertices = 0;
+  for (const InstancedMesh& m : instancedMeshes_) {
+    addedTriangles += m.mesh.triangles.size() * m.meshToWorld.size();
+    addedVertices += m.mesh.vertices.size() * m.meshToWorld.size();
+  }
+  std::vector<Vertex> vertices;
+  std::vector<Triangle> triangles;
+  vertices.reserve(addedVertices);
+  triangles.reserve(addedTriangles);
+  scene.instances.clear();
+  for (const InstancedMesh& m : instancedMeshes_) {
+    const uint32_t prototype = uint32_t(scene.instances.size());
+    for (const RigidTransform& toWorld : m.meshToWorld) {
+      StaticInstance instance;
+      instance.firstTriangle = staticTriangles + uint32_t(triangles.size());
+      instance.triangleCount = uint32_t(m.mesh.triangles.size());
+      instance.firstVertex = staticVertices + uint32_t(vertices.size());
+      instance.vertexCount = uint32_t(m.mesh.vertices.size());
+      instance.prototype = prototype;
+      instance.meshToWorld = toWorld;
+      for (const Vertex& v : m.mesh.vertices)
+        vertices.push_back(Vertex{toWorld.ApplyPoint(v.position), glm::normalize(toWorld.ApplyVector(v.normal))});
+      for (Triangle t : m.mesh.triangles) {
+        for (uint32_t& v : t.v) v += instance.firstVertex;
+        triangles.push_back(t);
+      }
+      scene.instances.push_back(instance);
+    }
+  }
+  const uint32_t triangleShift = uint32_t(triangles.size()), vertexShift = uint32_t(vertices.size());
+  for (size_t t = staticTriangles; t < scene.triangles.size(); ++t)
+    for (uint32_t& v : scene.triangles[t].v) v += vertexShift;
+  for (MovableObject& o : objects_) {
+    o.firstTriangle += triangleShift;
+    o.firstVertex += vertexShift;
+  }
+  scene.triangles.insert(scene.triangles.begin() + staticTriangles, triangles.begin(), triangles.end());
+  scene.vertices.insert(scene.vertices.begin() + staticVertices, vertices.begin(), vertices.end());
+  instancedMeshes_.clear();
+  instanceTriangles_ = 0;
+}
 
 Status SceneBuilder::BuildInto(Scene& scene) {
   size_t triangleCount = corners_.size() / 3;
@@ -613,6 +720,16 @@ Status SceneBuilder::BuildInto(Scene& scene) {
   }
   for (const MovableObject& o : objects_)
     if (o.triangleCount == 0) return Fail(fmt::format("movable object '{}' has no triangles with area", o.name));
+  if (!instancedMeshes_.empty()) {
+    // Static triangles (and their vertices) come first.
+    const uint32_t staticTriangles =
+        uint32_t(std::count(objectOf_.begin(), objectOf_.begin() + triangleCount, kStaticObject));
+    uint32_t staticVertices = uint32_t(scene.vertices.size());
+    for (const MovableObject& o : objects_) staticVertices = std::min(staticVertices, o.firstVertex);
+    PlaceInstances(scene, staticTriangles, staticVertices);
+  } else {
+    scene.instances.clear();
+  }
   scene.objects = std::move(objects_);
   corners_.clear();
   materialOf_.clear();

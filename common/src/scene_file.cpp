@@ -445,6 +445,30 @@ Expected<ObjectDescription> ParseObject(const JsonReader& r, const fs::path& sce
   return o;
 }
 
+// --- Static instances (issue 15) ----------------------------------------------
+
+Expected<InstanceDescription> ParseInstance(const JsonReader& r, const fs::path& sceneDir, size_t index,
+                                            const Json& j) {
+  const std::string ctx = fmt::format("instances[{}]", index);
+  if (!j.is_object()) return r.Problem(ctx, "must be an object");
+  if (auto ok = r.CheckKeys(j, ctx, {"mesh", "transform"}); !ok) return ok.error();
+  InstanceDescription instance;
+  auto mesh = r.String(j, ctx, "mesh");
+  if (!mesh) return mesh.error();
+  instance.meshPath = sceneDir / *mesh;
+  if (j.contains("transform")) {
+    auto transformJson = r.Object(j, ctx, "transform");
+    if (!transformJson) return transformJson.error();
+    const std::string transformCtx = ctx + ".transform";
+    if (auto ok = r.CheckKeys(**transformJson, transformCtx, {"translate", "rotate_deg", "axis", "matrix"}); !ok)
+      return ok.error();
+    auto transform = ParseTransform(r, **transformJson, transformCtx);
+    if (!transform) return transform.error();
+    instance.meshToWorld = *transform;
+  }
+  return instance;
+}
+
 }  // namespace
 
 Expected<SceneDescription> ParseSceneFile(const fs::path& path) {
@@ -457,7 +481,8 @@ Expected<SceneDescription> ParseSceneFile(const fs::path& path) {
   const JsonReader r(fileName);
   if (!doc.is_object()) return r.Problem("", "a scene file must be a JSON object");
   if (auto ok = r.CheckKeys(doc, "", {"name", "mesh", "crease_angle_deg", "emission_scale", "two_sided", "materials", "sun",
-                                      "sky", "quad_lights", "cameras", "paths", "objects"});
+                                      "sky", "quad_lights", "cameras", "paths", "objects",
+                                      "instances"});
       !ok)
     return ok.error();
 
@@ -547,11 +572,33 @@ Expected<SceneDescription> ParseSceneFile(const fs::path& path) {
       d.objects.push_back(std::move(*object));
     }
   }
+  if (doc.contains("instances")) {
+    const Json& instances = doc["instances"];
+    if (!instances.is_array()) return r.Problem("", "\"instances\" must be an array");
+    if (instances.size() > kMaxSceneInstances)
+      return r.Problem("instances", fmt::format("{} instances; at most {} are supported", instances.size(),
+                                                kMaxSceneInstances));
+    d.instances.reserve(instances.size());
+    for (size_t i = 0; i < instances.size(); ++i) {
+      auto instance = ParseInstance(r, sceneDir, i, instances[i]);
+      if (!instance) return instance.error();
+      d.instances.push_back(std::move(*instance));
+    }
+  }
   return d;
 }
 
 Status ApplyToBuilder(const SceneDescription& d, SceneBuilder& builder) {
+  // The scale is for the meshes' own emission, so it comes before the quads;
+  // the overrides come after them, so that one can also set a quad's albedo
+  // (a quad of radiance 0 is a plain surface: a street's paving).
   for (Material& m : builder.Materials()) m.emission *= d.emissionScale;
+  for (const QuadLight& q : d.quadLights) {
+    Material m;
+    m.name = q.name;
+    m.emission = q.radiance;
+    builder.AddQuad(q.corner, q.edge1, q.edge2, builder.AddMaterial(std::move(m)));
+  }
   for (const MaterialOverride& o : d.materialOverrides) {
     bool found = false;
     for (Material& m : builder.Materials()) {
@@ -561,14 +608,9 @@ Status ApplyToBuilder(const SceneDescription& d, SceneBuilder& builder) {
       if (o.emission) m.emission = *o.emission;
     }
     if (!found)
-      return Fail(fmt::format("{}: materials: no triangle of {} uses a material named \"{}\"", d.sourcePath.string(),
-                              d.meshPath.string(), o.name));
-  }
-  for (const QuadLight& q : d.quadLights) {
-    Material m;
-    m.name = q.name;
-    m.emission = q.radiance;
-    builder.AddQuad(q.corner, q.edge1, q.edge2, builder.AddMaterial(std::move(m)));
+      return Fail(fmt::format("{}: materials: no material of {}{}{} is named \"{}\"", d.sourcePath.string(),
+                              d.meshPath.string(), d.instances.empty() ? "" : ", the instanced meshes",
+                              d.quadLights.empty() ? "" : ", the quad lights", o.name));
   }
   return Status::Ok();
 }

@@ -63,6 +63,18 @@ struct ObjectDescription {
   std::optional<ObjectAnimation> animation;  // keys relative to the home frame, like `placement`
 };
 
+/// Bounds on a scene file's "instances" (issue 15): each copy costs every
+/// tier its triangles and vertices, so the copies' count and their total
+/// triangle count (with the scene's own) are checked before any is made.
+inline constexpr size_t kMaxSceneInstances = 4096;
+inline constexpr size_t kMaxSceneTriangles = size_t(1) << 24;  // 16.7 million
+
+/// A static copy of a mesh file placed by "instances" (docs/scenes.md).
+struct InstanceDescription {
+  std::filesystem::path meshPath;  // "mesh", resolved against the scene file's folder
+  RigidTransform meshToWorld;      // "transform"; identity when absent
+};
+
 /// A parsed and validated scene file. Paths are resolved against the folder
 /// of the scene file; camera paths given as files are already read.
 struct SceneDescription {
@@ -79,6 +91,7 @@ struct SceneDescription {
   std::vector<CameraPreset> cameras;  // in file order
   std::vector<CameraPath> paths;      // in file order
   std::vector<ObjectDescription> objects;  // in file order
+  std::vector<InstanceDescription> instances;  // in file order
 };
 
 /// Reads and validates a scene file. Every error names the file and, where
@@ -86,9 +99,10 @@ struct SceneDescription {
 /// \"irradience\"").
 Expected<SceneDescription> ParseSceneFile(const std::filesystem::path& path);
 
-/// Applies the description's emission scale and material overrides to the
-/// mesh materials already in `builder`, then adds its quad lights. An
-/// override that names no material of the mesh is an error.
+/// Applies the description's emission scale to the mesh materials already in
+/// `builder`, adds its quad lights, then applies its material overrides (to
+/// every material of that name: the main mesh's, the instanced meshes', a
+/// quad's). An override that names no material is an error.
 Status ApplyToBuilder(const SceneDescription& description, SceneBuilder& builder);
 
 }  // namespace penumbra

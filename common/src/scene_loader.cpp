@@ -10,6 +10,8 @@
 #include <cmath>
 #include <exception>
 #include <optional>
+#include <string>
+#include <vector>
 
 #include <fmt/format.h>
 
@@ -94,6 +96,74 @@ std::optional<CameraPreset> InsideCamera(const Scene& scene) {
   return camera;
 }
 
+double SecondsSince(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+// Triangles per second, for progress lines ("1.23 M triangles/s").
+std::string Rate(size_t triangles, double seconds) {
+  return fmt::format("{:.2f} M triangles/s", seconds > 0.0 ? double(triangles) / seconds * 1e-6 : 0.0);
+}
+
+// A scene file's "instances" (issue 15): each distinct mesh file is read,
+// welded and crease-split once into a scene of its own, then handed to
+// `builder` with the places of all its copies. The total triangle count is
+// checked before any copy is made.
+Status AddInstances(const SceneDescription& description, float creaseAngleDeg, SceneBuilder& builder) {
+  if (description.instances.empty()) return Status::Ok();
+  const std::string file = description.sourcePath.string();
+  // Meshes in order of first use; copies of one mesh named by equal paths.
+  std::vector<fs::path> meshes;
+  std::vector<std::vector<RigidTransform>> placements;
+  for (const InstanceDescription& i : description.instances) {
+    const fs::path key = i.meshPath.lexically_normal();
+    const auto found = std::find(meshes.begin(), meshes.end(), key);
+    if (found == meshes.end()) {
+      meshes.push_back(key);
+      placements.push_back({i.meshToWorld});
+    } else {
+      placements[size_t(found - meshes.begin())].push_back(i.meshToWorld);
+    }
+  }
+  const auto log = Logger("scene");
+  const auto start = std::chrono::steady_clock::now();
+  size_t readTriangles = 0;
+  for (size_t m = 0; m < meshes.size(); ++m) {
+    const auto meshStart = std::chrono::steady_clock::now();
+    SceneBuilder meshBuilder(creaseAngleDeg);
+    if (auto ok = ImportMesh(meshes[m], meshBuilder); !ok)
+      return Fail(fmt::format("{}: instances: {}", file, ok.error().message));
+    Scene mesh;
+    mesh.name = meshes[m].stem().string();
+    mesh.sourcePath = meshes[m];
+    if (auto ok = meshBuilder.BuildInto(mesh); !ok) {
+      const std::string& message = ok.error().message;
+      return Fail(message.find(meshes[m].string()) == std::string::npos
+                      ? fmt::format("{}: instances: {}: {}", file, meshes[m].string(), message)
+                      : fmt::format("{}: instances: {}", file, message));
+    }
+    const size_t triangles = mesh.triangles.size(), vertices = mesh.vertices.size();
+    const size_t copies = placements[m].size();
+    const size_t total = builder.TriangleCount() + builder.InstanceTriangleCount() + triangles * copies;
+    if (total > kMaxSceneTriangles)
+      return Fail(fmt::format("{}: instances: {} copies of {} ({} triangles each) would make the scene {} triangles; "
+                              "at most {} are supported",
+                              file, copies, meshes[m].string(), triangles, total, kMaxSceneTriangles));
+    readTriangles += triangles;
+    builder.AddInstances(std::move(mesh), placements[m]);
+    const double seconds = SecondsSince(meshStart);
+    log->info("instances: mesh {}/{} {}: {} triangles, {} vertices read in {:.2f} s ({}); {} copies; {} instance "
+              "triangles so far",
+              m + 1, meshes.size(), meshes[m].string(), triangles, vertices, seconds, Rate(triangles, seconds), copies,
+              builder.InstanceTriangleCount());
+  }
+  const double seconds = SecondsSince(start);
+  log->info("instances: {} copies of {} meshes, {} triangles in all; the meshes ({} triangles) read in {:.2f} s ({})",
+            description.instances.size(), meshes.size(), builder.InstanceTriangleCount(), readTriangles, seconds,
+            Rate(readTriangles, seconds));
+  return Status::Ok();
+}
+
 Expected<Scene> Load(const fs::path& path, const SceneLoadOptions& options, size_t& degenerateTriangles,
                      size_t& duplicateTriangles) {
   std::optional<SceneDescription> description;
@@ -123,8 +193,12 @@ Expected<Scene> Load(const fs::path& path, const SceneLoadOptions& options, size
       groups.push_back(MeshGroup{o.groups, o.pivot, std::move(object)});
     }
   }
+  const auto readStart = std::chrono::steady_clock::now();
   if (auto ok = ImportMesh(meshPath, builder, groups); !ok)
     return description ? Fail(fmt::format("{}: {}", path.string(), ok.error().message)) : ok.error();
+  const double readSeconds = SecondsSince(readStart);
+  Logger("scene")->info("read {}: {} triangles in {:.2f} s ({})", meshPath.string(), builder.TriangleCount(),
+                        readSeconds, Rate(builder.TriangleCount(), readSeconds));
   if (description) {
     for (const ObjectDescription& o : description->objects) {
       if (o.meshPath.empty()) continue;
@@ -137,6 +211,7 @@ Expected<Scene> Load(const fs::path& path, const SceneLoadOptions& options, size
       builder.EndObject();
       if (!ok) return Fail(fmt::format("{}: objects.{}: {}", path.string(), o.name, ok.error().message));
     }
+    if (auto ok = AddInstances(*description, creaseAngleDeg, builder); !ok) return ok.error();
     if (auto ok = ApplyToBuilder(*description, builder); !ok) return ok.error();
   }
 
@@ -158,9 +233,11 @@ Expected<Scene> Load(const fs::path& path, const SceneLoadOptions& options, size
     return message.find(path.string()) == std::string::npos ? Fail(fmt::format("{}: {}", path.string(), message))
                                                             : ok.error();
   }
-  Logger("scene")->info("built {} triangles and {} vertices (welded, split at creases) in {:.2f} s",
-                        scene.triangles.size(), scene.vertices.size(),
-                        std::chrono::duration<double>(std::chrono::steady_clock::now() - buildStart).count());
+  const double buildSeconds = SecondsSince(buildStart);
+  Logger("scene")->info("built {} triangles and {} vertices (welded, split at creases; {} instances copied) in {:.2f} "
+                        "s ({})",
+                        scene.triangles.size(), scene.vertices.size(), scene.instances.size(), buildSeconds,
+                        Rate(scene.triangles.size(), buildSeconds));
   if (scene.cameras.empty()) {
     // The first preset is where a client starts.
     if (auto inside = InsideCamera(scene)) scene.cameras.push_back(*inside);
@@ -196,11 +273,12 @@ Expected<Scene> LoadScene(const fs::path& path, const SceneLoadOptions& options)
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   Logger("scene")->info(
       "loaded '{}' from {}: {} triangles ({} degenerate and {} duplicate dropped), {} vertices after crease splitting, "
-      "{} materials, {} textures, {} emissive triangles{}{}, {} movable objects in {:.2f} s",
+      "{} materials, {} textures, {} emissive triangles{}{}, {} movable objects, {} instances in {:.2f} s ({})",
       scene->name, path.string(), scene->triangles.size(), degenerateTriangles, duplicateTriangles,
       scene->vertices.size(),
       scene->materials.size(), scene->textures.size(), scene->emissiveTriangles.size(), scene->sun ? ", sun" : "",
-      scene->sky ? ", sky" : "", scene->objects.size(), seconds);
+      scene->sky ? ", sky" : "", scene->objects.size(), scene->instances.size(), seconds,
+      Rate(scene->triangles.size(), seconds));
   const ScenePose initial = ScenePose::Initial(*scene);
   for (uint32_t i = 0; i < scene->objects.size(); ++i) {
     const MovableObject& o = scene->objects[i];

@@ -1,7 +1,9 @@
 // EmbreeScene at poses (issue 14): a movable object is hit where the pose
 // puts it and not where it was; hits through an instance name the right base
 // triangle, and the normal Embree reports for an instanced triangle is in
-// object space until WorldNormal turns it.
+// object space until WorldHitNormal turns it. Static instances (issue 15):
+// copies of one mesh share one BVH, and a hit on copy k names a triangle of
+// copy k's own range.
 
 #include "penumbra/common/embree_scene.h"
 
@@ -159,8 +161,8 @@ TEST(EmbreeSceneTest, ARotatedObjectsHitsNameItsTrianglesAndTurnTheirNormalsToWo
   const Vec3 raw = glm::normalize(hit->ng);
   EXPECT_NEAR(std::abs(raw.y), 1.0f, 1e-5f) << "Ng (" << raw.x << ", " << raw.y << ", " << raw.z << ")";
   EXPECT_NEAR(glm::dot(raw, s.GeometricNormal(t)), 1.0f, 1e-5f);
-  // WorldNormal turns it to the card's world front, -x.
-  const Vec3 world = glm::normalize((*posed)->WorldNormal(hit->instance, hit->ng));
+  // WorldHitNormal turns it to the card's world front, -x.
+  const Vec3 world = glm::normalize((*posed)->WorldHitNormal(hit->instance, hit->ng));
   EXPECT_NEAR(glm::dot(world, WorldGeometricNormal(s, pose, t)), 1.0f, 1e-5f);
   EXPECT_NEAR(world.x, -1.0f, 1e-5f);
   // The barycentrics place the hit on the triangle where the pose puts it.
@@ -169,7 +171,7 @@ TEST(EmbreeSceneTest, ARotatedObjectsHitsNameItsTrianglesAndTurnTheirNormalsToWo
   const auto floor = Trace(**posed, Vec3(-5, 3, -5), kDown);
   ASSERT_TRUE(floor);
   EXPECT_EQ(floor->instance, 0u);
-  EXPECT_NEAR(glm::normalize((*posed)->WorldNormal(floor->instance, floor->ng)).y, 1.0f, 1e-6f);
+  EXPECT_NEAR(glm::normalize((*posed)->WorldHitNormal(floor->instance, floor->ng)).y, 1.0f, 1e-6f);
 }
 
 TEST(EmbreeSceneTest, PosesAreReusedAtTheSamePlacesAndRefusedWithTheWrongObjectCount) {
@@ -214,6 +216,121 @@ TEST(EmbreeSceneTest, ASceneWithoutMovableObjectsHasNoInstances) {
   ASSERT_TRUE(hit);
   EXPECT_EQ(hit->instance, RTC_INVALID_GEOMETRY_ID);  // no instancing: a plain hit
   EXPECT_LT(hit->primitive, 2u);
+}
+
+// Static: a floor at y = 0 over [-10, 10]^2. Instances of a unit card (its
+// y = 0 plane, x and z in [0, 1], front +y): copy 0 at height 1, copy 1 at
+// (3, 2, 0), copy 2 turned over (180 degrees about x: front -y, z in [-1, 0])
+// at (6, 1, 0). Movable "box" card at (-5, 4, 0), so that ids mix.
+Scene FloorAndCardCopies() {
+  SceneBuilder cardBuilder;
+  Material grey;
+  grey.name = "grey";
+  cardBuilder.AddQuad(Vec3(0), Vec3(0, 0, 1), Vec3(1, 0, 0), cardBuilder.AddMaterial(grey));
+  Scene card;
+  card.name = "card";
+  EXPECT_TRUE(cardBuilder.BuildInto(card).ok());
+
+  SceneBuilder b;
+  Material white;
+  white.name = "white";
+  const uint32_t m = b.AddMaterial(white);
+  b.AddQuad(Vec3(-10, 0, -10), Vec3(0, 0, 20), Vec3(20, 0, 0), m);
+  const RigidTransform places[] = {
+      RigidTransform::FromAxisAngle(Vec3(0, 1, 0), 0.0f, Vec3(0, 1, 0)),
+      RigidTransform::FromAxisAngle(Vec3(0, 1, 0), 0.0f, Vec3(3, 2, 0)),
+      RigidTransform::FromAxisAngle(Vec3(1, 0, 0), glm::radians(180.0f), Vec3(6, 1, 0)),
+  };
+  EXPECT_EQ(b.AddInstances(std::move(card), places), 6u);
+  MovableObject box;
+  box.name = "box";
+  box.objectToWorld = RigidTransform::FromAxisAngle(Vec3(0, 1, 0), 0.0f, Vec3(-5, 4, 0));
+  b.BeginObject(box);
+  b.AddQuad(Vec3(0), Vec3(0, 0, 1), Vec3(1, 0, 0), m);
+  Scene s;
+  s.name = "floor-and-cards";
+  const Status built = b.BuildInto(s);
+  EXPECT_TRUE(built.ok()) << (built.ok() ? "" : built.error().message);
+  return s;
+}
+
+TEST(EmbreeSceneTest, StaticInstancesShareOneBvhAndHitsNameEachCopysOwnTriangles) {
+  const Scene s = FloorAndCardCopies();
+  ASSERT_EQ(s.instances.size(), 3u);
+  // Floor, then the copies (2 triangles each), then the movable card.
+  EXPECT_EQ(s.instances[0].firstTriangle, 2u);
+  EXPECT_EQ(s.instances[2].firstTriangle + s.instances[2].triangleCount, s.staticTriangleCount);
+  EXPECT_EQ(s.objects[0].firstTriangle, 8u);
+  const auto embree = BuildOrFail(s);
+  ASSERT_TRUE(embree);
+  EXPECT_TRUE(embree->HasStaticInstances());
+  const PosedEmbreeScene& posed = *embree->Initial();
+
+  struct Probe {
+    Vec3 origin;
+    uint32_t instance;  // index into s.instances
+    float distance;     // analytic: origin height - card height
+    float worldNormalY;
+  };
+  const Probe probes[] = {
+      {Vec3(0.3f, 5, 0.6f), 0, 4.0f, 1.0f},
+      {Vec3(3.7f, 5, 0.2f), 1, 3.0f, 1.0f},
+      {Vec3(6.5f, 5, -0.5f), 2, 4.0f, -1.0f},  // turned over: z in [-1, 0], front down
+  };
+  for (const Probe& p : probes) {
+    SCOPED_TRACE(p.instance);
+    const auto hit = Trace(posed, p.origin, kDown);
+    ASSERT_TRUE(hit);
+    const StaticInstance& copy = s.instances[p.instance];
+    const uint32_t triangle = posed.Triangle(hit->instance, hit->primitive);
+    EXPECT_GE(triangle, copy.firstTriangle);
+    EXPECT_LT(triangle, copy.firstTriangle + copy.triangleCount);
+    EXPECT_NEAR(hit->t, p.distance, 1e-5f);
+    // Embree's Ng is in the card's own space; turned to the world it is the
+    // copy's stored (world-space) geometric normal.
+    const Vec3 world = glm::normalize(posed.WorldHitNormal(hit->instance, hit->ng));
+    EXPECT_NEAR(world.y, p.worldNormalY, 1e-5f);
+    EXPECT_NEAR(glm::dot(world, s.GeometricNormal(triangle)), 1.0f, 1e-5f);
+    // A static triangle's scene normal is already in the world.
+    EXPECT_NEAR(glm::dot(posed.WorldNormal(hit->instance, s.GeometricNormal(triangle)), s.GeometricNormal(triangle)),
+                1.0f, 1e-6f);
+    // The hit point from the stored triangle and Embree's barycentrics is
+    // where the ray met the copy.
+    const Vec3 at = s.PointAt(triangle, hit->u, hit->v);
+    EXPECT_NEAR(glm::length(at - (p.origin + hit->t * kDown)), 0.0f, 1e-5f);
+  }
+  // Beside the copies: the floor, through the static scene.
+  const auto floor = Trace(posed, Vec3(-2, 5, -2), kDown);
+  ASSERT_TRUE(floor);
+  EXPECT_LT(posed.Triangle(floor->instance, floor->primitive), 2u);
+  // The movable card keeps its own id and moves.
+  const auto onBox = Trace(posed, Vec3(-4.5f, 9, 0.5f), kDown);
+  ASSERT_TRUE(onBox);
+  EXPECT_EQ(posed.Triangle(onBox->instance, onBox->primitive) / 2, 4u);  // triangles 8, 9
+  ScenePose moved = ScenePose::Initial(s);
+  moved.objectToWorld[0] = RigidTransform::FromAxisAngle(Vec3(0, 1, 0), 0.0f, Vec3(-8, 4, 0));
+  auto atMoved = embree->AtPose(moved);
+  ASSERT_TRUE(atMoved.ok());
+  const auto copyStill = Trace(**atMoved, Vec3(3.5f, 5, 0.5f), kDown);
+  ASSERT_TRUE(copyStill);
+  EXPECT_EQ((*atMoved)->Triangle(copyStill->instance, copyStill->primitive) / 2, 2u);  // copy 1: triangles 4, 5
+  const auto boxGone = Trace(**atMoved, Vec3(-4.5f, 9, 0.5f), kDown);
+  ASSERT_TRUE(boxGone);
+  EXPECT_LT((*atMoved)->Triangle(boxGone->instance, boxGone->primitive), 2u);  // the floor
+}
+
+TEST(EmbreeSceneTest, CopiesKeepTheMeshsTopologyAndFinalizeRefusesOnesThatDoNot) {
+  Scene s = FloorAndCardCopies();
+  for (const StaticInstance& copy : s.instances)
+    for (uint32_t j = 0; j < copy.triangleCount; ++j)
+      for (int c = 0; c < 3; ++c)
+        EXPECT_EQ(s.triangles[copy.firstTriangle + j].v[c] - copy.firstVertex,
+                  s.triangles[s.instances[0].firstTriangle + j].v[c] - s.instances[0].firstVertex);
+  std::swap(s.triangles[s.instances[1].firstTriangle].v[0], s.triangles[s.instances[1].firstTriangle].v[1]);
+  const Status refused = s.Finalize();
+  ASSERT_FALSE(refused.ok());
+  EXPECT_NE(refused.error().message.find("does not match its prototype"), std::string::npos)
+      << refused.error().message;
 }
 
 }  // namespace

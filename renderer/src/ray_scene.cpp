@@ -116,12 +116,12 @@ std::optional<RayHit> PosedRayScene::Intersect(const Vec3& origin, const Vec3& d
   if (rayHit.hit.geomID == RTC_INVALID_GEOMETRY_ID) return std::nullopt;
   RayHit hit{rayHit.hit.primID, rayHit.ray.tfar, rayHit.hit.u, rayHit.hit.v,
              Vec3(rayHit.hit.Ng_x, rayHit.hit.Ng_y, rayHit.hit.Ng_z)};
-  // Through an instance (only in a scene with movable objects): the primitive
-  // id counts within the instanced part, and Embree 3 reports Ng in that
-  // part's object space.
+  // Through an instance (a scene with movable objects or static instances):
+  // the primitive id counts within the instanced part, and Embree 3 reports
+  // Ng in that part's own space.
   if (const unsigned instance = rayHit.hit.instID[0]; instance != RTC_INVALID_GEOMETRY_ID) {
     hit.triangle = embree_->Triangle(instance, rayHit.hit.primID);
-    hit.normal = embree_->WorldNormal(instance, hit.normal);
+    hit.normal = embree_->WorldHitNormal(instance, hit.normal);
   }
   return hit;
 }

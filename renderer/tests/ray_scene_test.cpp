@@ -40,6 +40,58 @@ TEST(RaySceneTest, ClosestHitReportsTriangleDistanceAndBarycentrics) {
   EXPECT_NEAR(glm::dot(glm::normalize(fromBelow->normal), t.scene.GeometricNormal(fromBelow->triangle)), 1.0f, 1e-6f);
 }
 
+// Static instances (issue 15): a floor at y = 0 over [0, 1]^2, then three
+// copies of a unit square (its own mesh, facing up): at height 1, at height 2
+// shifted 3 along x, and turned over (180 degrees about x, so facing down)
+// at height 1 shifted 6 along x. Each copy shares the square's BVH; a hit
+// names a triangle of its own copy, and its normal is that triangle's own.
+TEST(RaySceneTest, HitsOnStaticInstancesNameEachCopysTrianglesWithWorldNormals) {
+  SceneBuilder squareBuilder;
+  AddHorizontalSquare(squareBuilder, Vec3(0.5f, 0.0f, 0.5f), 1.0f,
+                      squareBuilder.AddMaterial(MakeMaterial(Rgb(0.5f))), true);
+  Scene square;
+  square.name = "square";
+  ASSERT_TRUE(squareBuilder.BuildInto(square).ok());
+  SceneBuilder b;
+  AddHorizontalSquare(b, Vec3(0.5f, 0.0f, 0.5f), 1.0f, b.AddMaterial(MakeMaterial(Rgb(0.5f))), true);
+  const RigidTransform places[] = {
+      RigidTransform::FromAxisAngle(Vec3(0, 1, 0), 0.0f, Vec3(0, 1, 0)),
+      RigidTransform::FromAxisAngle(Vec3(0, 1, 0), 0.0f, Vec3(3, 2, 0)),
+      RigidTransform::FromAxisAngle(Vec3(1, 0, 0), kPi, Vec3(6, 1, 1)),
+  };
+  b.AddInstances(std::move(square), places);
+  const TestScene t = Finish(b);
+  ASSERT_EQ(t.scene.instances.size(), 3u);
+  const Vec3 down(0.0f, -1.0f, 0.0f);
+  struct Probe {
+    Vec3 origin;
+    uint32_t copy;
+    float distance;
+    float normalY;
+  };
+  for (const Probe& p : {Probe{Vec3(0.25f, 5, 0.6f), 0, 4.0f, 1.0f}, Probe{Vec3(3.7f, 5, 0.3f), 1, 3.0f, 1.0f},
+                         Probe{Vec3(6.4f, 5, 0.8f), 2, 4.0f, -1.0f}}) {
+    SCOPED_TRACE(p.copy);
+    const auto hit = t.rays->Intersect(p.origin, down, 0.0f, 100.0f);
+    ASSERT_TRUE(hit.has_value());
+    const StaticInstance& copy = t.scene.instances[p.copy];
+    EXPECT_GE(hit->triangle, copy.firstTriangle);
+    EXPECT_LT(hit->triangle, copy.firstTriangle + copy.triangleCount);
+    EXPECT_NEAR(hit->t, p.distance, 1e-5f);
+    EXPECT_NEAR(glm::normalize(hit->normal).y, p.normalY, 1e-5f);
+    EXPECT_NEAR(glm::dot(glm::normalize(hit->normal), t.scene.GeometricNormal(hit->triangle)), 1.0f, 1e-5f);
+    const Vec3 at = t.scene.PointAt(hit->triangle, hit->b1, hit->b2);
+    EXPECT_NEAR(glm::length(at - (p.origin + hit->t * down)), 0.0f, 1e-5f);
+    EXPECT_TRUE(t.rays->Occluded(p.origin, down, 0.0f, p.distance + 0.01f));
+    EXPECT_FALSE(t.rays->Occluded(p.origin, down, 0.0f, p.distance - 0.01f));
+  }
+  // Under copy 0, the floor itself.
+  const auto floor = t.rays->Intersect(Vec3(0.25f, 0.5f, 0.6f), down, 0.0f, 100.0f);
+  ASSERT_TRUE(floor.has_value());
+  EXPECT_LT(floor->triangle, 2u);
+  EXPECT_NEAR(floor->t, 0.5f, 1e-6f);
+}
+
 TEST(RaySceneTest, BackFacesAreHitAndTheIntervalIsRespected) {
   const TestScene t = TwoFloors();
   const Vec3 below(0.5f, -1.0f, 0.3f);

@@ -176,9 +176,32 @@ InvalidatedStatic InvalidatedStaticVertices(const Scene& scene, const ScenePose&
   return out;
 }
 
+void PoseHistory::Record(std::shared_ptr<const ScenePose> pose) {
+  if (!pose) return;
+  if (!poses_.empty() && pose->epoch <= poses_.back()->epoch) return;  // known, or out of order
+  bytes_ += BytesOf(*pose);
+  poses_.push_back(std::move(pose));
+  while (poses_.size() > 1 && bytes_ > maxBytes_) {
+    bytes_ -= BytesOf(*poses_.front());
+    poses_.pop_front();
+  }
+}
+
+const ScenePose* PoseHistory::At(uint64_t epoch) const {
+  const auto it = std::lower_bound(poses_.begin(), poses_.end(), epoch,
+                                   [](const std::shared_ptr<const ScenePose>& p, uint64_t e) { return p->epoch < e; });
+  return it != poses_.end() && (*it)->epoch == epoch ? it->get() : nullptr;
+}
+
+size_t PoseHistory::BytesOf(const ScenePose& pose) {
+  // The pose, its control block (make_shared), its transforms, the deque's slot.
+  return sizeof(ScenePose) + 32 + pose.objectToWorld.capacity() * sizeof(RigidTransform) +
+         sizeof(std::shared_ptr<const ScenePose>);
+}
+
 Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cache, const ScenePose& oldPose,
                               const ScenePose& newPose, InvalidationRule rule,
-                              std::span<const std::shared_ptr<const ScenePose>> history) {
+                              const PoseHistory* history) {
   const Scene& scene = hierarchy.GetScene();
   // Objects whose place differs between `from` and the new pose.
   const auto movedSince = [&](const ScenePose& from) {
@@ -227,12 +250,21 @@ Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cac
     c.irradianceStdErr = sample->irradianceStdErr;
     c.albedo = scene.AlbedoAt(sv.baseTriangle, sv.bary.x, sv.bary.y);
     c.emissive = scene.MaterialOf(sv.baseTriangle).IsEmissive();
-    const uint64_t epoch = sample->epoch < history.size() && history[sample->epoch] ? sample->epoch : oldPose.epoch;
+    uint64_t epoch = oldPose.epoch;
+    if (history && sample->epoch != oldPose.epoch) {
+      if (!history->At(sample->epoch)) {
+        // Its pose was forgotten: it cannot be judged, so it goes.
+        everythingElse.push_back(v);
+        continue;
+      }
+      epoch = sample->epoch;
+    }
     candidatesByEpoch[epoch].push_back(c);
   }
   out.objectVertices = out.vertices.size();
   // Urgent: the objects' own vertices, whatever had nothing cached (a held
-  // one of those awaits an earlier move's reshade), and the direct class.
+  // one of those awaits an earlier move's reshade) or was shaded at a
+  // forgotten pose, and the direct class.
   out.vertices.insert(out.vertices.end(), everythingElse.begin(), everythingElse.end());
   out.urgent = out.vertices;
   // One bound on reflected radiance for every group: the brightest of all.
@@ -240,8 +272,7 @@ Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cac
   for (const auto& [epoch, candidates] : candidatesByEpoch)
     for (const InvalidationCandidate& c : candidates) brightest = std::max(brightest, ReflectedLuminance(c));
   for (const auto& [epoch, candidates] : candidatesByEpoch) {
-    const ScenePose& shadedAt =
-        epoch < history.size() && history[epoch] && epoch != oldPose.epoch ? *history[epoch] : oldPose;
+    const ScenePose& shadedAt = epoch == oldPose.epoch ? oldPose : *history->At(epoch);
     const std::vector<uint32_t> objects = &shadedAt == &oldPose ? movedObjects : movedSince(shadedAt);
     if (objects.empty()) continue;  // every object is back where it was when these were shaded
     const InvalidatedStatic chosen =

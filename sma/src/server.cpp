@@ -282,10 +282,9 @@ class SmaServer::Impl {
   std::atomic<uint64_t> samplesInvalidated_{0};  // cached samples evicted by moves
   std::atomic<uint64_t> lastMoveInvalidated_{0};
   std::atomic<uint64_t> samplesInvalidatedUrgent_{0};
-  /// Every pose by epoch (index = epoch; a gap is null: judged against the
-  /// pose before the move). Only the move job reads and writes it. Grows by
-  /// one pose per move (objects x 48 bytes): issue 15 should bound it.
-  std::vector<std::shared_ptr<const ScenePose>> poseHistory_;  // of samplesInvalidated_: the urgent class (MoveNotice)
+  /// Recent poses by epoch, bounded (PoseHistory). Only the move job reads
+  /// and writes it.
+  PoseHistory poseHistory_;
   std::atomic<uint64_t> lastMoveInvalidatedUrgent_{0};
   std::atomic<uint64_t> lastMoveCached_{0};    // samples cached just before the last move
   std::atomic<uint64_t> lastMoveReshadedBase_{0};  // cache_.Reshaded() when the last move was applied
@@ -1426,15 +1425,12 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
     std::shared_lock lock(stateMutex_);
     // Every pose so far, by epoch: each cached sample is judged against the
     // pose it was shaded at. Only this job touches the history.
-    if (poseHistory_.empty() || poseHistory_.size() != oldPose->epoch + 1) {
-      poseHistory_.resize(oldPose->epoch + 1);
-      poseHistory_[oldPose->epoch] = oldPose;
-    }
+    poseHistory_.Record(oldPose);
     invalidation = PlanInvalidation(hierarchy_, cache_, *oldPose, *newPose,
                                     options_.invalidateEverythingOnMove ? InvalidationRule::kEverything
                                                                        : InvalidationRule::kTest,
-                                    poseHistory_);
-    poseHistory_.push_back(newPose);
+                                    &poseHistory_);
+    poseHistory_.Record(newPose);
   }
   // 3. Invalidate under the exclusive lock: a delta is planned and built
   //    under the shared lock, so it sees each sample either before (then

@@ -4,6 +4,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <set>
@@ -199,9 +200,48 @@ TEST(SceneMoves, PlanInvalidationJudgesEachSampleAgainstThePoseItWasShadedAt) {
   // Judged against the pose before the move only: the far move changes nothing here.
   EXPECT_EQ(floorInvalidated(PlanInvalidation(hierarchy, cache, *p1, p2)), 0u);
   // Judged against the pose they were shaded at (epoch 0, the box overhead).
-  const std::vector<std::shared_ptr<const ScenePose>> history = {p0, p1};
-  EXPECT_EQ(floorInvalidated(PlanInvalidation(hierarchy, cache, *p1, p2, InvalidationRule::kTest, history)),
+  PoseHistory history;
+  history.Record(p0);
+  history.Record(p1);
+  EXPECT_EQ(floorInvalidated(PlanInvalidation(hierarchy, cache, *p1, p2, InvalidationRule::kTest, &history)),
             floor.size());
+  // A history too small to keep epoch 0: the floor's samples cannot be
+  // judged, so they go, whatever the move.
+  PoseHistory shortHistory(PoseHistory::BytesOf(*p1));
+  shortHistory.Record(p0);
+  shortHistory.Record(p1);
+  ASSERT_EQ(shortHistory.At(0), nullptr) << "forgotten";
+  ASSERT_NE(shortHistory.At(1), nullptr);
+  const Invalidation forgotten = PlanInvalidation(hierarchy, cache, *p1, p2, InvalidationRule::kTest, &shortHistory);
+  EXPECT_EQ(floorInvalidated(forgotten), floor.size());
+  for (const ShadedSample& f : floor)
+    EXPECT_TRUE(std::binary_search(forgotten.urgent.begin(), forgotten.urgent.end(), f.vertex)) << "urgently";
+}
+
+TEST(SceneMoves, PoseHistoryKeepsTheNewestPosesWithinItsBytes) {
+  const Scene scene = FloorWithObjects();
+  std::vector<std::shared_ptr<const ScenePose>> poses;
+  for (uint64_t e = 0; e < 10; ++e) {
+    ScenePose pose = ScenePose::Initial(scene);
+    pose.epoch = e;
+    poses.push_back(std::make_shared<const ScenePose>(pose));
+  }
+  const size_t each = PoseHistory::BytesOf(*poses[0]);
+  PoseHistory history(4 * each);
+  for (uint64_t e : {0, 1, 2, 4, 5, 7, 8, 9}) history.Record(poses[e]);  // 3 and 6 never applied
+  history.Record(poses[8]);  // out of order: ignored
+  EXPECT_EQ(history.Size(), 4u);
+  EXPECT_LE(history.Bytes(), 4 * each);
+  EXPECT_EQ(history.Newest(), std::optional<uint64_t>(9));
+  for (uint64_t e : {0, 1, 2, 4, 6}) EXPECT_EQ(history.At(e), nullptr) << "epoch " << e;
+  for (uint64_t e : {5, 7, 8, 9}) {
+    ASSERT_NE(history.At(e), nullptr) << "epoch " << e;
+    EXPECT_EQ(history.At(e)->epoch, e);
+  }
+  // Never empty: a pose bigger than the budget is still the newest.
+  PoseHistory tiny(1);
+  tiny.Record(poses[3]);
+  EXPECT_NE(tiny.At(3), nullptr);
 }
 
 TEST(SceneMoves, SceneInfoAndMovedDeltaNameObjectsByIdWithTheirTransforms) {

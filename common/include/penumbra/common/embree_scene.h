@@ -13,6 +13,18 @@
 // without movable objects has no instancing at all: its pose is the one
 // static scene, exactly as before.
 //
+// Static instances (issue 15): the copies of one mesh file placed by a scene
+// file's "instances" share one bottom-level scene, committed once in the
+// mesh file's own coordinates (from its first copy). Each copy is one more
+// instance in the top level at its fixed place; a hit on it names the scene's
+// triangle StaticInstance::firstTriangle + primID. The scene's other static
+// triangles stay in the static scene. With instances the top level exists
+// even without movable objects; without either, nothing changes.
+//
+// Instance ids in the top level: 0 the static scene, 1 + i movable object i,
+// 1 + objects + k static instance k. PosedEmbreeScene::Triangle and
+// WorldNormal are the one place that turns them back into the Scene's terms.
+//
 // Both tiers that trace rays build on it (the renderer's RayScene, the SMA's
 // VisibilityTracer); each keeps its own queries and chooses its scene flags.
 // Its own library (penumbra_embree) so that penumbra_common stays free of
@@ -55,21 +67,32 @@ class PosedEmbreeScene {
     if (!instanced_ || instanceId == 0) return primitiveId;
     return firstTriangleOfInstance_[instanceId] + primitiveId;
   }
-  /// World-space direction of a hit's geometric normal (Embree reports it
-  /// in the instanced object's space).
-  Vec3 WorldNormal(unsigned instanceId, const Vec3& objectNormal) const {
-    if (!instanced_ || instanceId == 0) return objectNormal;
-    return pose_.objectToWorld[instanceId - 1].ApplyVector(objectNormal);
+  /// World-space direction of a normal given in the Scene's own terms for
+  /// the triangle a hit names: object space for a movable object's triangle,
+  /// world space for every static one (static instances are stored in world
+  /// space too).
+  Vec3 WorldNormal(unsigned instanceId, const Vec3& sceneNormal) const {
+    if (!instanced_ || instanceId == 0 || instanceId > objectCount_) return sceneNormal;
+    return instanceToWorld_[instanceId].ApplyVector(sceneNormal);
+  }
+  /// World-space direction of Embree's own geometric normal of a hit (Ng),
+  /// which Embree 3 reports in the instanced scene's space: a movable
+  /// object's object space or an instanced mesh's own coordinates.
+  Vec3 WorldHitNormal(unsigned instanceId, const Vec3& embreeNormal) const {
+    if (!instanced_ || instanceId == 0) return embreeNormal;
+    return instanceToWorld_[instanceId].ApplyVector(embreeNormal);
   }
 
  private:
   friend class EmbreeScene;
   PosedEmbreeScene() = default;
   RTCScene top_ = nullptr;
-  bool instanced_ = false;  // false: top_ is the static scene itself (no movable objects)
+  bool instanced_ = false;  // false: top_ is the static scene itself (no movable objects, no instances)
   bool ownsTop_ = false;
   ScenePose pose_;
-  std::vector<uint32_t> firstTriangleOfInstance_;  // [0] = 0 (static), [1 + i] = objects[i].firstTriangle
+  std::vector<uint32_t> firstTriangleOfInstance_;  // by instance id: [0] = 0 (static), then objects, then static instances
+  std::vector<RigidTransform> instanceToWorld_;    // by instance id, at this pose
+  unsigned objectCount_ = 0;                       // instance ids 1..objectCount_ are movable objects
 };
 
 class EmbreeScene {
@@ -77,8 +100,8 @@ class EmbreeScene {
   static constexpr unsigned kGeometryId = 0;
 
   /// Copies the scene's positions and triangles into high-quality BVHs (one
-  /// for the static part and one per movable object) and commits the initial
-  /// pose.
+  /// for the static part, one per movable object, one per mesh that static
+  /// instances copy) and commits the initial pose.
   static Expected<std::unique_ptr<EmbreeScene>> Build(const Scene& scene, const EmbreeSceneOptions& options);
   ~EmbreeScene();
   EmbreeScene(const EmbreeScene&) = delete;
@@ -91,6 +114,8 @@ class EmbreeScene {
   /// are the same; otherwise builds a new top level. Thread-safe.
   Expected<std::shared_ptr<const PosedEmbreeScene>> AtPose(const ScenePose& pose) const;
   bool HasMovableObjects() const { return !objectScenes_.empty(); }
+  /// Whether static instances share bottom-level scenes (the scene has instances).
+  bool HasStaticInstances() const { return !instances_.empty(); }
 
  private:
   EmbreeScene() = default;
@@ -98,7 +123,13 @@ class EmbreeScene {
   RTCDevice device_ = nullptr;
   RTCScene staticScene_ = nullptr;           // null when the static part has no triangles
   std::vector<RTCScene> objectScenes_;       // one per movable object, object space
-  std::vector<uint32_t> firstTriangleOfInstance_;
+  std::vector<uint32_t> firstTriangleOfInstance_;  // by instance id, as in PosedEmbreeScene
+  struct PlacedMesh {
+    RTCScene mesh;  // owned by meshScenes_
+    RigidTransform meshToWorld;
+  };
+  std::vector<RTCScene> meshScenes_;  // one per instanced mesh, in its own coordinates
+  std::vector<PlacedMesh> instances_; // one per Scene::instances
   bool robust_ = false;
   std::string logger_;
   std::shared_ptr<const PosedEmbreeScene> initial_;

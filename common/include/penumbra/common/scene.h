@@ -18,6 +18,14 @@
 // a RigidTransform per object (ScenePose) places it in the world. For the
 // static part object space is world space. Base-triangle indices do not
 // change when an object moves; only the pose does.
+//
+// Static instances (issue 15). A scene file may place many copies of one mesh
+// file ("instances"). Each copy is its own shading surface -- its own
+// triangles and vertices, in world space, in the static part -- so nothing
+// downstream needs to know; StaticInstance records where each copy's ranges
+// are, so that the ray tracers can share one acceleration structure among the
+// copies of a mesh. Order: the scene's own static triangles, then the
+// instances, then the movable objects.
 
 #include <array>
 #include <cstdint>
@@ -123,6 +131,23 @@ struct MovableObject {
   Bounds3 objectBounds;                     // derived by Finalize(), object space
 };
 
+/// One copy of a mesh file placed by a scene file's "instances" (static, not
+/// movable). Its triangles are Scene::triangles[firstTriangle, firstTriangle
+/// + triangleCount) and its vertices Scene::vertices[firstVertex, firstVertex
+/// + vertexCount), in world space. Every copy of a mesh has the same
+/// topology as the first copy (its `prototype`): triangle j of this copy is
+/// triangle j of the prototype, with vertex indices offset by the difference
+/// of the two firstVertex, and positions meshToWorld * (prototype's
+/// positions brought back by its own meshToWorld^-1).
+struct StaticInstance {
+  uint32_t firstTriangle = 0;
+  uint32_t triangleCount = 0;
+  uint32_t firstVertex = 0;
+  uint32_t vertexCount = 0;
+  uint32_t prototype = 0;      // index into Scene::instances of the first copy of the same mesh (itself for it)
+  RigidTransform meshToWorld;  // from the mesh file's coordinates to world space
+};
+
 struct Scene {
   std::string name;                    // for logs and the handshake
   std::filesystem::path sourcePath;    // the file it was loaded from
@@ -143,6 +168,10 @@ struct Scene {
   /// Movable objects, in the order their triangle ranges follow the static
   /// part's. Empty: the whole scene is static.
   std::vector<MovableObject> objects;
+  /// Static copies of mesh files, in the order of their triangle ranges,
+  /// which follow the scene's own static triangles (instances.front()
+  /// .firstTriangle) and end at staticTriangleCount. Empty: no instances.
+  std::vector<StaticInstance> instances;
 
   // Derived by Finalize():
   std::vector<uint32_t> emissiveTriangles;  // triangles whose material emits
@@ -189,6 +218,7 @@ struct Scene {
 
  private:
   Status CheckObjects(const std::string& where);  // part of Finalize(): ranges, names, animations
+  Status CheckInstances(const std::string& where);  // part of Finalize(): ranges and shared topology
 };
 
 /// Where every movable object is at one scene epoch (issue 14). Epoch 0 is
@@ -241,6 +271,16 @@ class SceneBuilder {
   /// triangles (zero area) are dropped and counted.
   void AddTriangle(const std::array<Vec3, 3>& positions, uint32_t material,
                    const std::array<Vec2, 3>& uv = {});
+  /// Places a static copy of `mesh` (a scene built from one mesh file by a
+  /// SceneBuilder of its own, so welded and crease-split once) at each of
+  /// `meshToWorld`. The mesh's materials and textures are added now (once,
+  /// however many copies), so that Materials() covers them; its geometry is
+  /// copied and transformed by BuildInto, after the builder's own static
+  /// triangles and before any movable object (see StaticInstance). Returns
+  /// the number of triangles the copies will add.
+  size_t AddInstances(Scene mesh, std::span<const RigidTransform> meshToWorld);
+  /// Triangles the instances added so far will add.
+  size_t InstanceTriangleCount() const { return instanceTriangles_; }
   /// Two triangles: corner, corner+edge1, corner+edge1+edge2, corner+edge2;
   /// front face is on the side of cross(edge1, edge2).
   void AddQuad(const Vec3& corner, const Vec3& edge1, const Vec3& edge2, uint32_t material);
@@ -271,6 +311,13 @@ class SceneBuilder {
   uint32_t currentObject_ = kStaticObject;
   std::vector<Material> materials_;
   std::vector<Texture> textures_;
+  void PlaceInstances(Scene& scene, uint32_t staticTriangles, uint32_t staticVertices);
+  struct InstancedMesh {
+    Scene mesh;  // materials remapped to this builder's
+    std::vector<RigidTransform> meshToWorld;
+  };
+  std::vector<InstancedMesh> instancedMeshes_;
+  size_t instanceTriangles_ = 0;
   size_t degenerate_ = 0;
   size_t duplicates_ = 0;
 };

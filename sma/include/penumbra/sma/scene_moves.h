@@ -10,6 +10,7 @@
 // state lock shared).
 
 #include <cstdint>
+#include <deque>
 #include <map>
 #include <mutex>
 #include <optional>
@@ -141,6 +142,42 @@ struct Invalidation {
 /// every sample shaded at the final pose; --invalidate-all-on-move).
 enum class InvalidationRule { kTest, kEverything };
 
+/// The poses of recent scene epochs, so that each cached sample can be
+/// judged against the pose it was shaded at (PlanInvalidation). Bounded
+/// (issue 15): at most `maxBytes` of poses are kept, the oldest forgotten
+/// first. A sample shaded at a forgotten epoch is invalidated outright --
+/// safe, it can only cost a reshade. The default, 16 MiB, keeps ~130 k epochs
+/// of a one-object scene (3.6 h of a 10 Hz animation) and ~5 k of a
+/// 64-object one.
+///
+/// Threads: not synchronised; the SMA's move job owns it.
+class PoseHistory {
+ public:
+  static constexpr size_t kDefaultMaxBytes = size_t(16) << 20;
+  explicit PoseHistory(size_t maxBytes = kDefaultMaxBytes) : maxBytes_(maxBytes) {}
+
+  /// Records the pose of an epoch later than every recorded one (a pose of
+  /// the last recorded epoch again is ignored; an earlier one is refused).
+  /// Forgets the oldest poses beyond the byte budget, never the newest.
+  void Record(std::shared_ptr<const ScenePose> pose);
+  /// The pose recorded for `epoch`, or null (never recorded, or forgotten).
+  const ScenePose* At(uint64_t epoch) const;
+  size_t Size() const { return poses_.size(); }
+  size_t Bytes() const { return bytes_; }
+  /// The newest recorded epoch; nothing when empty.
+  std::optional<uint64_t> Newest() const {
+    return poses_.empty() ? std::nullopt : std::optional<uint64_t>(poses_.back()->epoch);
+  }
+
+  /// What one pose costs to keep (the objects' transforms and the record).
+  static size_t BytesOf(const ScenePose& pose);
+
+ private:
+  size_t maxBytes_;
+  size_t bytes_ = 0;
+  std::deque<std::shared_ptr<const ScenePose>> poses_;  // epochs strictly increasing
+};
+
 /// Every vertex of a moved object (its world place changed), every vertex
 /// with no sample cached (only its ValidFrom rises: a sample of it shaded at
 /// the old pose, perhaps on its way, is refused), and the cached vertices
@@ -149,13 +186,14 @@ enum class InvalidationRule { kTest, kEverything };
 /// hierarchy is read; the cache is read as it is).
 ///
 /// Each cached sample is judged against the pose it was shaded at
-/// (CachedSample::epoch, looked up in `history`: index = epoch, the poses
-/// before `newPose`), not only against `oldPose`: a sample kept through many
-/// small moves, each below the tolerance, would otherwise drift by the sum
-/// of them. A sample whose pose is not in `history` (empty: the caller keeps
-/// none) is judged against `oldPose`.
+/// (CachedSample::epoch, looked up in `history`), not only against
+/// `oldPose`: a sample kept through many small moves, each below the
+/// tolerance, would otherwise drift by the sum of them. A sample whose pose
+/// the history does not have (forgotten, PoseHistory) is invalidated
+/// outright, urgently. Without a history (tests) every sample is judged
+/// against `oldPose`.
 Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cache, const ScenePose& oldPose,
                               const ScenePose& newPose, InvalidationRule rule = InvalidationRule::kTest,
-                              std::span<const std::shared_ptr<const ScenePose>> history = {});
+                              const PoseHistory* history = nullptr);
 
 }  // namespace penumbra::sma
