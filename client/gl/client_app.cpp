@@ -671,6 +671,10 @@ void ClientApp::DrawHud() {
   hud.connected = status.state == ConnectionState::kConnected;
   hud.connection = status.state == ConnectionState::kWaiting ? "reconnecting (" + status.lastError + ")"
                                                              : ToString(status.state);
+  // An SMA listens only once its scene is loaded (a 2 M-triangle scene takes
+  // 5-15 s): say so rather than leave a bare "connection refused".
+  if (status.state == ConnectionState::kWaiting && status.lastError.find("refused") != std::string::npos)
+    hud.connection += "; an SMA accepts clients once its scene is loaded";
   hud.permanentError = status.permanentError;
   hud.progress = mesh.Progress();
   hud.pendingSamples = mesh.PendingSamples();

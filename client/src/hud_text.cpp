@@ -23,6 +23,16 @@ HudProgressText DescribeProgress(const HudState& s) {
     out.stage = "Done: the image is final until the camera moves";
     return out;
   }
+  // Before the first delta there is no count to show: say what is going on
+  // (on a large scene the SMA's first trace and stage-1 plan take a while).
+  if (s.scene.empty()) {
+    out.stage = "Waiting for the scene's description from the SMA";
+    return out;
+  }
+  if (!s.refining && s.triangles == 0 && s.progress.stage1Total == 0) {
+    out.stage = "Finding the visible triangles: the SMA traces the view";
+    return out;
+  }
   out.showBar = true;
   if (!s.refining) {
     out.stage = "Shading the view";

@@ -29,6 +29,23 @@ TEST(HudTextTest, NoRendererConnectedSaysHowManySamplesWait) {
   EXPECT_TRUE(text.rate.empty()) << "no rate or time left while nothing can arrive: " << text.rate;
 }
 
+TEST(HudTextTest, BeforeTheFirstDeltaItSaysWhatIsGoingOnInsteadOfZeroCounts) {
+  HudState s = Connected();
+  s.scene.clear();
+  EXPECT_EQ(DescribeProgress(s).stage, "Waiting for the scene's description from the SMA");
+  EXPECT_FALSE(DescribeProgress(s).showBar);
+  s = Connected();
+  HudProgressText text = DescribeProgress(s);
+  EXPECT_EQ(text.stage, "Finding the visible triangles: the SMA traces the view");
+  EXPECT_FALSE(text.showBar) << "no '0 of 0 samples'";
+  // Once stage 1 has a count, or triangles arrived (all of them cached), the bar is back.
+  s.progress.stage1Total = 10;
+  EXPECT_EQ(DescribeProgress(s).stage, "Shading the view");
+  s.progress.stage1Total = 0;
+  s.triangles = 5;
+  EXPECT_EQ(DescribeProgress(s).stage, "Shading the view");
+}
+
 TEST(HudTextTest, Stage1ShowsCountsRateAndTimeLeftWithUnits) {
   HudState s = Connected();
   s.progress.renderersConnected = 2;
