@@ -318,7 +318,12 @@ Status WaitMovedTo(SmaTestClient& c, const std::array<float, 12>& place, std::ch
 // noise; here every value must be the final pose's, bit for bit.
 // Shading is deterministic (a sample's value depends on its id, place and
 // the pose's transforms, not on the epoch), so any sample shaded at an
-// intermediate pose that survived would differ.
+// intermediate pose that survived would differ. Its path count changes the
+// value too: a held vertex re-asked after a move may be shaded at
+// background priority (--paths) rather than visible (--first-paths) --
+// demoted once no view's interest holds it, or retried after a stale reply
+// -- so both get the same paths here, or a sample of the final pose with
+// fewer paths would pass for a stale one (it did: 20 of 20 runs under load).
 TEST_F(SmaMovesTest, ADragEndsWithTheImageOfASingleMoveThere) {
   const RigidTransform start = scene_.objects[0].objectToWorld;
   const RigidTransform end = RigidTransform::FromAxisAngle(Vec3(0, 1, 0), 0.2f, Vec3(0.35f, 0.45f, -0.25f));
@@ -331,7 +336,7 @@ TEST_F(SmaMovesTest, ADragEndsWithTheImageOfASingleMoveThere) {
   {
     Service renderer = StartRenderer("renderer-drag");
     // Slow batches (many paths): replies for old poses are in flight when moves land.
-    Service sma = StartSma({renderer.Address()}, "sma-drag", kScene, {"--first-paths", "1024", "--invalidate-all-on-move"});
+    Service sma = StartSma({renderer.Address()}, "sma-drag", kScene, {"--first-paths", "1024", "--paths", "1024", "--invalidate-all-on-move"});
     SmaTestClient c = Connect(sma, "dragger");
     const CameraView view = ViewFromPreset(c.Info().cameras(0), kWidth, kHeight);
     ASSERT_TRUE(c.SendView(view, 1));
@@ -361,7 +366,7 @@ TEST_F(SmaMovesTest, ADragEndsWithTheImageOfASingleMoveThere) {
   }
   {
     Service renderer = StartRenderer("renderer-once");
-    Service sma = StartSma({renderer.Address()}, "sma-once", kScene, {"--first-paths", "1024", "--invalidate-all-on-move"});
+    Service sma = StartSma({renderer.Address()}, "sma-once", kScene, {"--first-paths", "1024", "--paths", "1024", "--invalidate-all-on-move"});
     SmaTestClient c = Connect(sma, "mover");
     ASSERT_TRUE(c.Wire().Send(MoveEnvelope(1, 1, std::vector<float>(endFloats.begin(), endFloats.end()))));
     ASSERT_TRUE(WaitMovedTo(c, arrived).ok()) << sma.process.LogTail();

@@ -161,7 +161,7 @@ int main(int argc, char** argv) {
   std::string prediction = options.predictionOn ? "on" : "off";
   double predictionHorizon = options.prediction.horizon.count();
   app.add_option("--prediction", prediction,
-                 "Camera movement prediction: once a view is shaded, shade early what the client's camera is expected "
+                 "Camera movement prediction: with each new view, shade early (after the view's own samples) what the client's camera is expected "
                  "to see next (on|off)")
       ->check(CLI::IsMember({"on", "off"}))->capture_default_str();
   app.add_option("--prediction-horizon", predictionHorizon, "Seconds ahead of the latest view the camera is predicted")

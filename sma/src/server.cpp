@@ -398,9 +398,11 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
       server_.latencies_.toConverged.Observe(*ms / 1000.0);
   }
   void NoteStage1();
-  /// Camera movement prediction: once the latest view reached stage 1, a
-  /// low-priority job traces where the camera is expected next and asks for
-  /// what that view lacks (SmaOptions::predictionOn). Once per view.
+  /// Camera movement prediction: once a new view's visibility is applied
+  /// (its own samples requested at kVisible), a job behind every new view and
+  /// re-map traces where the camera is expected next and asks for what that
+  /// view lacks at kPredicted, which the pool serves only after kVisible
+  /// (SmaOptions::predictionOn). Once per view; the next view cancels it.
   void MaybePredict();
   // Improvement of the view's samples (SmaOptions::improveTargetError).
   void MaybeImprove();
@@ -657,6 +659,9 @@ void SmaServer::Impl::Session::OnJobDone(uint64_t viewId, bool newView, std::sha
     StartJob();
     return;
   }
+  // Not gated on stage 1: a walking client's view rarely reaches it before
+  // the next one, and kPredicted already waits behind this view's samples.
+  if (newView) MaybePredict();
   // Traced at a pose a move has since replaced: re-map (and re-trace) soon.
   if (hits_->epoch != server_.CurrentPose()->epoch) state_.WantRemap();
   if (state_.RemapWanted()) ScheduleRefresh();
@@ -884,13 +889,14 @@ void SmaServer::Impl::Session::NoteStage1() {
                 mirror_.TriangleCount());
     // Tell the client at once that stage 2 (refinement) has begun.
     SyncStatus();
-    MaybePredict();
   }
 }
 
 void SmaServer::Impl::Session::MaybePredict() {
   const SmaOptions& o = server_.options_;
-  if (!o.predictionOn || !connection_->IsOpen() || Blocked() || !state_.Stage1Done()) return;
+  // Not gated on Blocked() either: predicted samples go to the cache, not to
+  // this client's send queue.
+  if (!o.predictionOn || !connection_->IsOpen()) return;
   const uint64_t viewId = state_.ViewId();
   if (predictedForView_ == viewId) return;
   predictedForView_ = viewId;

@@ -100,7 +100,7 @@ struct SmaOptions {
   /// sample shaded at the final pose ask for.
   bool invalidateEverythingOnMove = false;
   /// Camera movement prediction (issue 15; camera_prediction.h). Once a
-  /// client's view is shaded (stage 1), the view its camera is expected to
+  /// client's new view is applied (its visibility), the view its camera is expected to
   /// show `prediction.horizon` later (widened by `prediction.widen`) is
   /// traced at `predictionResolution` times the view's width and height, and
   /// what it would display unshaded is asked for at predicted priority
