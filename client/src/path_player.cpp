@@ -1,5 +1,6 @@
 #include "penumbra/client/path_player.h"
 
+#include <filesystem>
 #include <fstream>
 #include <sstream>
 
@@ -24,7 +25,19 @@ Expected<CameraPath> LoadCameraPathSpec(std::string_view spec) {
   const auto paths = doc.find("paths");
   if (paths == doc.end() || !paths->is_object() || !paths->contains(name))
     return Fail(fmt::format("{}: no camera path named '{}' in its \"paths\"", file, name));
-  auto path = ParseCameraPathJson(paths->at(name).dump(), std::string(spec));
+  const nlohmann::json& entry = paths->at(name);
+  // A path in a file of its own ({"file": "..."}, relative to the scene
+  // file, as docs/scenes.md says and the scene loader reads it).
+  if (entry.is_object() && entry.contains("file")) {
+    if (entry.size() != 1 || !entry["file"].is_string())
+      return Fail(fmt::format("{}: paths.{}: a path file is given as {{\"file\": \"NAME.json\"}} alone", file, name));
+    const std::filesystem::path pathFile =
+        std::filesystem::path(file).parent_path() / entry["file"].get<std::string>();
+    auto path = LoadCameraPath(pathFile);
+    if (path) path->name = name;
+    return path;
+  }
+  auto path = ParseCameraPathJson(entry.dump(), std::string(spec));
   if (path && path->name.empty()) path->name = name;
   return path;
 }

@@ -58,10 +58,28 @@ TEST(PathSpecTest, LoadsANamedPathOfASceneFile) {
   EXPECT_FALSE(LoadCameraPathSpec(WriteFile("bad.json", "{\"keyframes\": []}")).ok());
 }
 
+TEST(PathSpecTest, ANamedPathInAFileOfItsOwnLoadsRelativeToTheSceneFile) {
+  const std::string dir = testing::MakeTempDir("penumbra-path-test");
+  std::filesystem::create_directories(dir + "/paths");
+  std::ofstream(dir + "/paths/dolly.json") << kTwoKeyframes;
+  std::ofstream(dir + "/scene.json") << R"({"mesh": "x.obj", "paths": {"dolly": {"file": "paths/dolly.json"},
+    "gone": {"file": "paths/none.json"}, "odd": {"file": 3}}})";
+  auto path = LoadCameraPathSpec(dir + "/scene.json#dolly");
+  ASSERT_TRUE(path.ok()) << path.error().message;
+  EXPECT_EQ(path->name, "dolly");
+  EXPECT_EQ(path->keyframes.size(), 2u);
+  EXPECT_FALSE(LoadCameraPathSpec(dir + "/scene.json#gone").ok());
+  EXPECT_FALSE(LoadCameraPathSpec(dir + "/scene.json#odd").ok());
+}
+
 TEST(PathSpecTest, TheSharedSceneFilesPathsLoad) {
   auto walk = LoadCameraPathSpec(std::string(PENUMBRA_SOURCE_DIR) + "/scenes/sponza.json#walk");
   ASSERT_TRUE(walk.ok()) << walk.error().message;
   EXPECT_EQ(walk->keyframes.size(), 4u);
+  // The street's walk is a file of its own (scenes/paths/street-walk.json).
+  auto street = LoadCameraPathSpec(std::string(PENUMBRA_SOURCE_DIR) + "/scenes/street.json#walk");
+  ASSERT_TRUE(street.ok()) << street.error().message;
+  EXPECT_GT(street->DurationSeconds(), 300.0);
 }
 
 TEST(PathPlayerTest, PlaysFromTheFirstKeyframeAndHoldsTheLast) {
