@@ -1,0 +1,97 @@
+"""The plot and summary of bench/memory_walk/run.sh.
+
+Usage: plot.py OUT BUDGET_MIB...   (reads OUT/walk-<budget>.csv, writes
+OUT/memory.png, prints a Markdown table). Budget 0 is the unbounded run, the
+baseline every saving is measured against (same invocation, same machine).
+"""
+import csv
+import os
+import sys
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+MIB = 1024.0 * 1024.0
+
+
+def load(path):
+    rows = []
+    with open(path) as f:
+        for row in csv.DictReader(f):
+            rows.append(row)
+    return rows
+
+
+def column(rows, key):
+    out = []
+    for r in rows:
+        v = r.get(key, "")
+        out.append(float(v) if v not in ("", None) else float("nan"))
+    return out
+
+
+def last_number(values):
+    for v in reversed(values):
+        if v == v:  # not NaN
+            return v
+    return float("nan")
+
+
+def main():
+    out, budgets = sys.argv[1], [int(b) for b in sys.argv[2:]]
+    fig, (ax_rss, ax_data) = plt.subplots(2, 1, figsize=(10, 7.5), sharex=True)
+    summary = {}
+    for budget in budgets:
+        path = os.path.join(out, f"walk-{budget}.csv")
+        if not os.path.exists(path):
+            print(f"plot.py: no {path}", file=sys.stderr)
+            continue
+        rows = load(path)
+        if not rows:
+            continue
+        t = column(rows, "t_s")
+        rss = [v / MIB for v in column(rows, "rss_bytes")]
+        data = [v / MIB for v in column(rows, "memory_bytes")]
+        label = "unbounded" if budget == 0 else f"--memory-budget {budget}"
+        (line,) = ax_rss.plot(t, rss, label=label)
+        ax_data.plot(t, data, label=label, color=line.get_color())
+        if budget > 0:
+            for ax in (ax_rss, ax_data):
+                ax.axhline(budget, color=line.get_color(), linestyle="--", linewidth=0.8)
+        shaded = last_number(column(rows, "samples_shaded"))
+        summary[budget] = {
+            "peak_rss": max(v for v in rss if v == v),
+            "final_rss": last_number(rss),
+            "hwm": last_number(column(rows, "hwm_bytes")) / MIB,
+            "peak_data": max((v for v in data if v == v), default=float("nan")),
+            "shaded": shaded,
+            "hit": last_number(column(rows, "prediction_hit_rate")),
+            "seconds": t[-1],
+        }
+    ax_rss.set_ylabel("SMA resident memory (MiB)")
+    ax_data.set_ylabel("SMA data: cache + hierarchy + clients (MiB)")
+    ax_data.set_xlabel("walk time (s)")
+    ax_rss.set_title("SMA memory over the walk (bench/memory_walk/run.sh); dashed: the budget")
+    for ax in (ax_rss, ax_data):
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="upper left")
+    fig.tight_layout()
+    png = os.path.join(out, "memory.png")
+    fig.savefig(png, dpi=100)
+    print(f"plot: {png}", file=sys.stderr)
+
+    base = summary.get(0)
+    print("| run | walk (s) | peak RSS (MiB) | VmHWM (MiB) | final RSS (MiB) | peak data (MiB) | RSS saved vs unbounded |"
+          " samples shaded | prediction hit rate |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for budget, s in summary.items():
+        saved = "baseline" if budget == 0 or not base else f"{100.0 * (1.0 - s['peak_rss'] / base['peak_rss']):.0f} %"
+        name = "unbounded" if budget == 0 else f"budget {budget} MiB"
+        print(f"| {name} | {s['seconds']:.0f} | {s['peak_rss']:.0f} | {s['hwm']:.0f} | {s['final_rss']:.0f} |"
+              f" {s['peak_data']:.0f} | {saved} | {s['shaded']:.0f} | {s['hit']:.3f} |")
+
+
+if __name__ == "__main__":
+    main()
