@@ -349,6 +349,17 @@ Expected<RigidTransform> ParseTransform(const JsonReader& r, const Json& j, std:
   return *transform;
 }
 
+// The "transform" of an object or an instance (`ctx` names it): an object
+// holding only ParseTransform's keys.
+Expected<RigidTransform> ParsePlacement(const JsonReader& r, const Json& j, const std::string& ctx) {
+  auto transformJson = r.Object(j, ctx, "transform");
+  if (!transformJson) return transformJson.error();
+  const std::string transformCtx = ctx + ".transform";
+  if (auto ok = r.CheckKeys(**transformJson, transformCtx, {"translate", "rotate_deg", "axis", "matrix"}); !ok)
+    return ok.error();
+  return ParseTransform(r, **transformJson, transformCtx);
+}
+
 Expected<ObjectAnimation> ParseObjectAnimation(const JsonReader& r, const Json& j, const std::string& ctx) {
   if (!j.is_object()) return r.Problem(ctx, "must be an object");
   if (auto ok = r.CheckKeys(j, ctx, {"loop", "keyframes"}); !ok) return ok.error();
@@ -427,12 +438,7 @@ Expected<ObjectDescription> ParseObject(const JsonReader& r, const fs::path& sce
   if (j.contains("transform") && j.contains("animation"))
     return r.Problem(ctx, "give either \"transform\" or \"animation\" (its first keyframe places the object)");
   if (j.contains("transform")) {
-    auto transformJson = r.Object(j, ctx, "transform");
-    if (!transformJson) return transformJson.error();
-    const std::string transformCtx = ctx + ".transform";
-    if (auto ok = r.CheckKeys(**transformJson, transformCtx, {"translate", "rotate_deg", "axis", "matrix"}); !ok)
-      return ok.error();
-    auto transform = ParseTransform(r, **transformJson, transformCtx);
+    auto transform = ParsePlacement(r, j, ctx);
     if (!transform) return transform.error();
     o.placement = *transform;
   }
@@ -457,12 +463,7 @@ Expected<InstanceDescription> ParseInstance(const JsonReader& r, const fs::path&
   if (!mesh) return mesh.error();
   instance.meshPath = sceneDir / *mesh;
   if (j.contains("transform")) {
-    auto transformJson = r.Object(j, ctx, "transform");
-    if (!transformJson) return transformJson.error();
-    const std::string transformCtx = ctx + ".transform";
-    if (auto ok = r.CheckKeys(**transformJson, transformCtx, {"translate", "rotate_deg", "axis", "matrix"}); !ok)
-      return ok.error();
-    auto transform = ParseTransform(r, **transformJson, transformCtx);
+    auto transform = ParsePlacement(r, j, ctx);
     if (!transform) return transform.error();
     instance.meshToWorld = *transform;
   }
