@@ -202,7 +202,7 @@ NodeId Hierarchy::AddChild(NodeId parent, const std::array<VertexId, 3>& v, cons
   child.bary = bary;
   child.parent = parent;
   child.depth = uint8_t(std::min(255, p.depth + 1));
-  nodes_.push_back(child);  // after the last use of p: it may be in nodes_
+  nodes_.push_back(child);
   const NodeId id = NodeId(RootCount() + nodes_.size() - 1);
   LinkEdges(id);
   return id;
@@ -342,7 +342,7 @@ size_t Hierarchy::MemoryBytes() const {
     std::lock_guard lock(*rootMutex_);
     rootChunks = rootChunkStore_.size();
   }
-  size_t bytes = nodes_.capacity() * sizeof(Node) + vertices_.capacity() * sizeof(SampleVertex) +
+  size_t bytes = nodes_.MemoryBytes() + vertices_.MemoryBytes() +
                  rootChunks * kRootChunkNodes * sizeof(Node) +
                  (RootCount() + kRootChunkNodes - 1) / kRootChunkNodes * sizeof(std::atomic<Node*>) +
                  rootEdgeKeys_.capacity() * sizeof(EdgeKey) + rootEdgeRoots_.capacity() * sizeof(NodeId);

@@ -71,6 +71,7 @@
 #include "penumbra/common/expected.h"
 #include "penumbra/common/math.h"
 #include "penumbra/common/scene.h"
+#include "penumbra/sma/chunked_array.h"
 
 namespace penumbra::sma {
 
@@ -258,7 +259,7 @@ class Hierarchy {
   float HeightToEdgeRatio(NodeId id, int edge) const;
 
   const Scene& scene_;
-  std::vector<Node> nodes_;  // nodes made by splits: id RootCount() + i
+  ChunkedArray<Node> nodes_;  // nodes made by splits: id RootCount() + i (chunked: growth never copies)
   // Root records (issue 15: a base triangle costs no node record until
   // something needs it): chunk pointers, null until made; made chunks are
   // owned by rootChunkStore_ and never freed while the hierarchy lives.
@@ -267,7 +268,7 @@ class Hierarchy {
   std::unique_ptr<std::atomic<Node*>[]> rootChunks_;
   std::unique_ptr<std::mutex> rootMutex_;
   mutable std::vector<std::unique_ptr<Node[]>> rootChunkStore_;
-  std::vector<SampleVertex> vertices_;
+  ChunkedArray<SampleVertex> vertices_;  // base vertices, then midpoints (chunked, like nodes_)
   uint32_t pointCount_ = 0;
   std::unordered_map<EdgeKey, VertexId> midpointOfVertexEdge_;  // vertex edge -> midpoint vertex
   std::unordered_map<EdgeKey, uint32_t> midpointOfPointEdge_;   // point edge -> midpoint point
