@@ -168,11 +168,14 @@ boost::container::small_vector<NodeId, 2> Hierarchy::LeavesOnPointEdge(EdgeKey k
   return out;
 }
 
-VertexId Hierarchy::MidpointVertex(NodeId id, int edge) {
+VertexId Hierarchy::MidpointVertex(NodeId id, int edge, bool& made) {
   const int i = (edge + 1) % 3, j = (edge + 2) % 3;
   const Node& n = NodeRef(id);
   const VertexId a = n.v[i], b = n.v[j];
-  auto [it, inserted] = midpointOfVertexEdge_.try_emplace(KeyOf(a, b), VertexId(vertices_.size()));
+  // A freed slot is reused first (the collector's free list), else a new one.
+  const VertexId next = freeVertices_.empty() ? VertexId(vertices_.size()) : freeVertices_.back();
+  auto [it, inserted] = midpointOfVertexEdge_.try_emplace(KeyOf(a, b), next);
+  made = inserted;
   if (!inserted) return it->second;
 
   const SampleVertex& va = vertices_[a];
@@ -189,11 +192,38 @@ VertexId Hierarchy::MidpointVertex(NodeId id, int edge) {
   m.baseTriangle = n.baseTriangle;
   m.bary = 0.5f * (n.bary[i] + n.bary[j]);
   m.depth = uint8_t(std::min(255, n.depth + 1));
-  vertices_.push_back(m);
+  if (next == vertices_.size()) {
+    vertices_.push_back(m);
+  } else {
+    freeVertices_.pop_back();
+    vertices_[next] = m;
+  }
   return it->second;
 }
 
-NodeId Hierarchy::AddChild(NodeId parent, const std::array<VertexId, 3>& v, const std::array<Vec2, 3>& bary) {
+NodeId Hierarchy::AllocateChildren(int count) {
+  std::vector<NodeId>& freed = count == 4 ? freeBlocks4_ : freeBlocks2_;
+  if (!freed.empty()) {
+    const NodeId first = freed.back();
+    freed.pop_back();
+    return first;
+  }
+  if (count == 2 && !freeBlocks4_.empty()) {  // half of a freed block of 4; the other half waits
+    const NodeId first = freeBlocks4_.back();
+    freeBlocks4_.pop_back();
+    freeBlocks2_.push_back(first + 2);
+    return first;
+  }
+  const NodeId first = NodeId(RootCount() + nodes_.size());
+  for (int i = 0; i < count; ++i) {
+    nodes_.push_back(Node{});
+    touched_.push_back(0);
+  }
+  return first;
+}
+
+void Hierarchy::InitChild(NodeId id, NodeId parent, const std::array<VertexId, 3>& v,
+                          const std::array<Vec2, 3>& bary) {
   Node child;
   const Node& p = NodeRef(parent);
   child.baseTriangle = p.baseTriangle;
@@ -202,26 +232,28 @@ NodeId Hierarchy::AddChild(NodeId parent, const std::array<VertexId, 3>& v, cons
   child.bary = bary;
   child.parent = parent;
   child.depth = uint8_t(std::min(255, p.depth + 1));
-  nodes_.push_back(child);
-  const NodeId id = NodeId(RootCount() + nodes_.size() - 1);
+  nodes_[id - RootCount()] = child;
+  touched_[id - RootCount()] = Tick();  // born young: the collector leaves it alone for a while
   LinkEdges(id);
-  return id;
 }
 
 void Hierarchy::Split4(NodeId id, RefineResult& result) {
-  const size_t verticesBefore = vertices_.size();
   std::array<VertexId, 3> m;
-  for (int k = 0; k < 3; ++k) m[k] = MidpointVertex(id, k);
-  for (VertexId v = VertexId(verticesBefore); v < vertices_.size(); ++v) result.newVertices.push_back(v);
+  for (int k = 0; k < 3; ++k) {
+    bool made = false;
+    m[k] = MidpointVertex(id, k, made);
+    if (made) result.newVertices.push_back(m[k]);
+    if (made && NodeRef(id).collapsed) ++result.remadeVertices;
+  }
   UnlinkEdges(id);
-  // Copies: AddChild grows nodes_, which would invalidate a reference.
   const std::array<VertexId, 3> c = NodeRef(id).v;
   const std::array<Vec2, 3> b = NodeRef(id).bary;
   const std::array<Vec2, 3> mb = {0.5f * (b[1] + b[2]), 0.5f * (b[2] + b[0]), 0.5f * (b[0] + b[1])};
-  const NodeId first = AddChild(id, {c[0], m[2], m[1]}, {b[0], mb[2], mb[1]});
-  AddChild(id, {m[2], c[1], m[0]}, {mb[2], b[1], mb[0]});
-  AddChild(id, {m[1], m[0], c[2]}, {mb[1], mb[0], b[2]});
-  AddChild(id, {m[0], m[1], m[2]}, {mb[0], mb[1], mb[2]});
+  const NodeId first = AllocateChildren(4);
+  InitChild(first, id, {c[0], m[2], m[1]}, {b[0], mb[2], mb[1]});
+  InitChild(first + 1, id, {m[2], c[1], m[0]}, {mb[2], b[1], mb[0]});
+  InitChild(first + 2, id, {m[1], m[0], c[2]}, {mb[1], mb[0], b[2]});
+  InitChild(first + 3, id, {m[0], m[1], m[2]}, {mb[0], mb[1], mb[2]});
   Node& n = MutableNode(id);
   n.firstChild = first;
   n.childCount = 4;
@@ -230,16 +262,18 @@ void Hierarchy::Split4(NodeId id, RefineResult& result) {
 }
 
 void Hierarchy::Split2(NodeId id, int k, RefineResult& result) {
-  const size_t verticesBefore = vertices_.size();
-  const VertexId m = MidpointVertex(id, k);
-  if (vertices_.size() > verticesBefore) result.newVertices.push_back(m);
+  bool made = false;
+  const VertexId m = MidpointVertex(id, k, made);
+  if (made) result.newVertices.push_back(m);
+  if (made && NodeRef(id).collapsed) ++result.remadeVertices;
   UnlinkEdges(id);
   const int i = (k + 1) % 3, j = (k + 2) % 3;
   const std::array<VertexId, 3> c = NodeRef(id).v;
   const std::array<Vec2, 3> b = NodeRef(id).bary;
   const Vec2 mb = 0.5f * (b[i] + b[j]);
-  const NodeId first = AddChild(id, {c[k], c[i], m}, {b[k], b[i], mb});
-  AddChild(id, {c[k], m, c[j]}, {b[k], mb, b[j]});
+  const NodeId first = AllocateChildren(2);
+  InitChild(first, id, {c[k], c[i], m}, {b[k], b[i], mb});
+  InitChild(first + 1, id, {c[k], m, c[j]}, {b[k], mb, b[j]});
   Node& n = MutableNode(id);
   n.firstChild = first;
   n.childCount = 2;
@@ -261,7 +295,7 @@ float Hierarchy::HeightToEdgeRatio(NodeId id, int edge) const {
 
 RefineResult Hierarchy::Refine(NodeId leaf, const RefineOptions& options) {
   RefineResult result;
-  if (leaf >= NodeCount() || !NodeRef(leaf).IsLeaf() || NodeRef(leaf).depth >= options.maxDepth) return result;
+  if (!Alive(leaf) || !NodeRef(leaf).IsLeaf() || NodeRef(leaf).depth >= options.maxDepth) return result;
 
   // Point edges that have just received a midpoint: every leaf still having
   // such an edge whole must be split on it.
@@ -296,7 +330,7 @@ RefineResult Hierarchy::Refine(NodeId leaf, const RefineOptions& options) {
 }
 
 Status Hierarchy::ApplySplit(NodeId node, uint8_t childCount, uint8_t splitEdge) {
-  if (node >= NodeCount()) return Fail(fmt::format("node {} does not exist ({} nodes)", node, NodeCount()));
+  if (!Alive(node)) return Fail(fmt::format("node {} does not exist ({} nodes)", node, NodeCount()));
   if (!NodeRef(node).IsLeaf()) return Fail(fmt::format("node {} is split already", node));
   RefineResult ignored;
   if (childCount == 4) {
@@ -313,6 +347,7 @@ Status Hierarchy::ApplySplit(NodeId node, uint8_t childCount, uint8_t splitEdge)
 
 void Hierarchy::Reserve(size_t nodes, size_t vertices) {
   nodes_.reserve(nodes > RootCount() ? nodes - RootCount() : 0);
+  touched_.reserve(nodes > RootCount() ? nodes - RootCount() : 0);
   vertices_.reserve(vertices);
   const size_t midpoints = vertices > vertices_.size() ? vertices - vertices_.size() : 0;
   midpointOfVertexEdge_.reserve(midpointOfVertexEdge_.size() + midpoints);
@@ -336,18 +371,24 @@ boost::container::small_vector<NodeId, 2> Hierarchy::EdgeNeighbours(NodeId leaf,
   return out;
 }
 
-size_t Hierarchy::MemoryBytes() const {
+size_t Hierarchy::TableBytes() const {
   size_t rootChunks;
   {
     std::lock_guard lock(*rootMutex_);
     rootChunks = rootChunkStore_.size();
   }
-  size_t bytes = nodes_.MemoryBytes() + vertices_.MemoryBytes() +
+  size_t bytes = nodes_.MemoryBytes() + touched_.MemoryBytes() + vertices_.MemoryBytes() +
+                 (freeBlocks4_.capacity() + freeBlocks2_.capacity() + freeVertices_.capacity()) * sizeof(NodeId) +
                  rootChunks * kRootChunkNodes * sizeof(Node) +
                  (RootCount() + kRootChunkNodes - 1) / kRootChunkNodes * sizeof(std::atomic<Node*>) +
                  rootEdgeKeys_.capacity() * sizeof(EdgeKey) + rootEdgeRoots_.capacity() * sizeof(NodeId);
   bytes += UnorderedMapBytes(midpointOfVertexEdge_) + UnorderedMapBytes(midpointOfPointEdge_) +
            UnorderedMapBytes(leavesOfPointEdge_);
+  return bytes;
+}
+
+size_t Hierarchy::MemoryBytes() const {
+  size_t bytes = TableBytes();
   // A list of more than two leaves on one point edge (non-manifold input)
   // leaves the small_vector's inline storage; rare, and counted here whole.
   for (const auto& [key, leaves] : leavesOfPointEdge_)

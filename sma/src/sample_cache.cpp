@@ -259,6 +259,24 @@ bool SampleCache::Evict(VertexId v) {
   return wasShaded;
 }
 
+size_t SampleCache::SlotBytes() { return sizeof(Slot); }
+
+bool SampleCache::Forget(VertexId v) {
+  Slot* found = const_cast<Slot*>(Find(v));
+  if (!found) return false;  // never written: it reads unshaded already
+  Slot& s = *found;
+  const uint32_t sequence = BeginWrite(s);
+  const bool wasShaded = s.shaded.load(kRelaxed) != 0;
+  s.shaded.store(0, std::memory_order_release);
+  s.awaitingReshade.store(0, std::memory_order_release);
+  WriteValues(s, ShadedSample{v, Rgb(0.0f), Rgb(0.0f), 0.0f, 0, 0}, 0);
+  s.generation.fetch_add(1, std::memory_order_release);
+  EndWrite(s, sequence);
+  if (wasShaded) --shadedCount_;
+  ++changes_;
+  return wasShaded;
+}
+
 bool SampleCache::Invalidate(VertexId v, uint64_t epoch) {
   Slot& s = SlotFor(v);
   const uint32_t sequence = BeginWrite(s);

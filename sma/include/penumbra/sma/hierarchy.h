@@ -37,16 +37,18 @@
 // never each other's neighbours). Its samples go to the renderer with the
 // negated normal, which is how the renderer is told which side to shade.
 //
-// Ids. NodeId and VertexId are dense indices, stable for the life of the
-// hierarchy (nodes and vertices are never removed). Front root id == base
+// Ids. NodeId and VertexId are dense indices, stable until the collector
+// frees them ("Collection" below: roots and base vertices never are; a
+// freed id is reused by a later split). Front root id == base
 // triangle index t; back root id == BaseTriangleCount() + t. Front base
 // vertex id == scene vertex index v; back base vertex id == scene vertex
 // count + v. Clients key their triangles and vertices by these ids (widened
 // to 64 bits on the wire). Every other id is assigned by a split, in the order
 // splits happen: the same splits made in the same order give the same ids,
 // which is how a cache snapshot (cache_snapshot.h) brings them back after a
-// restart. A change to how Split4/Split2 number children or midpoints must
-// bump CacheSnapshot's format version.
+// restart -- as long as nothing was collected (the SMA refuses a cache
+// directory together with a memory budget). A change to how Split4/Split2
+// number children or midpoints must bump CacheSnapshot's format version.
 //
 // Storage (issue 15). Root records are made on first use, a chunk at a time,
 // and roots' adjacency lives in a compact table sorted by point edge, so an
@@ -95,7 +97,7 @@ struct SampleVertex {
   uint32_t point = 0;     // position identity: vertices at the same point share it
   uint32_t baseTriangle = 0;  // a base triangle the vertex lies on
   Vec2 bary{0.0f};        // (b1, b2) of `position` on `baseTriangle`
-  uint8_t depth = 0;      // 0 for scene vertices, else the depth of the node whose split made it
+  uint8_t depth = 0;      // 0 for scene vertices (and freed slots), else the depth of the node whose split made it
 };
 
 struct Node {
@@ -106,8 +108,9 @@ struct Node {
   NodeId firstChild = kNoNode;  // children are contiguous: firstChild .. firstChild+childCount-1
   uint8_t childCount = 0;       // 0 (leaf), 2 or 4
   uint8_t splitEdge = 0;        // 1 -> 2 splits: the edge split, named by its opposite corner
-  uint8_t depth = 0;            // 0 for roots
-  bool back = false;            // in a back root's tree (Hierarchy: "Sides")
+  uint8_t depth = 0;            // 0 for roots (and for freed slots: a node made by a split is at depth >= 1)
+  bool back : 1 = false;        // in a back root's tree (Hierarchy: "Sides")
+  bool collapsed : 1 = false;   // its children were collected once (Hierarchy: "Collection")
   /// Vertices this node's split added: midpoints of edges 0, 1, 2 (edge k is
   /// opposite corner k) for 1 -> 4; only [splitEdge] for 1 -> 2; else kNoVertex.
   std::array<VertexId, 3> mid{kNoVertex, kNoVertex, kNoVertex};
@@ -136,6 +139,9 @@ struct RefineOptions {
 struct RefineResult {
   std::vector<NodeId> split;            // nodes that received children
   std::vector<VertexId> newVertices;    // vertices created (to be shaded)
+  /// Of newVertices, those made by splits of nodes collapsed before: work
+  /// the collector undid and that is done again (issue 15's re-shading cost).
+  size_t remadeVertices = 0;
 };
 
 class Hierarchy {
@@ -223,14 +229,83 @@ class Hierarchy {
   template <class F>
   void ForEachLeaf(NodeId root, F&& f) const;
 
+  // --- Collection (issue 15: the age-based collector, collector.h) --------
+  //
+  // A refined subtree can collapse back into its parent: the children go,
+  // and so do the midpoints the parent's split added. To keep the mesh
+  // conforming, every node split on the same point edge as a collapsing
+  // node collapses with it (PlanCollapse finds that group: Refine's
+  // propagation run backwards). Freed node blocks and vertices go to free
+  // lists and their ids are reused by later splits (which keeps the tables
+  // bounded); so an id held across a collection may name another node or
+  // vertex afterwards. Whoever keeps node ids across a release of the state
+  // lock compares StructureGeneration() (bumped by every Collapse) and maps
+  // again when it changed; the SMA never collapses what a client holds or a
+  // renderer is shading (collector.h), so those ids stay valid.
+
+  /// The collector's clock, in ticks (the SMA: 100 ms). Splits stamp their
+  /// children with it. Any thread.
+  void SetTick(uint32_t tick) const { std::atomic_ref<uint32_t>(tick_).store(tick, std::memory_order_relaxed); }
+  uint32_t Tick() const { return std::atomic_ref<uint32_t>(tick_).load(std::memory_order_relaxed); }
+  /// A view displays node `id` (or a prediction asks for it): its age
+  /// restarts. Any thread, concurrently with other readers (a relaxed
+  /// atomic store); roots have no age (they are never collected).
+  void Touch(NodeId id) const {
+    if (id >= RootCount() && id < NodeCount())
+      std::atomic_ref<uint32_t>(const_cast<uint32_t&>(touched_[id - RootCount()])).store(Tick(), std::memory_order_relaxed);
+  }
+  /// The tick of a non-root node's last Touch (or of its making).
+  uint32_t LastTouched(NodeId id) const {
+    return std::atomic_ref<uint32_t>(const_cast<uint32_t&>(touched_[id - RootCount()])).load(std::memory_order_relaxed);
+  }
+  /// Whether `id` names a node (not a freed slot).
+  bool Alive(NodeId id) const { return id < RootCount() || (id < NodeCount() && nodes_[id - RootCount()].depth != 0); }
+  /// Whether `v` names a vertex (not a freed slot).
+  bool VertexAlive(VertexId v) const { return v < BaseVertexCount() || (v < VertexCount() && vertices_[v].depth != 0); }
+  /// Bumped by every Collapse(): node and vertex ids read before may have
+  /// been freed or reused since.
+  uint64_t StructureGeneration() const { return generation_; }
+  size_t LiveNodeCount() const { return NodeCount() - 4 * freeBlocks4_.size() - 2 * freeBlocks2_.size(); }
+  size_t LiveVertexCount() const { return VertexCount() - freeVertices_.size(); }
+  /// MemoryBytes() less the freed slots waiting for reuse, from counts (O(1),
+  /// unlike MemoryBytes): what the collector steers by.
+  size_t LiveBytes() const;
+
+  /// A split node whose children are all leaves: what can collapse.
+  bool Collapsible(NodeId id) const;
+  /// Whether the node was collapsed before (a later split of it re-makes
+  /// vertices that were evicted: the re-shading the budget costs).
+  bool WasCollapsed(NodeId id) const { return NodeRef(id).collapsed; }
+
+  /// A set of splits that collapse together, and what that frees.
+  struct CollapseGroup {
+    std::vector<NodeId> nodes;            // the split nodes that go, deepest first: whole subtrees
+    std::vector<NodeId> freedNodes;       // their children
+    std::vector<VertexId> freedVertices;  // the midpoints their splits added
+  };
+  /// The group that must collapse with `node` (a split node) so that no leaf
+  /// keeps a T-vertex: `node`'s subtree, and the subtree of every node split
+  /// on a point edge that a member split, until closed. False (group
+  /// unspecified) if it would exceed `maxNodes` split nodes.
+  bool PlanCollapse(NodeId node, size_t maxNodes, CollapseGroup& group) const;
+  /// Collapses a group PlanCollapse made (with no split or collapse in
+  /// between): the subtrees' tops become leaves; their descendants and the
+  /// midpoints they added are freed.
+  void Collapse(const CollapseGroup& group);
+
  private:
   using EdgeKey = uint64_t;
   static EdgeKey KeyOf(uint32_t a, uint32_t b) {
     return a < b ? (EdgeKey(a) << 32) | b : (EdgeKey(b) << 32) | a;
   }
   EdgeKey PointEdge(NodeId id, int edge) const;
-  VertexId MidpointVertex(NodeId id, int edge);
-  NodeId AddChild(NodeId parent, const std::array<VertexId, 3>& v, const std::array<Vec2, 3>& bary);
+  /// The midpoint vertex of a node's edge, made (or a freed slot reused)
+  /// when the edge has none yet; `made` says which.
+  VertexId MidpointVertex(NodeId id, int edge, bool& made);
+  /// `count` (2 or 4) consecutive node ids for a split's children: a freed
+  /// block, or new records.
+  NodeId AllocateChildren(int count);
+  void InitChild(NodeId child, NodeId parent, const std::array<VertexId, 3>& v, const std::array<Vec2, 3>& bary);
   void Split4(NodeId id, RefineResult& result);
   void Split2(NodeId id, int edge, RefineResult& result);
   bool IsRoot(NodeId id) const { return id < RootCount(); }
@@ -257,6 +332,10 @@ class Hierarchy {
   /// order they were made) -- the order Refine() splits them in.
   boost::container::small_vector<NodeId, 2> LeavesOnPointEdge(EdgeKey key) const;
   float HeightToEdgeRatio(NodeId id, int edge) const;
+  /// MemoryBytes() without the rare out-of-line leaf lists: O(1).
+  size_t TableBytes() const;
+  /// Whether node `id` is split on point edge `key` (has a midpoint on it).
+  bool SplitsPointEdge(NodeId id, EdgeKey key) const;
 
   const Scene& scene_;
   ChunkedArray<Node> nodes_;  // nodes made by splits: id RootCount() + i (chunked: growth never copies)
@@ -280,6 +359,13 @@ class Hierarchy {
   // has no children.
   std::vector<EdgeKey> rootEdgeKeys_;
   std::vector<NodeId> rootEdgeRoots_;
+  // Collection (see "Collection" above).
+  ChunkedArray<uint32_t> touched_;   // per non-root node: tick of its last Touch (atomic_ref)
+  alignas(std::atomic_ref<uint32_t>::required_alignment) mutable uint32_t tick_ = 0;  // atomic_ref (keeps Hierarchy movable)
+  uint64_t generation_ = 0;
+  std::vector<NodeId> freeBlocks4_;  // first ids of freed blocks of 4 children
+  std::vector<NodeId> freeBlocks2_;  // ... of 2 children
+  std::vector<VertexId> freeVertices_;
 };
 
 // --- Template definitions ---------------------------------------------------

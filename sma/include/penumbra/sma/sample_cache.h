@@ -164,6 +164,13 @@ class SampleCache {
   /// vertex is in the cache or alive in the pool) by requesting it again if
   /// it is still needed. Returns whether it was shaded.
   bool Evict(VertexId v);
+  /// The vertex's id was freed (the collector collapsed the subtree that
+  /// made it; hierarchy.h "Collection") and may name another vertex next:
+  /// the slot reads as never shaded -- no sample, not awaiting a reshade,
+  /// no paths or rounds -- and its generation is bumped. Its ValidFrom is
+  /// kept (epochs only rise). The caller makes sure no request for the
+  /// vertex is alive in the pool. Returns whether it was shaded.
+  bool Forget(VertexId v);
   /// A move at scene epoch `epoch` changed what this vertex's sample should
   /// be: from now on only samples shaded at `epoch` or later are stored
   /// (ValidFrom), and a stored sample shaded earlier is evicted (as Evict,
@@ -171,6 +178,9 @@ class SampleCache {
   /// `epoch` or later is kept. Returns whether a sample was evicted.
   bool Invalidate(VertexId v, uint64_t epoch);
 
+  /// Bytes one vertex's slot takes (a freed vertex's slot is reused by the
+  /// next vertex made: the collector counts it free).
+  static size_t SlotBytes();
   size_t ShadedCount() const { return shadedCount_.load(std::memory_order_relaxed); }
   /// Bytes the cache occupies: its chunk directory and the slot chunks
   /// allocated so far (issue 15's memory accounting). Any thread.

@@ -1,0 +1,104 @@
+#pragma once
+// The age-based garbage collector (issue 15; Schöffel & Pomi §3, Fig. 2 in
+// ../shared/seeds/000_*): keeps the SMA's data within --memory-budget by
+// collapsing the refined subtrees used longest ago back into their parents.
+//
+// Ages. Every node a split makes carries the tick of its last use
+// (Hierarchy::Touch: a view displayed it, a prediction asked for it; its
+// making counts as a use). A collapsible node -- split, its children all
+// leaves -- is as old as its youngest child. The collector starts once the
+// data in use passes `startFraction` of the budget (the paper's T_shafts)
+// and collapses the oldest first until it is down to `stopFraction`
+// (T_min). Nothing used within `minAgeTicks` is collected, whatever the
+// pressure: a walk whose working set exceeds the budget stays over it (the
+// SMA logs it) rather than thrash the view it is showing.
+//
+// What is never collected (`keep`, the SMA's policy): a node a client holds
+// or a vertex it holds (no hole or T-vertex ever appears in a client's
+// mesh), and a vertex a renderer is shading (its reply would land in a
+// reused slot). Conformity is the hierarchy's: a group collapses together
+// (Hierarchy::PlanCollapse). Evicted work that is needed again is simply
+// split and shaded again (RefineResult::remadeVertices counts it).
+//
+// Bounded steps. Scan() reads the hierarchy under the SMA's state lock
+// shared (views go on); Step() changes it under the lock exclusive and does
+// at most `maxGroupsPerStep` collapses, so a view waits at most one step.
+//
+// Threads: not synchronised; the SMA runs one collection job at a time.
+
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <vector>
+
+#include "penumbra/sma/hierarchy.h"
+#include "penumbra/sma/sample_cache.h"
+
+namespace penumbra::sma {
+
+struct CollectorOptions {
+  size_t budgetBytes = 0;        // 0: never collect
+  double startFraction = 0.9;    // T_shafts: start above this share of the budget
+  double stopFraction = 0.75;    // T_min: stop at or below this share
+  uint32_t minAgeTicks = 20;     // never collect what was used more recently (ticks)
+  size_t maxGroupNodes = 256;    // a larger group (a long propagation) waits for its parts to age apart
+  size_t maxGroupsPerStep = 256; // collapses per exclusive hold
+  size_t maxCandidates = 1 << 16;  // oldest candidates one Scan keeps
+};
+
+/// What one Step did.
+struct CollectStep {
+  size_t groups = 0;          // groups collapsed
+  size_t nodesFreed = 0;
+  size_t verticesFreed = 0;
+  size_t samplesDropped = 0;  // freed vertices that had a sample
+  size_t kept = 0;            // groups `keep` refused (held by a client, or being shaded)
+  size_t young = 0;           // candidates used since the scan, or whose group has a young member
+  size_t bytesFreed = 0;      // the hierarchy's live bytes and the cache slots freed
+};
+
+class MemoryCollector {
+ public:
+  explicit MemoryCollector(CollectorOptions options) : options_(options) {}
+  const CollectorOptions& Options() const { return options_; }
+
+  bool Enabled() const { return options_.budgetBytes > 0; }
+  /// Whether data in use of `bytes` should start a collection.
+  bool ShouldStart(size_t bytes) const {
+    return Enabled() && double(bytes) > options_.startFraction * double(options_.budgetBytes);
+  }
+  /// The level a collection brings the data down to.
+  size_t StopBytes() const { return size_t(options_.stopFraction * double(options_.budgetBytes)); }
+
+  /// The data in use the collector steers by: the hierarchy's live bytes,
+  /// the cache less the slots of freed vertices, and `clientBytes`.
+  static size_t DataInUse(const Hierarchy& hierarchy, const SampleCache& cache, size_t clientBytes);
+
+  /// State lock shared: finds the collapsible nodes unused for minAgeTicks,
+  /// oldest first (at most maxCandidates). Replaces the previous list.
+  void Scan(const Hierarchy& hierarchy);
+  bool HasCandidates() const { return next_ < candidates_.size(); }
+
+  /// State lock exclusive: collapses candidates, oldest first, until
+  /// `bytesToFree` are freed or maxGroupsPerStep groups collapsed; skips a
+  /// candidate no longer collapsible or used since the scan, a group with a
+  /// young member, and a group `keep` says must stay. Each freed vertex is
+  /// forgotten in `cache`.
+  CollectStep Step(Hierarchy& hierarchy, SampleCache& cache, size_t bytesToFree,
+                   const std::function<bool(const Hierarchy::CollapseGroup&)>& keep);
+
+  /// The tick a collapsible node was last used at: its youngest child's.
+  static uint32_t LastUse(const Hierarchy& hierarchy, NodeId node);
+
+ private:
+  bool Old(const Hierarchy& hierarchy, uint32_t lastUse) const {
+    return hierarchy.Tick() - lastUse >= options_.minAgeTicks;  // unsigned: wraps with the tick
+  }
+
+  CollectorOptions options_;
+  std::vector<std::pair<uint32_t, NodeId>> candidates_;  // (last use, node), oldest first
+  size_t next_ = 0;
+  Hierarchy::CollapseGroup group_;  // reused
+};
+
+}  // namespace penumbra::sma
