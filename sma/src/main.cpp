@@ -148,9 +148,18 @@ int main(int argc, char** argv) {
          "--memory-budget",
          [&options](const uint64_t& mib) { options.memoryBudgetBytes = mib << 20; },
          "MiB the SMA's data (sample cache, hierarchy, clients' mirrors) should stay within; 0: unbounded. "
-         "Reported in the stats; nothing is evicted to keep it yet")
+         "The age-based collector collapses the refinement used longest ago to keep it (sma/README.md, \"Memory\")")
       ->check(CLI::Range(uint64_t(0), uint64_t(1) << 24))
       ->default_str("0");
+  app.add_option("--memory-collect-start", options.memoryCollectStart,
+                 "Collection starts when the data in use passes this share of --memory-budget (the paper's T_shafts)")
+      ->check(CLI::Range(0.05, 1.0))->capture_default_str();
+  app.add_option("--memory-collect-stop", options.memoryCollectStop,
+                 "... and stops once it is down to this share (T_min); below --memory-collect-start")
+      ->check(CLI::Range(0.01, 1.0))->capture_default_str();
+  app.add_option("--memory-min-age", options.memoryMinAgeSeconds,
+                 "Seconds: refinement used more recently than this is never collected")
+      ->check(CLI::Range(0.0, 3600.0))->capture_default_str();
   // Operability (issue 16)
   auto* maxRefineDepth =
       app.add_option("--max-refine-depth", maxDepth, "Refinement: deepest level of the triangle hierarchy a leaf is "

@@ -31,18 +31,31 @@ RefinementStep RefinementDriver::RunStep(std::shared_ptr<Refiner> refiner, const
                                          const RefinementStepContext& context) {
   RefinementStep step;
   std::vector<NodeId> chosen;
+  uint64_t generation = 0;
   {
     std::shared_lock lock(context.stateMutex);
-    chosen = refiner->Select(context.hierarchy, context.cache, hits, visible, context.toneMapping, outstanding);
+    generation = context.hierarchy.StructureGeneration();
+    if (visible.structureGeneration != generation) {
+      step.staleMapping = true;
+    } else {
+      chosen = refiner->Select(context.hierarchy, context.cache, hits, visible, context.toneMapping, outstanding);
+    }
   }
   if (!chosen.empty()) {
     std::unique_lock lock(context.stateMutex);
+    // A collection between the choice and now may have freed or reused the
+    // chosen ids: choose again from a fresh mapping.
+    if (context.hierarchy.StructureGeneration() != generation) {
+      step.staleMapping = true;
+      chosen.clear();
+    }
     const RefineOptions options = ToRefineOptions(refiner->Params());
     for (NodeId id : chosen) {
       if (context.stop && context.stop->load(std::memory_order_relaxed)) break;  // a step of 10^5 splits takes long
       if (!context.hierarchy.GetNode(id).IsLeaf()) continue;  // split meanwhile, by another client
       RefineResult r = context.hierarchy.Refine(id, options);
       step.created.insert(step.created.end(), r.newVertices.begin(), r.newVertices.end());
+      step.remadeVertices += r.remadeVertices;
     }
     context.cache.Reserve(context.hierarchy.VertexCount());
     if (context.request && !step.created.empty()) context.request(step.created);

@@ -266,6 +266,11 @@ void RendererPool::ReleaseInterest(std::span<const VertexId> vertices) {
   scheduler_.ReleaseInterest(vertices);
 }
 
+bool RendererPool::AnyAlive(std::span<const VertexId> vertices) {
+  std::lock_guard lock(mutex_);
+  return scheduler_.AnyAlive(vertices);
+}
+
 void RendererPool::Complete(std::span<const ShadedSample> samples) {
   std::lock_guard lock(mutex_);
   scheduler_.Complete(samples);

@@ -20,6 +20,7 @@
 #include "penumbra/common/wire_convert.h"
 #include "penumbra/sma/cache_snapshot.h"
 #include "penumbra/sma/client_requests.h"
+#include "penumbra/sma/collector.h"
 #include "penumbra/sma/delta.h"
 #include "penumbra/sma/hierarchy.h"
 #include "penumbra/sma/job_scheduler.h"
@@ -65,6 +66,20 @@ struct MoveNotice {
 
 // A job of its own in the JobSchedulers' round-robin (not a client's).
 constexpr uint64_t kMoveJobSession = ~uint64_t(0);
+constexpr uint64_t kCollectorSession = ~uint64_t(0) - 1;
+// The collector's clock (Hierarchy::SetTick): ticks of 100 ms; a collection
+// is considered every kCollectCheckTicks.
+constexpr auto kTick = std::chrono::milliseconds(100);
+constexpr uint32_t kCollectCheckTicks = 5;
+
+CollectorOptions CollectorOptionsOf(const SmaOptions& o) {
+  CollectorOptions c;
+  c.budgetBytes = o.memoryBudgetBytes;
+  c.startFraction = o.memoryCollectStart;
+  c.stopFraction = o.memoryCollectStop;
+  c.minAgeTicks = uint32_t(std::ceil(o.memoryMinAgeSeconds * 1000.0 / double(kTick.count())));
+  return c;
+}
 
 }  // namespace
 
@@ -84,6 +99,7 @@ class SmaServer::Impl {
                   [this](std::function<void()> job) { backgroundJobs_.Post(0, JobClass::kNewView, std::move(job)); }),
         backgroundJobs_(1),
         log_(Logger("sma")),
+        collector_(CollectorOptionsOf(options_)),
         skeleton_(io_,
                   // Descriptors beside the clients' for renderer links and files.
                   net::ServerSkeletonOptions::For(options_, options_.clientConnection,
@@ -123,6 +139,8 @@ class SmaServer::Impl {
     if (snapshots_) snapshots_->Start(stateMutex_, hierarchy_, cache_);
     ArmRendererWatch();
     StartAnimation();
+    collectorStart_ = Clock::now();
+    ArmCollectorClock();
     skeleton_.RunIo(options_.ioThreads);
     if (snapshots_) snapshots_->Stop();  // the final snapshot
     log_->info("{}: stopped", options_.name);
@@ -297,9 +315,36 @@ class SmaServer::Impl {
   std::atomic<uint64_t> lastMoveCached_{0};    // samples cached just before the last move
   std::atomic<uint64_t> lastMoveReshadedBase_{0};  // cache_.Reshaded() when the last move was applied
   std::atomic<double> lastMoveApplyMs_{0.0};
+  // --- The age-based collector (issue 15; collector.h) ---
+  /// The data in use the collector steers by. Caller holds the state lock.
+  size_t DataInUse();
+  std::atomic<uint64_t> samplesRemade_{0};  // made again by splits of collapsed nodes
+  std::atomic<uint64_t> remapsAfterCollection_{0};  // mappings found older than a collection
+
+  // The clock: every kTick the hierarchy's tick advances (no lock); every
+  // kCollectCheckTicks a collection job is posted if none is running.
+  void ArmCollectorClock();
+  // Job thread, one at a time: measures, scans (shared lock), collapses one
+  // bounded step (exclusive lock), and posts itself again until the data is
+  // down to the stop level or nothing old enough is left.
+  void Collect(bool fresh);
+  asio::steady_timer collectorTimer_{io_};
+  Clock::time_point collectorStart_;
+  MemoryCollector collector_;  // only the running collection job touches it
+  std::atomic<bool> collecting_{false};
+  bool collectorStuckLogged_ = false;  // the collection job's
+  std::atomic<uint64_t> collections_{0};        // collections started (over the start level)
+  std::atomic<uint64_t> collectedGroups_{0};
+  std::atomic<uint64_t> collectedNodes_{0};
+  std::atomic<uint64_t> collectedVertices_{0};
+  std::atomic<uint64_t> samplesEvicted_{0};     // freed vertices that had a sample
+  std::atomic<uint64_t> collectKept_{0};        // groups kept: held by a client or being shaded
+  std::atomic<uint64_t> collectOverBudgetStuck_{0};  // collections that ended above the stop level
+  std::atomic<size_t> memoryInUse_{0};          // as of the last check
   net::ServerSkeleton<Session> skeleton_;  // listener, sessions, signals, stats timer, drain
   // Last member: stopped (its thread joined) before the state it reads goes.
   std::unique_ptr<CacheSnapshotter> snapshots_;
+
 };
 
 // One client connection: moves bytes and runs jobs and timers. What to do
@@ -324,6 +369,16 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   }
 
   net::Connection& Connection() { return *connection_; }
+  /// Whether the client holds a node or a vertex `group` would free. Any
+  /// thread holding the state lock exclusively: the mirror changes only
+  /// under it shared (QueueChanges).
+  bool HoldsAnyOf(const Hierarchy::CollapseGroup& group) const {
+    for (NodeId n : group.freedNodes)
+      if (mirror_.Holds(n)) return true;
+    for (VertexId v : group.freedVertices)
+      if (mirror_.HoldsVertex(v)) return true;
+    return false;
+  }
   /// The client's mirror's bytes as of its last change (any thread).
   size_t MirrorBytes() const { return mirrorBytes_.load(std::memory_order_relaxed); }
 
@@ -618,6 +673,7 @@ void SmaServer::Impl::Session::StartJob() {
     {
       std::shared_lock lock(server.stateMutex_);
       MapHitsToNodes(server.hierarchy_, *hits, &ChildrenShaded, &server.cache_, *visible, &server.shuttingDown_);
+      for (NodeId node : visible->nodes) server.hierarchy_.Touch(node);  // the collector's ages
     }
     if (server.shuttingDown_) return;
     auto t2 = Clock::now();
@@ -674,6 +730,13 @@ void SmaServer::Impl::Session::OnJobDone(uint64_t viewId, bool newView, std::sha
 void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
   Impl& server = server_;
   std::shared_lock lock(server.stateMutex_);
+  if (visible_->structureGeneration != server.hierarchy_.StructureGeneration()) {
+    // Mapped before a collection: its node ids may be freed or reused. Map
+    // again (no trace: the hits are still right); OnJobDone schedules it.
+    state_.WantRemap();
+    ++server.remapsAfterCollection_;
+    return;
+  }
   ViewPlan plan = PlanView(*visible_, mirror_, server.hierarchy_, server.cache_);
 
   // Ask for what is missing before letting go of the old interest, so a
@@ -781,6 +844,14 @@ void SmaServer::Impl::Session::OnSamplesArrived(const std::vector<VertexId>& ver
     return;
   }
   std::shared_lock lock(server_.stateMutex_);
+  if (visible_->structureGeneration != server_.hierarchy_.StructureGeneration()) {
+    // The nodes waiting for these samples were mapped before a collection.
+    lock.unlock();
+    state_.WantRemap();
+    ++server_.remapsAfterCollection_;
+    ScheduleRefresh();
+    return;
+  }
   const std::vector<NodeId> ready = state_.TakeReady(arrived.candidates, server_.hierarchy_, server_.cache_);
   if (Blocked()) {
     lock.unlock();
@@ -921,6 +992,7 @@ void SmaServer::Impl::Session::MaybePredict() {
     std::shared_lock lock(server.stateMutex_);
     MapHitsToNodes(server.hierarchy_, hits, &ChildrenShaded, &server.cache_, visible, cancel.get());
     if (*cancel || server.shuttingDown_) return;
+    for (NodeId id : visible.nodes) server.hierarchy_.Touch(id);  // what a coming view needs ages from now
     // The corners a view there would wait for; the pool skips those alive
     // or stored. Requested under the state lock like every request.
     std::vector<SampleRequest> requests;
@@ -979,6 +1051,14 @@ void SmaServer::Impl::Session::MaybeRefine() {
 void SmaServer::Impl::Session::OnRefineStepDone(RefinementStep step) {
   const size_t chosen = step.chosen, created = step.created.size();
   const bool exhausted = step.exhausted;
+  server_.samplesRemade_ += step.remadeVertices;
+  if (step.staleMapping) {
+    // Chose from a mapping older than a collection: map again; the re-map's
+    // completion asks for the next step (a re-map due makes the driver wait).
+    state_.WantRemap();
+    ++server_.remapsAfterCollection_;
+    ScheduleRefresh();
+  }
   RefinementDriver::After after;
   {
     std::shared_lock lock(server_.stateMutex_);
@@ -1309,6 +1389,21 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
   AddCounter(reply, "memory_hierarchy_bytes", double(memory.hierarchy));
   AddCounter(reply, "memory_clients_bytes", double(memory.clients));
   AddCounter(reply, "memory_budget_bytes", double(options_.memoryBudgetBytes));
+  {
+    std::shared_lock lock(stateMutex_);
+    AddCounter(reply, "memory_in_use_bytes", double(DataInUse()));
+    AddCounter(reply, "hierarchy_nodes_live", double(hierarchy_.LiveNodeCount()));
+    AddCounter(reply, "hierarchy_vertices_live", double(hierarchy_.LiveVertexCount()));
+  }
+  AddCounter(reply, "memory_collections", double(collections_.load()));
+  AddCounter(reply, "memory_collections_stuck", double(collectOverBudgetStuck_.load()));
+  AddCounter(reply, "collected_groups", double(collectedGroups_.load()));
+  AddCounter(reply, "collected_nodes", double(collectedNodes_.load()));
+  AddCounter(reply, "collected_vertices", double(collectedVertices_.load()));
+  AddCounter(reply, "collect_kept_groups", double(collectKept_.load()));
+  AddCounter(reply, "samples_evicted", double(samplesEvicted_.load()));
+  AddCounter(reply, "samples_reshaded_after_eviction", double(samplesRemade_.load()));
+  AddCounter(reply, "remaps_after_collection", double(remapsAfterCollection_.load()));
   if (const auto rss = metrics::ResidentMemoryBytes()) AddCounter(reply, "process_resident_bytes", double(*rss));
   AddCounter(reply, "samples_requested", double(pool.requested));
   AddCounter(reply, "samples_shaded", double(pool.shaded));
@@ -1414,8 +1509,11 @@ void SmaServer::Impl::LogStats() {
   constexpr double kMiB = 1024.0 * 1024.0;
   std::string budget;
   if (options_.memoryBudgetBytes > 0)
-    budget = fmt::format(" of a {:.0f} MiB budget{}", double(options_.memoryBudgetBytes) / kMiB,
-                         memory.Total() > options_.memoryBudgetBytes ? " (OVER: nothing is collected yet)" : "");
+    budget = fmt::format(" ({:.1f} in use) of a {:.0f} MiB budget{}; {} collections, {} nodes and {} samples collected, "
+                         "{} re-made",
+                         double(memoryInUse_.load()) / kMiB, double(options_.memoryBudgetBytes) / kMiB,
+                         memoryInUse_.load() > options_.memoryBudgetBytes ? " (OVER)" : "", collections_.load(),
+                         collectedNodes_.load(), samplesEvicted_.load(), samplesRemade_.load());
   log_->info("stats: cache {} shaded, hit rate {:.1f}%; memory {:.1f} MiB{} (cache {:.1f}, hierarchy {:.1f}, "
              "clients {:.1f}; resident {:.1f}); {:.0f} requested/s, {:.0f} shaded/s, {} queued; "
              "renderers:{}; clients:{}; views: {}{}",
@@ -1426,6 +1524,77 @@ void SmaServer::Impl::LogStats() {
              now.queuedVisible + now.queuedPredicted + now.queuedBackground, renderers.empty() ? " none" : renderers,
              clients.empty() ? " none" : clients, views, moves);
   lastStats_ = now;
+}
+
+size_t SmaServer::Impl::DataInUse() {
+  size_t clients = 0;
+  for (const auto& session : Sessions()) clients += session->MirrorBytes();
+  return MemoryCollector::DataInUse(hierarchy_, cache_, clients);
+}
+
+void SmaServer::Impl::ArmCollectorClock() {
+  collectorTimer_.expires_after(kTick);
+  collectorTimer_.async_wait([this](const error_code& ec) {
+    if (ec || shuttingDown_) return;
+    const auto ticks = uint32_t((Clock::now() - collectorStart_) / kTick);
+    hierarchy_.SetTick(ticks);  // an atomic: no lock
+    if (collector_.Enabled() && ticks % kCollectCheckTicks == 0 && !collecting_.exchange(true))
+      jobs_.Post(kCollectorSession, JobClass::kRefinement, [this] { Collect(/*fresh=*/true); });
+    ArmCollectorClock();
+  });
+}
+
+void SmaServer::Impl::Collect(bool fresh) {
+  // Runs after every waiting new view, re-map and prediction, taking turns
+  // with the sessions' refinement steps (JobClass::kRefinement); it posts
+  // itself again after each bounded step.
+  const auto finish = [this] { collecting_ = false; };
+  if (shuttingDown_) return finish();
+  size_t inUse = 0;
+  {
+    std::shared_lock lock(stateMutex_);
+    inUse = DataInUse();
+    memoryInUse_ = inUse;
+    if (fresh && !collector_.ShouldStart(inUse)) return finish();
+    if (inUse <= collector_.StopBytes()) return finish();
+    if (fresh) {
+      ++collections_;
+      collectorStuckLogged_ = false;
+    }
+    if (!collector_.HasCandidates()) collector_.Scan(hierarchy_);  // O(nodes), views go on meanwhile
+  }
+  if (!collector_.HasCandidates()) {
+    // Everything refined was used within --memory-min-age, or is held: the
+    // working set is larger than the budget. Look again at the next check.
+    ++collectOverBudgetStuck_;
+    if (!collectorStuckLogged_)
+      log_->warn("memory: {:.1f} MiB in use, over the collector's stop level ({:.1f} MiB of a {:.1f} MiB budget), "
+                 "and nothing left that no client holds and nobody used in the last {:.1f} s",
+                 double(inUse) / 1048576.0, double(collector_.StopBytes()) / 1048576.0,
+                 double(options_.memoryBudgetBytes) / 1048576.0, options_.memoryMinAgeSeconds);
+    collectorStuckLogged_ = true;
+    return finish();
+  }
+  CollectStep step;
+  {
+    std::unique_lock lock(stateMutex_);
+    const auto sessions = Sessions();
+    step = collector_.Step(hierarchy_, cache_, inUse - collector_.StopBytes(),
+                           [&](const Hierarchy::CollapseGroup& group) {
+                             for (const auto& session : sessions)
+                               if (session->HoldsAnyOf(group)) return true;
+                             return pool_->AnyAlive(group.freedVertices);  // lock order: state, then pool
+                           });
+  }
+  collectedGroups_ += step.groups;
+  collectedNodes_ += step.nodesFreed;
+  collectedVertices_ += step.verticesFreed;
+  samplesEvicted_ += step.samplesDropped;
+  collectKept_ += step.kept;
+  log_->debug("memory: collected {} groups ({} nodes, {} vertices, {} samples; {} kept, {} young), {:.1f} MiB",
+              step.groups, step.nodesFreed, step.verticesFreed, step.samplesDropped, step.kept, step.young,
+              double(step.bytesFreed) / 1048576.0);
+  jobs_.Post(kCollectorSession, JobClass::kRefinement, [this] { Collect(/*fresh=*/false); });
 }
 
 void SmaServer::Impl::ArmRendererWatch() {
@@ -1542,6 +1711,7 @@ void SmaServer::Impl::StopWork() {
   shuttingDown_ = true;
   rendererWatchTimer_.cancel();
   animationTimer_.cancel();
+  collectorTimer_.cancel();
   jobs_.Stop();
   backgroundJobs_.Stop();
   pool_->Stop();
@@ -1551,6 +1721,12 @@ void SmaServer::Impl::StopWork() {
 // --- Public wrapper ---------------------------------------------------------
 
 Expected<std::unique_ptr<SmaServer>> SmaServer::Create(const Scene& scene, SmaOptions options) {
+  if (options.memoryBudgetBytes > 0 && !options.cacheDir.empty())
+    return Fail("--memory-budget cannot be combined with --cache-dir yet: a snapshot replays splits by their ids, "
+                "which the collector frees and reuses");
+  if (!(options.memoryCollectStop < options.memoryCollectStart))
+    return Fail(fmt::format("--memory-collect-stop ({}) must be below --memory-collect-start ({})",
+                            options.memoryCollectStop, options.memoryCollectStart));
   auto tracer = VisibilityTracer::Build(scene);
   if (!tracer) return tracer.error();
   std::unique_ptr<CacheSnapshotter> snapshots;

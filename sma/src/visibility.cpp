@@ -396,6 +396,7 @@ void MapHitsToNodes(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFu
   PENUMBRA_CHECK(hits.hits.size() == width * size_t(height),
                  fmt::format("{} hits for a {}x{} view", hits.hits.size(), width, height));
   out.pixelNode.resize(hits.hits.size());
+  out.structureGeneration = hierarchy.StructureGeneration();
 
   const int chunkCount = (height + kRowsPerChunk - 1) / kRowsPerChunk;
   std::vector<std::vector<Run>> runsOfChunk(static_cast<size_t>(chunkCount));

@@ -47,6 +47,11 @@ struct RefinementStep {
   size_t chosen = 0;                 // leaves split
   std::vector<VertexId> created;     // vertices the splits made
   bool exhausted = false;            // the criterion has nothing more for this view
+  /// The visibility it chose from was mapped before a collection (its node
+  /// ids may be freed or reused): nothing was split; the view must be
+  /// re-mapped first (hierarchy.h, "Collection").
+  bool staleMapping = false;
+  size_t remadeVertices = 0;  // of `created`, made again after a collection (RefineResult)
 };
 
 class RefinementDriver {

@@ -121,6 +121,8 @@ class RendererPool : public std::enable_shared_from_this<RendererPool> {
   size_t Request(std::span<const SampleRequest> samples, Priority priority);
   /// Removes one unit of interest from each vertex (a view moved on).
   void ReleaseInterest(std::span<const VertexId> vertices);
+  /// SampleScheduler::AnyAlive, under the pool's lock.
+  bool AnyAlive(std::span<const VertexId> vertices);
   /// The results have been stored: forget these vertices.
   void Complete(std::span<const ShadedSample> samples);
   /// The cache refused these answered vertices (shaded before a move that

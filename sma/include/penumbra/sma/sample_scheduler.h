@@ -133,6 +133,14 @@ class SampleScheduler {
   size_t Request(std::span<const SampleRequest> samples, Priority priority);
   /// Removes one unit of interest from each vertex (a view moved on).
   void ReleaseInterest(std::span<const VertexId> vertices);
+  /// Whether any of `vertices` is alive: queued, in flight or answered and
+  /// not yet completed (the collector never frees such a vertex: its reply
+  /// would land in a reused slot).
+  bool AnyAlive(std::span<const VertexId> vertices) const {
+    for (VertexId v : vertices)
+      if (entries_.contains(v)) return true;
+    return false;
+  }
   /// The results have been stored: forget these vertices.
   void Complete(std::span<const ShadedSample> samples);
   /// These answered vertices were refused by the cache (shaded at a pose a

@@ -109,10 +109,17 @@ struct SmaOptions {
   CameraPredictionOptions prediction;
   double predictionResolution = 0.5;
   /// Memory budget (issue 15) for the SMA's data -- sample cache, hierarchy,
-  /// clients' mirrors (memory_usage.h) -- in bytes; 0: unbounded. Reported
-  /// in the stats (memory_budget_bytes) and the stats log, which says when
-  /// the data is over it; nothing is evicted to keep it yet.
+  /// clients' mirrors (memory_usage.h) -- in bytes; 0: unbounded. The
+  /// age-based collector (collector.h) keeps the data in use within it:
+  /// it starts above `memoryCollectStart` of the budget and collapses the
+  /// refined subtrees used longest ago until the data is down to
+  /// `memoryCollectStop`, never what a client holds, a renderer is shading,
+  /// or anything used in the last `memoryMinAgeSeconds`. Cannot be combined
+  /// with `cacheDir` (snapshots replay splits by id).
   uint64_t memoryBudgetBytes = 0;
+  double memoryCollectStart = 0.9;
+  double memoryCollectStop = 0.75;
+  double memoryMinAgeSeconds = 2.0;
 };
 
 class SmaServer {

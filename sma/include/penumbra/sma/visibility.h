@@ -108,6 +108,9 @@ struct VisibleSet {
   /// increasing NodeId order.
   std::vector<NodeId> nodes;
   std::vector<uint32_t> coverage;  // parallel to `nodes`
+  /// Hierarchy::StructureGeneration() when mapped: node ids are valid while
+  /// it is the hierarchy's (a collection since may have freed them).
+  uint64_t structureGeneration = 0;
 };
 
 /// Maps every hit to the deepest node reachable from the root of the side of
