@@ -49,7 +49,11 @@ void MemoryCollector::Scan(const Hierarchy& hierarchy) {
 CollectStep MemoryCollector::Step(Hierarchy& hierarchy, SampleCache& cache, size_t bytesToFree,
                                   const std::function<bool(const Hierarchy::CollapseGroup&)>& keep) {
   CollectStep step;
-  while (next_ < candidates_.size() && step.groups < options_.maxGroupsPerStep && step.bytesFreed < bytesToFree) {
+  // Bounded under the exclusive lock: at most maxGroupsPerStep collapses and
+  // four times as many groups looked at.
+  size_t attempts = 0;
+  while (next_ < candidates_.size() && step.groups < options_.maxGroupsPerStep && step.bytesFreed < bytesToFree &&
+         attempts++ < 4 * options_.maxGroupsPerStep) {
     const NodeId node = candidates_[next_++].second;
     // Splits and collections since the scan: it may be a leaf now, or a
     // reused id, or in use again.

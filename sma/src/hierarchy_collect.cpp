@@ -137,7 +137,11 @@ void Hierarchy::Collapse(const CollapseGroup& group) {
 
 size_t Hierarchy::LiveBytes() const {
   const size_t freeNodes = 4 * freeBlocks4_.size() + 2 * freeBlocks2_.size();
-  return TableBytes() - freeNodes * (sizeof(Node) + sizeof(uint32_t)) - freeVertices_.size() * sizeof(SampleVertex);
+  // Neither the freed slots nor the tables' last chunk's unused tail: what
+  // the live nodes and vertices take. What is allocated beyond that is at
+  // most a chunk per table and the free slots, which splits use first.
+  return TableBytes() - nodes_.TailBytes() - touched_.TailBytes() - vertices_.TailBytes() -
+         freeNodes * (sizeof(Node) + sizeof(uint32_t)) - freeVertices_.size() * sizeof(SampleVertex);
 }
 
 }  // namespace penumbra::sma

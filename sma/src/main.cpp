@@ -144,12 +144,12 @@ int main(int argc, char** argv) {
                  "TextureRequests a client may have unanswered; more are refused with LIMIT_EXCEEDED")
       ->check(CLI::Range(1u, 1u << 20))->capture_default_str();
   // Memory (issue 15)
-  app.add_option_function<uint64_t>(
+  app.add_option_function<double>(
          "--memory-budget",
-         [&options](const uint64_t& mib) { options.memoryBudgetBytes = mib << 20; },
+         [&options](const double& mib) { options.memoryBudgetBytes = uint64_t(mib * 1048576.0); },
          "MiB the SMA's data (sample cache, hierarchy, clients' mirrors) should stay within; 0: unbounded. "
          "The age-based collector collapses the refinement used longest ago to keep it (sma/README.md, \"Memory\")")
-      ->check(CLI::Range(uint64_t(0), uint64_t(1) << 24))
+      ->check(CLI::Range(0.0, double(uint64_t(1) << 24)))
       ->default_str("0");
   app.add_option("--memory-collect-start", options.memoryCollectStart,
                  "Collection starts when the data in use passes this share of --memory-budget (the paper's T_shafts)")

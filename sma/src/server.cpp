@@ -333,6 +333,7 @@ class SmaServer::Impl {
   MemoryCollector collector_;  // only the running collection job touches it
   std::atomic<bool> collecting_{false};
   bool collectorStuckLogged_ = false;  // the collection job's
+  bool collectedSinceScan_ = false;    // the collection job's
   std::atomic<uint64_t> collections_{0};        // collections started (over the start level)
   std::atomic<uint64_t> collectedGroups_{0};
   std::atomic<uint64_t> collectedNodes_{0};
@@ -1561,7 +1562,13 @@ void SmaServer::Impl::Collect(bool fresh) {
       ++collections_;
       collectorStuckLogged_ = false;
     }
-    if (!collector_.HasCandidates()) collector_.Scan(hierarchy_);  // O(nodes), views go on meanwhile
+    // A new scan once the last one's candidates are used up -- unless they
+    // freed nothing: then what is left is held, young or entangled with
+    // what is held, and the next check (kCollectCheckTicks) looks again.
+    if (!collector_.HasCandidates() && (fresh || collectedSinceScan_)) {
+      collector_.Scan(hierarchy_);  // O(nodes), views go on meanwhile
+      collectedSinceScan_ = false;
+    }
   }
   if (!collector_.HasCandidates()) {
     // Everything refined was used within --memory-min-age, or is held: the
@@ -1586,6 +1593,7 @@ void SmaServer::Impl::Collect(bool fresh) {
                              return pool_->AnyAlive(group.freedVertices);  // lock order: state, then pool
                            });
   }
+  collectedSinceScan_ = collectedSinceScan_ || step.groups > 0;
   collectedGroups_ += step.groups;
   collectedNodes_ += step.nodesFreed;
   collectedVertices_ += step.verticesFreed;

@@ -36,6 +36,9 @@ class ChunkedArray {
     return capacity() * sizeof(T) + chunks_.capacity() * sizeof(std::unique_ptr<T[]>);
   }
 
+  /// Bytes allocated beyond the last element (the last chunk's tail).
+  size_t TailBytes() const { return (capacity() - size_) * sizeof(T); }
+
   T& operator[](size_t i) { return chunks_[i >> kChunkBits][i & (kChunkSize - 1)]; }
   const T& operator[](size_t i) const { return chunks_[i >> kChunkBits][i & (kChunkSize - 1)]; }
 

@@ -267,8 +267,9 @@ class Hierarchy {
   uint64_t StructureGeneration() const { return generation_; }
   size_t LiveNodeCount() const { return NodeCount() - 4 * freeBlocks4_.size() - 2 * freeBlocks2_.size(); }
   size_t LiveVertexCount() const { return VertexCount() - freeVertices_.size(); }
-  /// MemoryBytes() less the freed slots waiting for reuse, from counts (O(1),
-  /// unlike MemoryBytes): what the collector steers by.
+  /// What the live nodes and vertices and the maps take: MemoryBytes() less
+  /// the freed slots waiting for reuse and the tables' unused chunk tails,
+  /// from counts (O(1), unlike MemoryBytes): what the collector steers by.
   size_t LiveBytes() const;
 
   /// A split node whose children are all leaves: what can collapse.
