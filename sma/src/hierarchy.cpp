@@ -76,6 +76,7 @@ Hierarchy::Hierarchy(const Scene& scene) : scene_(scene) {
   // The back side's vertices: the same places, the normals negated, and
   // points of their own, so that adjacency never crosses between sides.
   if (scene.twoSided) pointCount_ *= 2;
+  baseVertexCount_ = BaseVertexCount();
   baseChunks_.reset(new std::atomic<SampleVertex*>[(BaseVertexCount() + kBaseChunkVertices - 1) / kBaseChunkVertices]());
   baseMutex_ = std::make_unique<std::mutex>();
   // Root records are made on first use (RootNode), a chunk at a time.

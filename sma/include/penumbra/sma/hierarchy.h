@@ -262,13 +262,13 @@ class Hierarchy {
   Node* MakeRootChunk(size_t chunk) const;
   static constexpr size_t kBaseChunkVertices = 1024;  // base vertex records made together (44 KiB)
   const SampleVertex& VertexRef(VertexId id) const {
-    if (id >= BaseVertexCount()) return Midpoint(id);
+    if (id >= baseVertexCount_) return Midpoint(id);
     const SampleVertex* chunk = baseChunks_[id / kBaseChunkVertices].load(std::memory_order_acquire);
     if (!chunk) chunk = MakeBaseChunk(id / kBaseChunkVertices);
     return chunk[id % kBaseChunkVertices];
   }
   // The one place midpoints are found in vertices_ (which holds only them).
-  const SampleVertex& Midpoint(VertexId id) const { return vertices_[id - BaseVertexCount()]; }
+  const SampleVertex& Midpoint(VertexId id) const { return vertices_[id - baseVertexCount_]; }
   SampleVertex* MakeBaseChunk(size_t chunk) const;
   // A vertex's point id, without making a base vertex's record.
   uint32_t PointOf(VertexId id) const {
@@ -308,6 +308,7 @@ class Hierarchy {
     uint32_t baseTriangle;  // the lowest-numbered triangle using the vertex (0 for none)
   };
   std::vector<BasePlace> basePlaces_;
+  size_t baseVertexCount_ = 0;    // BaseVertexCount(), kept for GetVertex's fast path
   uint32_t frontPointCount_ = 0;  // points of the front base vertices: 0 .. frontPointCount_ - 1
   std::unique_ptr<std::atomic<SampleVertex*>[]> baseChunks_;
   std::unique_ptr<std::mutex> baseMutex_;
