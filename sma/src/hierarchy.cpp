@@ -77,7 +77,8 @@ Hierarchy::Hierarchy(const Scene& scene) : scene_(scene) {
   // points of their own, so that adjacency never crosses between sides.
   if (scene.twoSided) pointCount_ *= 2;
   baseVertexCount_ = BaseVertexCount();
-  baseChunks_.reset(new std::atomic<SampleVertex*>[(BaseVertexCount() + kBaseChunkVertices - 1) / kBaseChunkVertices]());
+  const size_t baseChunks = (BaseVertexCount() + kBaseChunkVertices - 1) / kBaseChunkVertices;
+  baseChunks_.reset(new std::atomic<SampleVertex*>[baseChunks]());
   baseMutex_ = std::make_unique<std::mutex>();
   // Root records are made on first use (RootNode), a chunk at a time.
   rootChunks_.reset(new std::atomic<Node*>[(RootCount() + kRootChunkNodes - 1) / kRootChunkNodes]());
@@ -402,7 +403,8 @@ size_t Hierarchy::MemoryBytes() const {
                  rootChunks * kRootChunkNodes * sizeof(Node) +
                  (RootCount() + kRootChunkNodes - 1) / kRootChunkNodes * sizeof(std::atomic<Node*>) +
                  baseChunks * kBaseChunkVertices * sizeof(SampleVertex) +
-                 (BaseVertexCount() + kBaseChunkVertices - 1) / kBaseChunkVertices * sizeof(std::atomic<SampleVertex*>) +
+                 (BaseVertexCount() + kBaseChunkVertices - 1) / kBaseChunkVertices *
+                     sizeof(std::atomic<SampleVertex*>) +
                  basePlaces_.capacity() * sizeof(BasePlace) + rootEdgeStart_.capacity() * sizeof(uint32_t) +
                  rootEdges_.capacity() * sizeof(uint32_t);
   bytes += UnorderedMapBytes(midpointOfVertexEdge_) + UnorderedMapBytes(midpointOfPointEdge_) +
