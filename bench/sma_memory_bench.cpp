@@ -14,9 +14,21 @@
 // RSS is the process's (the scene itself included), printed as a difference
 // from just after the scene loaded.
 //
+// --lookup-rounds N (0: skipped) also times Hierarchy::GetVertex on the base
+// vertices, whose records are made on first use, against the eager table it
+// replaced (a ChunkedArray<SampleVertex> holding the same records: what
+// GetVertex indexed before), in the same run: the first pass (which makes
+// the records), then N rounds of each, median ns per read, in two orders:
+// the roots' corners in root order (as delta building and sample requests
+// meet them) and a random permutation (the worst case for the chunk table).
+//
 //   build/bench/sma_memory_bench --scene scenes/sponza.json --camera atrium --radius 4 --levels 2
+//   build/bench/sma_memory_bench --scene scenes/street.json --lookup-rounds 7
 
+#include <algorithm>
+#include <chrono>
 #include <cstdio>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -25,6 +37,8 @@
 #include "penumbra/common/logging.h"
 #include "penumbra/common/metrics.h"
 #include "penumbra/common/scene.h"
+#include "order_statistics.h"
+#include "penumbra/sma/chunked_array.h"
 #include "penumbra/sma/hierarchy.h"
 #include "penumbra/sma/sample_cache.h"
 
@@ -36,10 +50,14 @@ int main(int argc, char** argv) {
   std::string camera = "atrium";
   float radius = 4.0f;
   int levels = 2;
+  int lookupRounds = 0;
   app.add_option("--scene", scenePath, "Scene file")->capture_default_str();
   app.add_option("--camera", camera, "Camera preset whose eye is the region's centre")->capture_default_str();
   app.add_option("--radius", radius, "Region radius in scene units")->capture_default_str();
   app.add_option("--levels", levels, "Refinements of the region's triangles")->capture_default_str();
+  app.add_option("--lookup-rounds", lookupRounds, "Rounds of the GetVertex timing (0: skip it)")
+      ->check(CLI::Range(0, 1000))
+      ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   if (!SetupLogging("warn")) return 2;
 
@@ -125,6 +143,46 @@ int main(int argc, char** argv) {
     cache.Reserve(h.VertexCount());
     seeRegion(h, cache, 1e30f, 0);
     print("everything", h, cache);
+  }
+  if (lookupRounds > 0) {
+    const Hierarchy h(*scene);
+    std::vector<VertexId> corners;  // the roots' corners, root by root
+    for (NodeId r = 0; r < h.RootCount(); ++r)
+      for (VertexId v : h.GetNode(r).v) corners.push_back(v);
+    std::vector<VertexId> shuffled(h.BaseVertexCount());
+    for (VertexId v = 0; v < shuffled.size(); ++v) shuffled[v] = v;
+    std::shuffle(shuffled.begin(), shuffled.end(), std::mt19937(1));
+    using Clock = std::chrono::steady_clock;
+    uint64_t sink = 0;  // printed, so the reads are not optimised away
+    const auto nsPerRead = [&](const std::vector<VertexId>& ids, auto read) {
+      // An integer sum: a float one would be kept on the stack across the
+      // (cold) call that makes records, timing a store-to-load chain.
+      uint64_t sum = 0;
+      const auto start = Clock::now();
+      for (VertexId v : ids) sum += read(v).point;
+      const auto end = Clock::now();
+      sink += sum;
+      return std::chrono::duration<double, std::nano>(end - start).count() / double(ids.size());
+    };
+    const auto lazy = [&](VertexId v) -> const SampleVertex& { return h.GetVertex(v); };
+    const double firstUse = nsPerRead(corners, lazy);  // makes the records
+    ChunkedArray<SampleVertex> eager;
+    eager.resize(h.BaseVertexCount());
+    for (VertexId v = 0; v < h.BaseVertexCount(); ++v) eager[v] = h.GetVertex(v);
+    const auto table = [&](VertexId v) -> const SampleVertex& { return eager[v]; };
+    std::printf("GetVertex over %zu base vertices: first use (making the records) %.2f ns per read\n",
+                h.BaseVertexCount(), firstUse);
+    for (const auto& [name, ids] : {std::pair{"root corners", &corners}, std::pair{"shuffled", &shuffled}}) {
+      std::vector<double> lazyNs, eagerNs;
+      for (int round = 0; round < lookupRounds; ++round) {
+        lazyNs.push_back(nsPerRead(*ids, lazy));
+        eagerNs.push_back(nsPerRead(*ids, table));
+      }
+      const double l = bench::Median(lazyNs), e = bench::Median(eagerNs);
+      std::printf("  %-12s %9zu reads: made on first use %.2f ns, eager table %.2f ns (median of %d): ratio %.2f\n",
+                  name, ids->size(), l, e, lookupRounds, l / e);
+    }
+    std::printf("(checksum %llu)\n", static_cast<unsigned long long>(sink));
   }
   return 0;
 }

@@ -47,9 +47,13 @@ constexpr std::array<Vec2, 3> kBackRootBary = {Vec2(0.0f, 0.0f), Vec2(0.0f, 1.0f
 
 Hierarchy::Hierarchy(const Scene& scene) : scene_(scene) {
   // Base vertices: one per scene vertex (and side); vertices at one point
-  // (split at a crease) share a point id.
+  // (split at a crease) share a point id. Their records are made on first
+  // use (MakeBaseChunk); here only what that needs besides the scene.
   const size_t sceneVertices = scene.vertices.size();
-  vertices_.resize((scene.twoSided ? 2 : 1) * sceneVertices);
+  const size_t triangles = scene.triangles.size();
+  PENUMBRA_CHECK(triangles <= (size_t(1) << 31) / 3 && sceneVertices <= (size_t(1) << 31),
+                 "scene too large for 32-bit hierarchy ids");
+  basePlaces_.resize(sceneVertices, BasePlace{0, 0});
   std::unordered_map<PointKey, uint32_t, PointKeyHash> pointOf;
   pointOf.reserve(scene.vertices.size());
   // Movable objects' vertices are in their own object spaces, stored part
@@ -60,49 +64,73 @@ Hierarchy::Hierarchy(const Scene& scene) : scene_(scene) {
     if (o.firstVertex < sceneVertices) partStarts[o.firstVertex] = true;
   for (size_t i = 0; i < scene.vertices.size(); ++i) {
     if (partStarts[i]) pointOf.clear();  // ids keep counting: pointOf.size() below is not the next id
-    SampleVertex& v = vertices_[i];
-    v.position = scene.vertices[i].position;
-    v.normal = scene.vertices[i].normal;
-    auto [it, added] = pointOf.try_emplace(KeyOfPosition(v.position), pointCount_);
+    auto [it, added] = pointOf.try_emplace(KeyOfPosition(scene.vertices[i].position), pointCount_);
     pointCount_ += added;
-    v.point = it->second;
+    basePlaces_[i].point = it->second;
   }
-  // Each base vertex needs a triangle it lies on, for the renderer.
-  for (uint32_t t = uint32_t(scene.triangles.size()); t-- > 0;) {
-    for (int c = 0; c < 3; ++c) {
-      SampleVertex& v = vertices_[scene.triangles[t].v[c]];
-      v.baseTriangle = t;
-      v.bary = kRootBary[c];
-    }
-  }
-  if (scene.twoSided) {
-    // The back side's vertices: the same places, the normals negated, and
-    // points of their own, so that adjacency never crosses between sides.
-    for (size_t i = 0; i < sceneVertices; ++i) {
-      SampleVertex& back = vertices_[sceneVertices + i];
-      back = vertices_[i];
-      back.normal = -back.normal;
-      back.point += pointCount_;
-    }
-    pointCount_ *= 2;
-  }
+  // Each base vertex needs a triangle it lies on, for the renderer: the
+  // lowest-numbered one (its corner is found again in MakeBaseChunk).
+  for (uint32_t t = uint32_t(triangles); t-- > 0;)
+    for (int c = 0; c < 3; ++c) basePlaces_[scene.triangles[t].v[c]].baseTriangle = t;
+  frontPointCount_ = pointCount_;
+  // The back side's vertices: the same places, the normals negated, and
+  // points of their own, so that adjacency never crosses between sides.
+  if (scene.twoSided) pointCount_ *= 2;
+  baseVertexCount_ = BaseVertexCount();
+  const size_t baseChunks = (BaseVertexCount() + kBaseChunkVertices - 1) / kBaseChunkVertices;
+  baseChunks_.reset(new std::atomic<SampleVertex*>[baseChunks]());
+  baseMutex_ = std::make_unique<std::mutex>();
   // Root records are made on first use (RootNode), a chunk at a time.
   rootChunks_.reset(new std::atomic<Node*>[(RootCount() + kRootChunkNodes - 1) / kRootChunkNodes]());
   rootMutex_ = std::make_unique<std::mutex>();
-  std::vector<std::pair<EdgeKey, NodeId>> rootEdges;
-  rootEdges.reserve(3 * RootCount());
-  for (NodeId r = 0; r < RootCount(); ++r) {
-    const std::array<VertexId, 3> v = RootCorners(r);
+  // The root edge table, front roots only, by a counting sort on each edge's
+  // smaller point; filled in root order, so each point's edges ascend.
+  const auto pointOfCorner = [&](uint32_t t, int c) { return basePlaces_[scene.triangles[t].v[c]].point; };
+  rootEdgeStart_.assign(size_t(frontPointCount_) + 1, 0);
+  for (uint32_t t = 0; t < triangles; ++t)
     for (int k = 0; k < 3; ++k)
-      rootEdges.emplace_back(KeyOf(vertices_[v[(k + 1) % 3]].point, vertices_[v[(k + 2) % 3]].point), r);
+      ++rootEdgeStart_[std::min(pointOfCorner(t, (k + 1) % 3), pointOfCorner(t, (k + 2) % 3)) + 1];
+  for (size_t p = 0; p < frontPointCount_; ++p) rootEdgeStart_[p + 1] += rootEdgeStart_[p];
+  rootEdges_.resize(3 * triangles);
+  std::vector<uint32_t> next(rootEdgeStart_.begin(), rootEdgeStart_.end() - 1);
+  for (uint32_t t = 0; t < triangles; ++t)
+    for (int k = 0; k < 3; ++k)
+      rootEdges_[next[std::min(pointOfCorner(t, (k + 1) % 3), pointOfCorner(t, (k + 2) % 3))]++] = 3 * t + uint32_t(k);
+}
+
+SampleVertex* Hierarchy::MakeBaseChunk(size_t chunk) const {
+  std::lock_guard lock(*baseMutex_);
+  SampleVertex* vertices = baseChunks_[chunk].load(std::memory_order_relaxed);
+  if (vertices) return vertices;  // another reader made it meanwhile
+  auto made = std::make_unique<SampleVertex[]>(kBaseChunkVertices);
+  const size_t sceneVertices = basePlaces_.size();
+  for (size_t i = 0; i < kBaseChunkVertices; ++i) {
+    const size_t id = chunk * kBaseChunkVertices + i;
+    if (id >= BaseVertexCount()) break;
+    const bool back = id >= sceneVertices;
+    const size_t index = back ? id - sceneVertices : id;
+    const BasePlace& place = basePlaces_[index];
+    SampleVertex& v = made[i];
+    v.position = scene_.vertices[index].position;
+    v.normal = back ? -scene_.vertices[index].normal : scene_.vertices[index].normal;
+    v.point = place.point + (back ? frontPointCount_ : 0);
+    v.baseTriangle = place.baseTriangle;
+    // The vertex's corner of its base triangle (the last, should it be
+    // there twice); none for a vertex no triangle uses: (0, 0) on triangle 0.
+    if (place.baseTriangle < scene_.triangles.size()) {
+      const auto& corners = scene_.triangles[place.baseTriangle].v;
+      for (int c = 2; c >= 0; --c)
+        if (corners[c] == index) {
+          v.bary = kRootBary[c];
+          break;
+        }
+    }
   }
-  std::sort(rootEdges.begin(), rootEdges.end());
-  rootEdgeKeys_.reserve(rootEdges.size());
-  rootEdgeRoots_.reserve(rootEdges.size());
-  for (const auto& [key, root] : rootEdges) {
-    rootEdgeKeys_.push_back(key);
-    rootEdgeRoots_.push_back(root);
-  }
+  vertices = made.get();
+  baseChunkStore_.push_back(std::move(made));
+  // Release: a reader that finds the pointer finds the records whole.
+  baseChunks_[chunk].store(vertices, std::memory_order_release);
+  return vertices;
 }
 
 std::array<VertexId, 3> Hierarchy::RootCorners(NodeId root) const {
@@ -137,7 +165,7 @@ Node* Hierarchy::MakeRootChunk(size_t chunk) const {
 
 Hierarchy::EdgeKey Hierarchy::PointEdge(NodeId id, int edge) const {
   const Node& n = NodeRef(id);
-  return KeyOf(vertices_[n.v[(edge + 1) % 3]].point, vertices_[n.v[(edge + 2) % 3]].point);
+  return KeyOf(PointOf(n.v[(edge + 1) % 3]), PointOf(n.v[(edge + 2) % 3]));
 }
 
 void Hierarchy::LinkEdges(NodeId id) {
@@ -156,13 +184,33 @@ void Hierarchy::UnlinkEdges(NodeId id) {
   }
 }
 
+template <class F>
+void Hierarchy::ForEachRootOnPointEdge(EdgeKey key, F&& f) const {
+  uint32_t a = uint32_t(key >> 32), b = uint32_t(key);  // a <= b
+  // Only base vertices' points are in the table: the front's below
+  // frontPointCount_, the back's (two-sided scenes) the next as many.
+  NodeId side = 0;
+  if (a >= frontPointCount_) {
+    if (!TwoSided() || b >= 2 * size_t(frontPointCount_)) return;
+    a -= frontPointCount_;
+    b -= frontPointCount_;
+    side = NodeId(BaseTriangleCount());
+  } else if (b >= frontPointCount_) {
+    return;
+  }
+  for (uint32_t i = rootEdgeStart_[a]; i < rootEdgeStart_[a + 1]; ++i) {
+    const uint32_t t = rootEdges_[i] / 3, k = rootEdges_[i] % 3;
+    const auto& corners = scene_.triangles[t].v;
+    if (std::max(basePlaces_[corners[(k + 1) % 3]].point, basePlaces_[corners[(k + 2) % 3]].point) == b)
+      f(NodeId(side + t));
+  }
+}
+
 boost::container::small_vector<NodeId, 2> Hierarchy::LeavesOnPointEdge(EdgeKey key) const {
   boost::container::small_vector<NodeId, 2> out;
-  const auto first = std::lower_bound(rootEdgeKeys_.begin(), rootEdgeKeys_.end(), key);
-  for (auto it = first; it != rootEdgeKeys_.end() && *it == key; ++it) {
-    const NodeId root = rootEdgeRoots_[size_t(it - rootEdgeKeys_.begin())];
+  ForEachRootOnPointEdge(key, [&](NodeId root) {
     if (RootIsLeaf(root)) out.push_back(root);
-  }
+  });
   if (auto it = leavesOfPointEdge_.find(key); it != leavesOfPointEdge_.end())
     out.insert(out.end(), it->second.begin(), it->second.end());
   return out;
@@ -173,13 +221,13 @@ VertexId Hierarchy::MidpointVertex(NodeId id, int edge, bool& made) {
   const Node& n = NodeRef(id);
   const VertexId a = n.v[i], b = n.v[j];
   // A freed slot is reused first (the collector's free list), else a new one.
-  const VertexId next = freeVertices_.empty() ? VertexId(vertices_.size()) : freeVertices_.back();
+  const VertexId next = freeVertices_.empty() ? VertexId(VertexCount()) : freeVertices_.back();
   auto [it, inserted] = midpointOfVertexEdge_.try_emplace(KeyOf(a, b), next);
   made = inserted;
   if (!inserted) return it->second;
 
-  const SampleVertex& va = vertices_[a];
-  const SampleVertex& vb = vertices_[b];
+  const SampleVertex& va = VertexRef(a);
+  const SampleVertex& vb = VertexRef(b);
   SampleVertex m;
   // The midpoint of the two positions, computed the same way on both sides
   // of the edge, so neighbours agree on it to the bit.
@@ -192,11 +240,11 @@ VertexId Hierarchy::MidpointVertex(NodeId id, int edge, bool& made) {
   m.baseTriangle = n.baseTriangle;
   m.bary = 0.5f * (n.bary[i] + n.bary[j]);
   m.depth = uint8_t(std::min(255, n.depth + 1));
-  if (next == vertices_.size()) {
+  if (next == VertexCount()) {
     vertices_.push_back(m);
   } else {
     freeVertices_.pop_back();
-    vertices_[next] = m;
+    MutableMidpoint(next) = m;
   }
   return it->second;
 }
@@ -284,9 +332,9 @@ void Hierarchy::Split2(NodeId id, int k, RefineResult& result) {
 
 float Hierarchy::HeightToEdgeRatio(NodeId id, int edge) const {
   const Node& n = NodeRef(id);
-  const Vec3& pk = vertices_[n.v[edge]].position;
-  const Vec3& pi = vertices_[n.v[(edge + 1) % 3]].position;
-  const Vec3& pj = vertices_[n.v[(edge + 2) % 3]].position;
+  const Vec3& pk = VertexRef(n.v[edge]).position;
+  const Vec3& pi = VertexRef(n.v[(edge + 1) % 3]).position;
+  const Vec3& pj = VertexRef(n.v[(edge + 2) % 3]).position;
   const float base = glm::length(pj - pi);
   if (!(base > 0.0f)) return 0.0f;
   // height = 2 * area / base; the ratio to the base is 2 * area / base^2.
@@ -348,8 +396,8 @@ Status Hierarchy::ApplySplit(NodeId node, uint8_t childCount, uint8_t splitEdge)
 void Hierarchy::Reserve(size_t nodes, size_t vertices) {
   nodes_.reserve(nodes > RootCount() ? nodes - RootCount() : 0);
   touched_.reserve(nodes > RootCount() ? nodes - RootCount() : 0);
-  vertices_.reserve(vertices);
-  const size_t midpoints = vertices > vertices_.size() ? vertices - vertices_.size() : 0;
+  vertices_.reserve(vertices > BaseVertexCount() ? vertices - BaseVertexCount() : 0);
+  const size_t midpoints = vertices > VertexCount() ? vertices - VertexCount() : 0;
   midpointOfVertexEdge_.reserve(midpointOfVertexEdge_.size() + midpoints);
   midpointOfPointEdge_.reserve(midpointOfPointEdge_.size() + midpoints);
   // About 3/4 of the nodes are leaves, with 3 edges each, most shared by two.
@@ -359,8 +407,13 @@ void Hierarchy::Reserve(size_t nodes, size_t vertices) {
 bool Hierarchy::Conforming() const {
   for (const auto& [key, leaves] : leavesOfPointEdge_)
     if (!leaves.empty() && midpointOfPointEdge_.contains(key)) return false;
-  for (size_t i = 0; i < rootEdgeKeys_.size(); ++i)
-    if (RootIsLeaf(rootEdgeRoots_[i]) && midpointOfPointEdge_.contains(rootEdgeKeys_[i])) return false;
+  // An unsplit root on a point edge that has a midpoint: asked per midpoint
+  // (the roots' table has no entry per side to walk).
+  for (const auto& [key, point] : midpointOfPointEdge_) {
+    bool leaf = false;
+    ForEachRootOnPointEdge(key, [&](NodeId root) { leaf = leaf || RootIsLeaf(root); });
+    if (leaf) return false;
+  }
   return true;
 }
 
@@ -372,16 +425,24 @@ boost::container::small_vector<NodeId, 2> Hierarchy::EdgeNeighbours(NodeId leaf,
 }
 
 size_t Hierarchy::TableBytes() const {
-  size_t rootChunks;
+  size_t rootChunks, baseChunks;
   {
     std::lock_guard lock(*rootMutex_);
     rootChunks = rootChunkStore_.size();
+  }
+  {
+    std::lock_guard lock(*baseMutex_);
+    baseChunks = baseChunkStore_.size();
   }
   size_t bytes = nodes_.MemoryBytes() + touched_.MemoryBytes() + vertices_.MemoryBytes() +
                  (freeBlocks4_.capacity() + freeBlocks2_.capacity() + freeVertices_.capacity()) * sizeof(NodeId) +
                  rootChunks * kRootChunkNodes * sizeof(Node) +
                  (RootCount() + kRootChunkNodes - 1) / kRootChunkNodes * sizeof(std::atomic<Node*>) +
-                 rootEdgeKeys_.capacity() * sizeof(EdgeKey) + rootEdgeRoots_.capacity() * sizeof(NodeId);
+                 baseChunks * kBaseChunkVertices * sizeof(SampleVertex) +
+                 (BaseVertexCount() + kBaseChunkVertices - 1) / kBaseChunkVertices *
+                     sizeof(std::atomic<SampleVertex*>) +
+                 basePlaces_.capacity() * sizeof(BasePlace) + rootEdgeStart_.capacity() * sizeof(uint32_t) +
+                 rootEdges_.capacity() * sizeof(uint32_t);
   bytes += UnorderedMapBytes(midpointOfVertexEdge_) + UnorderedMapBytes(midpointOfPointEdge_) +
            UnorderedMapBytes(leavesOfPointEdge_);
   return bytes;
@@ -398,8 +459,8 @@ size_t Hierarchy::MemoryBytes() const {
 
 float Hierarchy::Area(NodeId id) const {
   const Node& n = NodeRef(id);
-  const Vec3& p0 = vertices_[n.v[0]].position;
-  return 0.5f * glm::length(glm::cross(vertices_[n.v[1]].position - p0, vertices_[n.v[2]].position - p0));
+  const Vec3& p0 = VertexRef(n.v[0]).position;
+  return 0.5f * glm::length(glm::cross(VertexRef(n.v[1]).position - p0, VertexRef(n.v[2]).position - p0));
 }
 
 Vec2 Hierarchy::CornerUv(NodeId id, int corner) const {

@@ -108,7 +108,7 @@ void Hierarchy::Collapse(const CollapseGroup& group) {
       if (n.mid[k] == kNoVertex) continue;
       const VertexId a = n.v[(k + 1) % 3], b = n.v[(k + 2) % 3];
       midpointOfVertexEdge_.erase(KeyOf(a, b));
-      midpointOfPointEdge_.erase(KeyOf(vertices_[a].point, vertices_[b].point));
+      midpointOfPointEdge_.erase(KeyOf(VertexRef(a).point, VertexRef(b).point));
     }
   }
   // Deepest first, so each member's children are leaves when it collapses.
@@ -129,7 +129,7 @@ void Hierarchy::Collapse(const CollapseGroup& group) {
     LinkEdges(id);  // a leaf again (a root is one by having no children); a freed member leaves again
   }
   for (const VertexId v : group.freedVertices) {
-    vertices_[v].depth = 0;  // a freed slot (VertexAlive() is false)
+    MutableMidpoint(v).depth = 0;  // a freed slot (VertexAlive() is false)
     freeVertices_.push_back(v);
   }
   ++generation_;

@@ -178,13 +178,14 @@ TEST(MemoryAccountingTest, MirrorAndHierarchyBytesFollowWhatTheyHold) {
   const Scene s = QuadScene();
   Hierarchy h(s);
   const size_t bare = h.MemoryBytes();
-  // Root records are made on first use: none yet, then one chunk. The base
-  // vertices take whole chunks of the vertex table (one, here).
-  const size_t vertexChunkBytes = ChunkedArray<SampleVertex>::kChunkSize * sizeof(SampleVertex);
-  EXPECT_GE(bare, h.VertexCount() * sizeof(SampleVertex));
-  EXPECT_LT(bare, vertexChunkBytes + 1000 * sizeof(Node));
+  // Root records and base vertex records are made on first use: none yet,
+  // then one chunk of each (1024 records).
+  EXPECT_LT(bare, 1000 * sizeof(SampleVertex));
   EXPECT_TRUE(h.GetNode(0).IsLeaf());
   EXPECT_GE(h.MemoryBytes(), bare + 1000 * sizeof(Node));
+  const size_t withRootRecords = h.MemoryBytes();
+  EXPECT_EQ(h.GetVertex(0).depth, 0);
+  EXPECT_GE(h.MemoryBytes(), withRootRecords + 1000 * sizeof(SampleVertex));
   const size_t withRoots = h.MemoryBytes();
   RefineOptions options;
   for (int i = 0; i < 4; ++i) {

@@ -1,5 +1,6 @@
 #include "penumbra/sma/hierarchy.h"
 
+#include <algorithm>
 #include <atomic>
 #include <map>
 #include <random>
@@ -366,6 +367,205 @@ TEST(HierarchyTest, MidpointVerticesCanBeShadedOnTheirBaseTriangle) {
     EXPECT_GE(sv.bary.y, -1e-6f);
     EXPECT_LE(sv.bary.x + sv.bary.y, 1.0f + 1e-6f);
   }
+}
+
+// Issue 15: base vertices are made on first use from the scene and 8 bytes
+// per scene vertex; the root edge table holds the front side only. What
+// follows checks them against the eager construction they replaced
+// (6e7c324), written out here independently.
+
+// A cube (its corners split at the creases: vertices sharing points), then
+// an irregular tail: a vertex no triangle uses, one at -0 where another is
+// at +0, a degenerate triangle with a vertex twice, and a movable object's
+// part whose vertex repeats a static position (a point of its own).
+Scene IrregularScene(bool twoSided) {
+  Scene s = CubeScene();
+  s.twoSided = twoSided;
+  const uint32_t first = uint32_t(s.vertices.size());
+  s.vertices.push_back(Vertex{Vec3(5, 5, 5), Vec3(0, 1, 0)});        // first: used by no triangle
+  s.vertices.push_back(Vertex{Vec3(-0.0f, 2, 0), Vec3(0, 0, 1)});    // first + 1
+  s.vertices.push_back(Vertex{Vec3(0.0f, 2, 0), Vec3(0, 0, 1)});     // first + 2: the same point
+  s.vertices.push_back(Vertex{Vec3(1, 2, 0), Vec3(0, 0, 1)});        // first + 3
+  s.vertices.push_back(Vertex{Vec3(0, 3, 0), Vec3(0, 0, 1)});        // first + 4
+  s.triangles.push_back(Triangle{{first + 1, first + 3, first + 4}});
+  s.triangles.push_back(Triangle{{first + 2, first + 2, first + 3}});  // degenerate: a vertex twice
+  s.triangles.push_back(Triangle{{first + 3, first + 2, first + 4}});
+  MovableObject object;
+  object.name = "part";
+  object.firstVertex = first + 5;
+  object.vertexCount = 3;
+  object.firstTriangle = uint32_t(s.triangles.size());
+  object.triangleCount = 1;
+  s.vertices.push_back(Vertex{Vec3(1, 2, 0), Vec3(0, 0, 1)});  // at a static vertex's place
+  s.vertices.push_back(Vertex{Vec3(2, 2, 0), Vec3(0, 0, 1)});
+  s.vertices.push_back(Vertex{Vec3(1, 3, 0), Vec3(0, 0, 1)});
+  s.triangles.push_back(Triangle{{first + 5, first + 6, first + 7}});
+  s.objects.push_back(object);
+  return s;
+}
+
+std::vector<SampleVertex> EagerBaseVertices(const Scene& s) {
+  const size_t nv = s.vertices.size();
+  std::vector<SampleVertex> out((s.twoSided ? 2 : 1) * nv);
+  uint32_t points = 0;
+  std::vector<std::pair<Vec3, uint32_t>> seen;  // this part's points so far
+  for (size_t i = 0; i < nv; ++i) {
+    for (const MovableObject& o : s.objects)
+      if (o.firstVertex == i) seen.clear();
+    SampleVertex& v = out[i];
+    v.position = s.vertices[i].position;
+    v.normal = s.vertices[i].normal;
+    v.point = points;
+    for (const auto& [p, id] : seen)
+      if (p == v.position) v.point = id;  // float ==: -0 equals +0
+    if (v.point == points) seen.emplace_back(v.position, points++);
+  }
+  const std::array<Vec2, 3> rootBary = {Vec2(0, 0), Vec2(1, 0), Vec2(0, 1)};
+  for (size_t i = 0; i < nv; ++i) {
+    for (uint32_t t = 0; t < s.triangles.size(); ++t) {  // the first triangle using it
+      bool on = false;
+      for (int c = 0; c < 3; ++c)
+        if (s.triangles[t].v[c] == i) {
+          on = true;
+          out[i].bary = rootBary[c];  // the last corner, should it be there twice
+        }
+      if (on) {
+        out[i].baseTriangle = t;
+        break;
+      }
+    }
+  }
+  if (s.twoSided)
+    for (size_t i = 0; i < nv; ++i) {
+      out[nv + i] = out[i];
+      out[nv + i].normal = -out[i].normal;
+      out[nv + i].point += points;
+    }
+  return out;
+}
+
+// The leaves with an edge on the same two points as `leaf`'s edge `edge`, by
+// brute force: leaves in id order, once per such edge, `leaf` excluded.
+std::vector<NodeId> NeighboursByBruteForce(const Hierarchy& h, NodeId leaf, int edge) {
+  const auto pointEdge = [&](NodeId id, int k) {
+    const Node& n = h.GetNode(id);
+    const uint32_t a = h.GetVertex(n.v[(k + 1) % 3]).point, b = h.GetVertex(n.v[(k + 2) % 3]).point;
+    return std::pair(std::min(a, b), std::max(a, b));
+  };
+  auto leaves = Leaves(h);
+  std::sort(leaves.begin(), leaves.end());
+  std::vector<NodeId> out;
+  for (NodeId id : leaves)
+    for (int k = 0; k < 3; ++k)
+      if (id != leaf && pointEdge(id, k) == pointEdge(leaf, edge)) out.push_back(id);
+  return out;
+}
+
+void ExpectNeighboursAsByBruteForce(const Hierarchy& h) {
+  for (NodeId id : Leaves(h))
+    for (int k = 0; k < 3; ++k) {
+      const auto got = h.EdgeNeighbours(id, k);
+      EXPECT_EQ(std::vector<NodeId>(got.begin(), got.end()), NeighboursByBruteForce(h, id, k))
+          << "leaf " << id << " edge " << k;
+    }
+}
+
+TEST(HierarchyTest, BaseVerticesAreTheEagerOnesOnBothSides) {
+  for (bool twoSided : {false, true}) {
+    const Scene s = IrregularScene(twoSided);
+    const std::vector<SampleVertex> expected = EagerBaseVertices(s);
+    Hierarchy h(s);
+    ASSERT_EQ(h.BaseVertexCount(), expected.size());
+    ASSERT_EQ(h.VertexCount(), expected.size());
+    // Backwards, so the last chunk is made first.
+    for (VertexId v = VertexId(expected.size()); v-- > 0;) {
+      const SampleVertex& got = h.GetVertex(v);
+      EXPECT_EQ(got.position, expected[v].position) << v;
+      EXPECT_EQ(got.normal, expected[v].normal) << v;
+      EXPECT_EQ(got.point, expected[v].point) << v;
+      EXPECT_EQ(got.baseTriangle, expected[v].baseTriangle) << v;
+      EXPECT_EQ(got.bary, expected[v].bary) << v;
+      EXPECT_EQ(got.depth, 0) << v;
+    }
+    // The -0/+0 pair shares a point; the object's vertex at a static place does not.
+    const VertexId first = VertexId(CubeScene().vertices.size());
+    EXPECT_EQ(h.GetVertex(first + 1).point, h.GetVertex(first + 2).point);
+    EXPECT_NE(h.GetVertex(first + 3).point, h.GetVertex(first + 5).point);
+    ExpectNeighboursAsByBruteForce(h);
+    // The degenerate root has the other two roots on its edge (first+2, first+3)
+    // twice: on two of its edges.
+    const NodeId degenerate = NodeId(s.triangles.size() - 3);
+    EXPECT_EQ(h.EdgeNeighbours(degenerate, 0).size(), 2u);
+    if (twoSided) {
+      const NodeId back = h.RootOf(degenerate - 1, true);
+      const auto n = h.EdgeNeighbours(back, 0);
+      ASSERT_FALSE(n.empty());
+      for (NodeId id : n) EXPECT_TRUE(h.IsBack(id));
+    }
+    EXPECT_TRUE(h.Conforming());
+  }
+}
+
+TEST(HierarchyTest, AdjacencyAndConformityHoldOnBothSidesWhileRefining) {
+  for (bool twoSided : {false, true}) {
+    Scene s = GridScene(3);
+    s.twoSided = twoSided;
+    Hierarchy h(s);
+    ExpectNeighboursAsByBruteForce(h);
+    std::mt19937 rng(7);
+    for (int step = 0; step < 10; ++step) {
+      const auto leaves = Leaves(h);
+      h.Refine(leaves[rng() % leaves.size()], RefineOptions{});
+      EXPECT_TRUE(h.Conforming());
+    }
+    ExpectNeighboursAsByBruteForce(h);
+  }
+  // A split without propagation leaves a T-vertex on the unsplit neighbour
+  // root, on either side, and Conforming() sees it.
+  for (bool back : {false, true}) {
+    Scene s = GridScene(2);
+    s.twoSided = true;
+    Hierarchy h(s);
+    ASSERT_TRUE(h.ApplySplit(h.RootOf(0, back), 4, 0).ok());
+    EXPECT_FALSE(h.Conforming()) << (back ? "back" : "front");
+  }
+}
+
+// Base vertex records made by concurrent readers are whole and shared, and
+// memory follows them: none before anything reads them.
+TEST(HierarchyTest, BaseVertexRecordsAreMadeOnFirstUseByConcurrentReaders) {
+  Scene s = GridScene(40);
+  s.twoSided = true;
+  const std::vector<SampleVertex> expected = EagerBaseVertices(s);
+  ASSERT_GT(expected.size(), 3000u);  // several chunks of 1024
+  Hierarchy h(s);
+  const size_t bare = h.MemoryBytes();
+  EXPECT_LT(bare, expected.size() * sizeof(SampleVertex) / 2);
+  // Refining makes a few (the corners of what it splits).
+  h.Refine(NodeId(0), RefineOptions{});
+  const size_t refined = h.MemoryBytes();
+  std::vector<std::thread> readers;
+  std::atomic<int> wrong{0};
+  for (int r = 0; r < 4; ++r)
+    readers.emplace_back([&, r] {
+      for (size_t i = 0; i < expected.size(); ++i) {
+        const VertexId v = VertexId((i * 7 + size_t(r) * 811) % expected.size());
+        const SampleVertex& got = h.GetVertex(v);
+        if (got.position != expected[v].position || got.normal != expected[v].normal ||
+            got.point != expected[v].point || got.baseTriangle != expected[v].baseTriangle ||
+            got.bary != expected[v].bary)
+          ++wrong;
+      }
+    });
+  for (auto& t : readers) t.join();
+  EXPECT_EQ(wrong.load(), 0);
+  EXPECT_GT(refined, bare);
+  EXPECT_GE(h.MemoryBytes(), bare + expected.size() * sizeof(SampleVertex));
+  // The references stay where they were.
+  const SampleVertex* first = &h.GetVertex(0);
+  h.Refine(NodeId(500), RefineOptions{});
+  EXPECT_EQ(first, &h.GetVertex(0));
+  EXPECT_TRUE(h.Conforming());
 }
 
 }  // namespace

@@ -50,14 +50,20 @@
 // directory together with a memory budget). A change to how Split4/Split2
 // number children or midpoints must bump CacheSnapshot's format version.
 //
-// Storage (issue 15). Root records are made on first use, a chunk at a time,
-// and roots' adjacency lives in a compact table sorted by point edge, so an
-// unvisited base triangle costs 36 bytes of that table and its two sides'
-// records nothing (base vertices are still made for the whole scene).
+// Storage (issue 15). Root records and base vertices' SampleVertex records
+// are made on first use, a chunk at a time, from the scene (a root's record
+// is a pure function of it until the root is split, a base vertex's always;
+// midpoints are made by splits, as before); what cannot be recomputed cheaply is
+// kept per scene vertex, shared by both sides: its point id and the base
+// triangle it lies on (8 bytes). Roots' adjacency lives in a compact table of
+// the front roots' edges grouped by their smaller point (4 bytes per edge, 4
+// per front point); a back root's edges are the front's, their points shifted
+// by the front's point count. So an unvisited base triangle costs about 12
+// bytes of that table, and its vertices 8 bytes each, whatever the sides.
 //
 // Threads: not synchronised. The SMA guards a Hierarchy with its state lock;
 // const member functions may run concurrently with each other (making root
-// records on first use is synchronised inside).
+// and base vertex records on first use is synchronised inside).
 
 #include <array>
 #include <atomic>
@@ -152,7 +158,7 @@ class Hierarchy {
 
   const Scene& GetScene() const { return scene_; }
   size_t NodeCount() const { return RootCount() + nodes_.size(); }
-  size_t VertexCount() const { return vertices_.size(); }
+  size_t VertexCount() const { return BaseVertexCount() + vertices_.size(); }
   size_t BaseTriangleCount() const { return scene_.triangles.size(); }
   /// Whether base triangles have back roots (the scene is two-sided).
   bool TwoSided() const { return scene_.twoSided; }
@@ -174,7 +180,11 @@ class Hierarchy {
   /// shared state lock may make it; the reference stays valid for the life
   /// of the hierarchy, like every other node's until the next split.
   const Node& GetNode(NodeId id) const { return NodeRef(id); }
-  const SampleVertex& GetVertex(VertexId id) const { return vertices_[id]; }
+  /// A base vertex's record is made on first use like a root's (with the
+  /// others of its chunk, by any reader, under a leaf mutex of its own); the
+  /// reference stays valid for the life of the hierarchy, a base vertex's and
+  /// a midpoint's alike.
+  const SampleVertex& GetVertex(VertexId id) const { return VertexRef(id); }
 
   /// The node containing point (b1, b2) of `baseTriangle`, on the side
   /// RootOf(baseTriangle, backFace), reached by descending from that root
@@ -261,7 +271,7 @@ class Hierarchy {
   /// Whether `id` names a node (not a freed slot).
   bool Alive(NodeId id) const { return id < RootCount() || (id < NodeCount() && nodes_[id - RootCount()].depth != 0); }
   /// Whether `v` names a vertex (not a freed slot).
-  bool VertexAlive(VertexId v) const { return v < BaseVertexCount() || (v < VertexCount() && vertices_[v].depth != 0); }
+  bool VertexAlive(VertexId v) const { return v < BaseVertexCount() || (v < VertexCount() && Midpoint(v).depth != 0); }
   /// Bumped by every Collapse(): node and vertex ids read before may have
   /// been freed or reused since.
   uint64_t StructureGeneration() const { return generation_; }
@@ -326,6 +336,28 @@ class Hierarchy {
   }
   std::array<VertexId, 3> RootCorners(NodeId root) const;
   Node* MakeRootChunk(size_t chunk) const;
+  static constexpr size_t kBaseChunkVertices = 1024;  // base vertex records made together (44 KiB)
+  const SampleVertex& VertexRef(VertexId id) const {
+    if (id >= baseVertexCount_) return Midpoint(id);
+    const SampleVertex* chunk = baseChunks_[id / kBaseChunkVertices].load(std::memory_order_acquire);
+    if (!chunk) chunk = MakeBaseChunk(id / kBaseChunkVertices);
+    return chunk[id % kBaseChunkVertices];
+  }
+  // The one place midpoints are found in vertices_ (which holds only them).
+  const SampleVertex& Midpoint(VertexId id) const { return vertices_[id - baseVertexCount_]; }
+  SampleVertex& MutableMidpoint(VertexId id) { return vertices_[id - baseVertexCount_]; }
+  SampleVertex* MakeBaseChunk(size_t chunk) const;
+  // A vertex's point id, without making a base vertex's record.
+  uint32_t PointOf(VertexId id) const {
+    const size_t sceneVertices = basePlaces_.size();
+    if (id < sceneVertices) return basePlaces_[id].point;
+    if (id < BaseVertexCount()) return basePlaces_[id - sceneVertices].point + frontPointCount_;
+    return Midpoint(id).point;
+  }
+  // Calls f(root) for every root with an edge on the two points of `key`
+  // (split or not), in the order of their ids, a root once per such edge.
+  template <class F>
+  void ForEachRootOnPointEdge(EdgeKey key, F&& f) const;
   void LinkEdges(NodeId id);    // non-root leaves only: roots are in the root edge table
   void UnlinkEdges(NodeId id);
   /// The leaves whose edge joins the two points of `key`: unsplit roots
@@ -348,18 +380,35 @@ class Hierarchy {
   std::unique_ptr<std::atomic<Node*>[]> rootChunks_;
   std::unique_ptr<std::mutex> rootMutex_;
   mutable std::vector<std::unique_ptr<Node[]>> rootChunkStore_;
-  ChunkedArray<SampleVertex> vertices_;  // base vertices, then midpoints (chunked, like nodes_)
+  // Base vertices (issue 15: a scene vertex costs 8 bytes until something
+  // needs its record): per scene vertex, what the records are made from
+  // besides the scene; records are made like roots' (baseChunks_ null until
+  // made, owned by baseChunkStore_ under baseMutex_, a leaf).
+  struct BasePlace {
+    uint32_t point;         // the front vertex's; the back's is this + frontPointCount_
+    uint32_t baseTriangle;  // the lowest-numbered triangle using the vertex (0 for none)
+  };
+  std::vector<BasePlace> basePlaces_;
+  size_t baseVertexCount_ = 0;    // BaseVertexCount(), kept for GetVertex's fast path
+  uint32_t frontPointCount_ = 0;  // points of the front base vertices: 0 .. frontPointCount_ - 1
+  std::unique_ptr<std::atomic<SampleVertex*>[]> baseChunks_;
+  std::unique_ptr<std::mutex> baseMutex_;
+  mutable std::vector<std::unique_ptr<SampleVertex[]>> baseChunkStore_;
+  ChunkedArray<SampleVertex> vertices_;  // midpoints only: id BaseVertexCount() + i (chunked, like nodes_)
   uint32_t pointCount_ = 0;
   std::unordered_map<EdgeKey, VertexId> midpointOfVertexEdge_;  // vertex edge -> midpoint vertex
   std::unordered_map<EdgeKey, uint32_t> midpointOfPointEdge_;   // point edge -> midpoint point
   // Leaves by point edge, for leaves that are not roots.
   std::unordered_map<EdgeKey, boost::container::small_vector<NodeId, 2>> leavesOfPointEdge_;
   // Roots' edges by point edge (issue 15: a base triangle costs no hash map
-  // entries until it is split): two parallel arrays sorted by (key, root),
-  // three entries per root, made once; a root in them is a leaf while it
+  // entries until it is split), made once, front roots only (a back root's
+  // edges are its front's, points shifted by frontPointCount_): the edges
+  // whose smaller point is p are rootEdges_[rootEdgeStart_[p] ..
+  // rootEdgeStart_[p + 1]), each as 3 * root + edge, ascending; the other
+  // point is read from the root's corners. A root in them is a leaf while it
   // has no children.
-  std::vector<EdgeKey> rootEdgeKeys_;
-  std::vector<NodeId> rootEdgeRoots_;
+  std::vector<uint32_t> rootEdgeStart_;
+  std::vector<uint32_t> rootEdges_;
   // Collection (see "Collection" above).
   ChunkedArray<uint32_t> touched_;   // per non-root node: tick of its last Touch (atomic_ref)
   alignas(std::atomic_ref<uint32_t>::required_alignment) mutable uint32_t tick_ = 0;  // atomic_ref (keeps Hierarchy movable)
