@@ -54,9 +54,12 @@ def main():
         t = column(rows, "t_s")
         rss = [v / MIB for v in column(rows, "rss_bytes")]
         data = [v / MIB for v in column(rows, "memory_bytes")]
+        in_use = [v / MIB for v in column(rows, "memory_in_use_bytes")]
         label = "unbounded" if budget == 0 else f"--memory-budget {budget}"
         (line,) = ax_rss.plot(t, rss, label=label)
-        ax_data.plot(t, data, label=label, color=line.get_color())
+        ax_data.plot(t, data, label=label + ": allocated", color=line.get_color())
+        if any(v == v for v in in_use):
+            ax_data.plot(t, in_use, label=label + ": in use", color=line.get_color(), linestyle=":")
         if budget > 0:
             for ax in (ax_rss, ax_data):
                 ax.axhline(budget, color=line.get_color(), linestyle="--", linewidth=0.8)
@@ -68,6 +71,9 @@ def main():
             "peak_data": max((v for v in data if v == v), default=float("nan")),
             "shaded": shaded,
             "hit": last_number(column(rows, "prediction_hit_rate")),
+            "peak_in_use": max((v for v in in_use if v == v), default=float("nan")),
+            "evicted": last_number(column(rows, "samples_evicted")),
+            "remade": last_number(column(rows, "samples_reshaded_after_eviction")),
             "seconds": t[-1],
         }
     ax_rss.set_ylabel("SMA resident memory (MiB)")
@@ -83,14 +89,20 @@ def main():
     print(f"plot: {png}", file=sys.stderr)
 
     base = summary.get(0)
-    print("| run | walk (s) | peak RSS (MiB) | VmHWM (MiB) | final RSS (MiB) | peak data (MiB) | RSS saved vs unbounded |"
-          " samples shaded | prediction hit rate |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| run | walk (s) | peak RSS (MiB) | VmHWM (MiB) | final RSS (MiB) | peak data (MiB) | peak in use (MiB) |"
+          " RSS saved vs unbounded | data saved | samples shaded | evicted | re-shaded after eviction |"
+          " prediction hit rate |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for budget, s in summary.items():
         saved = "baseline" if budget == 0 or not base else f"{100.0 * (1.0 - s['peak_rss'] / base['peak_rss']):.0f} %"
+        data_saved = ("baseline" if budget == 0 or not base
+                      else f"{100.0 * (1.0 - s['peak_data'] / base['peak_data']):.0f} %")
+        remade = (f"{s['remade']:.0f} ({100.0 * s['remade'] / s['shaded']:.1f} %)"
+                  if s['shaded'] == s['shaded'] and s['shaded'] > 0 and s['remade'] == s['remade'] else "")
         name = "unbounded" if budget == 0 else f"budget {budget} MiB"
         print(f"| {name} | {s['seconds']:.0f} | {s['peak_rss']:.0f} | {s['hwm']:.0f} | {s['final_rss']:.0f} |"
-              f" {s['peak_data']:.0f} | {saved} | {s['shaded']:.0f} | {s['hit']:.3f} |")
+              f" {s['peak_data']:.0f} | {s['peak_in_use']:.0f} | {saved} | {data_saved} | {s['shaded']:.0f} |"
+              f" {s['evicted']:.0f} | {remade} | {s['hit']:.3f} |")
 
 
 if __name__ == "__main__":

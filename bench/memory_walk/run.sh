@@ -8,9 +8,8 @@
 # OUT/memory.png (resident memory and the SMA's data over time, one line per
 # budget, the budgets dashed) and prints the summary table: peak and final
 # resident memory, peak data, the saving against the unbounded run measured
-# in the same invocation. (The age-based collector is not built yet: the
-# budget is reported, not enforced, so today every run is the unbounded one;
-# when it lands, its eviction and re-shading counters join the CSV.)
+# in the same invocation, and what the budget cost: samples evicted and
+# vertices re-made (re-shaded) after their collection, against all shaded.
 #
 # Usage: bench/memory_walk/run.sh [OUT]   (default bench/memory_walk/results)
 # Environment:
@@ -59,7 +58,7 @@ for budget in $budgets; do
   wait_for_file "$logs/s.port"
   wait_for_file "$logs/h.port"
   csv="$out/walk-$budget.csv"
-  echo "t_s,rss_bytes,hwm_bytes,memory_bytes,memory_cache_bytes,memory_hierarchy_bytes,memory_clients_bytes,samples_shaded,prediction_hit_rate" >"$csv"
+  echo "t_s,rss_bytes,hwm_bytes,memory_bytes,memory_cache_bytes,memory_hierarchy_bytes,memory_clients_bytes,samples_shaded,prediction_hit_rate,memory_in_use_bytes,samples_evicted,samples_reshaded_after_eviction,collected_nodes" >"$csv"
   "$build/client/penumbra-client" --connect "127.0.0.1:$(cat "$logs/s.port")" --headless --gl egl \
     --camera-path "$scene#$path_name" --seconds "$seconds" --stats "$logs/client-stats.jsonl" \
     --log-level warn >"$logs/client.log" 2>&1 &

@@ -30,6 +30,10 @@ wanted = [
     'penumbra_sma_memory_part_bytes{part="clients"}',
     "penumbra_sma_samples_shaded_total",
     "penumbra_sma_prediction_hit_ratio",
+    "penumbra_sma_memory_in_use_bytes",
+    "penumbra_sma_samples_evicted_total",
+    "penumbra_sma_samples_reshaded_after_eviction_total",
+    "penumbra_sma_collected_nodes_total",
 ]
 row = [f"{time.time() - t0:.1f}", kib("VmRSS"), kib("VmHWM")] + [metrics.get(w, "") for w in wanted]
 print(",".join(row))

@@ -489,6 +489,10 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   std::vector<wire::Envelope> outbox_;     // built under the state lock, sent by Flush after it
   uint64_t sequence_ = 0;
   uint64_t deltasSent_ = 0;
+  // Hierarchy::StructureGeneration() of the mapping the pending nodes
+  // (ViewSession's waiting set) came from: their ids are valid while it is
+  // the hierarchy's.
+  uint64_t shadingGeneration_ = 0;
   uint64_t trianglesSent_ = 0;
   uint64_t viewsReceived_ = 0;
   JobTimings lastTimings_;
@@ -755,6 +759,7 @@ void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
   }
   for (NodeId id : state_.BeginShading(plan.pending, server.hierarchy_, server.cache_, newView))
     plan.addCached.push_back(id);
+  shadingGeneration_ = visible_->structureGeneration;  // the pending nodes' ids are valid while it lasts
 
   if (Blocked()) {
     // The client is behind: send nothing now; once its queue drains, one
@@ -845,7 +850,7 @@ void SmaServer::Impl::Session::OnSamplesArrived(const std::vector<VertexId>& ver
     return;
   }
   std::shared_lock lock(server_.stateMutex_);
-  if (visible_->structureGeneration != server_.hierarchy_.StructureGeneration()) {
+  if (shadingGeneration_ != server_.hierarchy_.StructureGeneration()) {
     // The nodes waiting for these samples were mapped before a collection.
     lock.unlock();
     state_.WantRemap();
