@@ -3,7 +3,8 @@
 # the client window in the foreground -- on the default scene
 # (scenes/cornell-box.json). Closing the window or Ctrl-C stops everything.
 # Without a display the stack runs alone and the headless client command is printed.
-# Usage: scripts/run.sh [--scene FILE] [--renderers N] [--spp N] [--headless-check [PNG]]
+# Usage: scripts/run.sh [--scene FILE] [--renderers N] [--spp N] [--memory-budget MIB] [--headless-check [PNG]]
+#   --memory-budget: the SMA's --memory-budget (its age-based collector; sma/README.md, "Memory")
 #   --headless-check: no window; render the default scene's front view headless
 #   until it converges, write it to PNG (default build/headless-check.png), check
 #   that it is a sane Cornell box, stop the stack, exit 0 if it is.
@@ -12,6 +13,7 @@ root="$(cd "$(dirname "$0")/.." && pwd)"
 scene="$root/scenes/cornell-box.json"
 renderers=1
 spp=64
+memory_budget=0
 check_png=""
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -22,7 +24,8 @@ while [ $# -gt 0 ]; do
     --scene) scene="$2"; shift 2 ;;
     --renderers) renderers="$2"; shift 2 ;;
     --spp) spp="$2"; shift 2 ;;
-    -h|--help) sed -n '2,9p' "$0"; exit 0 ;;
+    --memory-budget) memory_budget="$2"; shift 2 ;;
+    -h|--help) sed -n '2,10p' "$0"; exit 0 ;;
     *) echo "run.sh: unknown option $1" >&2; exit 2 ;;
   esac
 done
@@ -61,7 +64,7 @@ for i in $(seq 0 $((renderers - 1))); do
 done
 
 "$build_dir/sma/penumbra-sma" --scene "$scene" --listen 127.0.0.1:0 --port-file "$logs/sma.port" \
-  "${renderer_flags[@]}" >"$logs/sma.log" 2>&1 &
+  --memory-budget "$memory_budget" "${renderer_flags[@]}" >"$logs/sma.log" 2>&1 &
 pid=$!; pids+=("$pid")
 sma_port="$(wait_port "$logs/sma.port" sma "$pid")"
 echo "run.sh: SMA on 127.0.0.1:$sma_port (logs in $logs)"
