@@ -127,7 +127,7 @@ SampleVertex* Hierarchy::MakeBaseChunk(size_t chunk) const {
     }
   }
   vertices = made.get();
-  baseChunkStore_.push_back(std::move(made));
+  baseChunkStore_.emplace_back(chunk, std::move(made));
   // Release: a reader that finds the pointer finds the records whole.
   baseChunks_[chunk].store(vertices, std::memory_order_release);
   return vertices;
@@ -157,7 +157,7 @@ Node* Hierarchy::MakeRootChunk(size_t chunk) const {
     n.bary = n.back ? kBackRootBary : kRootBary;
   }
   nodes = made.get();
-  rootChunkStore_.push_back(std::move(made));
+  rootChunkStore_.emplace_back(chunk, std::move(made));
   // Release: a reader that finds the pointer finds the records whole.
   rootChunks_[chunk].store(nodes, std::memory_order_release);
   return nodes;

@@ -135,6 +135,28 @@ void Hierarchy::Collapse(const CollapseGroup& group) {
   ++generation_;
 }
 
+size_t Hierarchy::ReleaseSceneRecords() {
+  size_t freed = 0;
+  {
+    std::lock_guard lock(*rootMutex_);
+    std::erase_if(rootChunkStore_, [&](const auto& entry) {
+      const auto& [chunk, records] = entry;
+      for (size_t i = 0; i < kRootChunkNodes && chunk * kRootChunkNodes + i < RootCount(); ++i)
+        if (!records[i].IsLeaf()) return false;
+      rootChunks_[chunk].store(nullptr, std::memory_order_release);
+      freed += kRootChunkNodes * sizeof(Node);
+      return true;
+    });
+  }
+  {
+    std::lock_guard lock(*baseMutex_);
+    for (const auto& [chunk, records] : baseChunkStore_) baseChunks_[chunk].store(nullptr, std::memory_order_release);
+    freed += baseChunkStore_.size() * kBaseChunkVertices * sizeof(SampleVertex);
+    baseChunkStore_.clear();
+  }
+  return freed;
+}
+
 size_t Hierarchy::LiveBytes() const {
   const size_t freeNodes = 4 * freeBlocks4_.size() + 2 * freeBlocks2_.size();
   // Neither the freed slots nor the tables' last chunk's unused tail: what

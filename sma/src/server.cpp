@@ -334,6 +334,8 @@ class SmaServer::Impl {
   std::atomic<bool> collecting_{false};
   bool collectorStuckLogged_ = false;  // the collection job's
   bool collectedSinceScan_ = false;    // the collection job's
+  bool releasedThisCollection_ = false;  // the collection job's: scene records released in this one
+  std::atomic<uint64_t> recordsReleasedBytes_{0};
   std::atomic<uint64_t> collections_{0};        // collections started (over the start level)
   std::atomic<uint64_t> collectedGroups_{0};
   std::atomic<uint64_t> collectedNodes_{0};
@@ -1408,6 +1410,7 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
   AddCounter(reply, "collected_vertices", double(collectedVertices_.load()));
   AddCounter(reply, "collect_kept_groups", double(collectKept_.load()));
   AddCounter(reply, "samples_evicted", double(samplesEvicted_.load()));
+  AddCounter(reply, "scene_records_released_bytes", double(recordsReleasedBytes_.load()));
   AddCounter(reply, "samples_reshaded_after_eviction", double(samplesRemade_.load()));
   AddCounter(reply, "remaps_after_collection", double(remapsAfterCollection_.load()));
   if (const auto rss = metrics::ResidentMemoryBytes()) AddCounter(reply, "process_resident_bytes", double(*rss));
@@ -1566,6 +1569,7 @@ void SmaServer::Impl::Collect(bool fresh) {
     if (fresh) {
       ++collections_;
       collectorStuckLogged_ = false;
+      releasedThisCollection_ = false;
     }
     // A new scan once the last one's candidates are used up -- unless they
     // freed nothing: then what is left is held, young or entangled with
@@ -1576,6 +1580,20 @@ void SmaServer::Impl::Collect(bool fresh) {
     }
   }
   if (!collector_.HasCandidates()) {
+    // Nothing refined is left to collect. The records of unsplit roots and
+    // of base vertices are the scene's, made again on first use: free them
+    // all (the views in progress make theirs again, a few ms), once per
+    // collection, and look again.
+    if (!releasedThisCollection_) {
+      releasedThisCollection_ = true;
+      {
+        std::unique_lock lock(stateMutex_);
+        recordsReleasedBytes_ += hierarchy_.ReleaseSceneRecords();
+        inUse = DataInUse();
+      }
+      memoryInUse_ = inUse;
+      if (inUse <= collector_.StopBytes()) return finish();
+    }
     // Everything refined was used within --memory-min-age, or is held: the
     // working set is larger than the budget. Look again at the next check.
     ++collectOverBudgetStuck_;

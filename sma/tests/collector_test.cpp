@@ -97,7 +97,9 @@ TEST_P(InterleavedCollapseTest, RefineAndCollapseStayConformingAndReuseIds) {
         // The tops (members whose parent is not freed) are leaves now.
         const std::set<NodeId> freed(group.freedNodes.begin(), group.freedNodes.end());
         for (NodeId id : group.nodes)
-          if (!freed.contains(id)) ASSERT_TRUE(h.GetNode(id).IsLeaf() && h.WasCollapsed(id));
+          if (!freed.contains(id)) {
+            ASSERT_TRUE(h.GetNode(id).IsLeaf() && h.WasCollapsed(id));
+          }
       }
     }
     ExpectWholeAndConforming(h, s, "after step " + std::to_string(step));
@@ -212,7 +214,9 @@ TEST(CollectorTest, OldestGoFirstAndYoungOrKeptStay) {
   ExpectWholeAndConforming(h, s, "after collecting all but the kept");
   // Freed vertices read as never shaded.
   for (VertexId v = VertexId(h.BaseVertexCount()); v < h.VertexCount(); ++v)
-    if (!h.VertexAlive(v)) ASSERT_FALSE(cache.IsShaded(v)) << v;
+    if (!h.VertexAlive(v)) {
+      ASSERT_FALSE(cache.IsShaded(v)) << v;
+    }
 
   // A touch makes a node young again: nothing is collected.
   h.ForEachLeaf(100, [&](NodeId id) { h.Touch(id); });
@@ -249,6 +253,39 @@ TEST(CollectorTest, DataInUseFallsAndFreedSlotsAreReused) {
   for (uint32_t t = 0; t < 128; t += 3) RefineAround(h, t, 3);
   EXPECT_LE(h.NodeCount(), peakNodes + 8);
   EXPECT_LE(h.VertexCount(), peakVertices + 8);
+  ExpectWholeAndConforming(h, s, "after refining again");
+}
+
+TEST(CollectorTest, SceneRecordsAreReleasedAndMadeAgainAsTheyWere) {
+  Scene s = GridScene(40);  // 3200 triangles, two-sided: several chunks of roots and base vertices
+  s.twoSided = true;
+  Hierarchy h(s), fresh(s);
+  RefineAround(h, 5, 2);
+  for (NodeId r = 0; r < h.RootCount(); ++r) (void)h.GetNode(r);
+  for (VertexId v = 0; v < h.BaseVertexCount(); ++v) (void)h.GetVertex(v);
+  const size_t before = h.LiveBytes();
+  const size_t freed = h.ReleaseSceneRecords();
+  EXPECT_GT(freed, 0u);
+  EXPECT_EQ(h.LiveBytes(), before - freed);
+  // The refined root's chunk stays (its record has children); the others
+  // and every base vertex are made again exactly as they were.
+  EXPECT_FALSE(h.GetNode(5).IsLeaf());
+  for (NodeId r = 0; r < h.RootCount(); ++r) {
+    if (r == 5) continue;
+    const Node &a = h.GetNode(r), &b = fresh.GetNode(r);
+    ASSERT_EQ(a.v, b.v) << r;
+    ASSERT_EQ(a.back, b.back) << r;
+    ASSERT_EQ(a.baseTriangle, b.baseTriangle) << r;
+  }
+  for (VertexId v = 0; v < h.BaseVertexCount(); ++v) {
+    const SampleVertex &a = h.GetVertex(v), &b = fresh.GetVertex(v);
+    ASSERT_EQ(a.position, b.position) << v;
+    ASSERT_EQ(a.normal, b.normal) << v;
+    ASSERT_EQ(a.point, b.point) << v;
+    ASSERT_EQ(a.baseTriangle, b.baseTriangle) << v;
+  }
+  ExpectWholeAndConforming(h, s, "after releasing the scene's records");
+  RefineAround(h, 300, 2);  // refining goes on over released and remade records
   ExpectWholeAndConforming(h, s, "after refining again");
 }
 

@@ -177,13 +177,14 @@ class Hierarchy {
   /// A root's record is made on first use, with the others of its chunk
   /// (from the scene: it is a pure function of it until the root is split),
   /// under a small leaf mutex of its own, so that const readers under the
-  /// shared state lock may make it; the reference stays valid for the life
-  /// of the hierarchy, like every other node's until the next split.
+  /// shared state lock may make it; the reference stays valid until the
+  /// hierarchy next changes under exclusive use (a split, a collapse,
+  /// ReleaseSceneRecords): hold it no longer than the lock.
   const Node& GetNode(NodeId id) const { return NodeRef(id); }
   /// A base vertex's record is made on first use like a root's (with the
   /// others of its chunk, by any reader, under a leaf mutex of its own); the
-  /// reference stays valid for the life of the hierarchy, a base vertex's and
-  /// a midpoint's alike.
+  /// reference stays valid like a node's (until a change under exclusive
+  /// use: ReleaseSceneRecords, or a collapse that frees a midpoint).
   const SampleVertex& GetVertex(VertexId id) const { return VertexRef(id); }
 
   /// The node containing point (b1, b2) of `baseTriangle`, on the side
@@ -299,6 +300,13 @@ class Hierarchy {
   /// on a point edge that a member split, until closed. False (group
   /// unspecified) if it would exceed `maxNodes` split nodes.
   bool PlanCollapse(NodeId node, size_t maxNodes, CollapseGroup& group) const;
+  /// Frees the root records of chunks whose roots are all leaves, and every
+  /// base vertex record: both are pure functions of the scene, made again
+  /// on first use (as at start), so memory follows what views need now.
+  /// Callers hold the hierarchy exclusively (no reader holds a record: the
+  /// SMA's state lock exclusive). Forgets WasCollapsed() of those roots.
+  /// Returns the bytes freed.
+  size_t ReleaseSceneRecords();
   /// Collapses a group PlanCollapse made (with no split or collapse in
   /// between): the subtrees' tops become leaves; their descendants and the
   /// midpoints they added are freed.
@@ -374,12 +382,12 @@ class Hierarchy {
   ChunkedArray<Node> nodes_;  // nodes made by splits: id RootCount() + i (chunked: growth never copies)
   // Root records (issue 15: a base triangle costs no node record until
   // something needs it): chunk pointers, null until made; made chunks are
-  // owned by rootChunkStore_ and never freed while the hierarchy lives.
+  // owned by rootChunkStore_ and freed only by ReleaseSceneRecords.
   // rootMutex_ (a leaf) guards rootChunkStore_ and serialises making; held
   // in unique_ptrs so that a Hierarchy stays movable.
   std::unique_ptr<std::atomic<Node*>[]> rootChunks_;
   std::unique_ptr<std::mutex> rootMutex_;
-  mutable std::vector<std::unique_ptr<Node[]>> rootChunkStore_;
+  mutable std::vector<std::pair<size_t, std::unique_ptr<Node[]>>> rootChunkStore_;  // (chunk, records)
   // Base vertices (issue 15: a scene vertex costs 8 bytes until something
   // needs its record): per scene vertex, what the records are made from
   // besides the scene; records are made like roots' (baseChunks_ null until
@@ -393,7 +401,7 @@ class Hierarchy {
   uint32_t frontPointCount_ = 0;  // points of the front base vertices: 0 .. frontPointCount_ - 1
   std::unique_ptr<std::atomic<SampleVertex*>[]> baseChunks_;
   std::unique_ptr<std::mutex> baseMutex_;
-  mutable std::vector<std::unique_ptr<SampleVertex[]>> baseChunkStore_;
+  mutable std::vector<std::pair<size_t, std::unique_ptr<SampleVertex[]>>> baseChunkStore_;  // (chunk, records)
   ChunkedArray<SampleVertex> vertices_;  // midpoints only: id BaseVertexCount() + i (chunked, like nodes_)
   uint32_t pointCount_ = 0;
   std::unordered_map<EdgeKey, VertexId> midpointOfVertexEdge_;  // vertex edge -> midpoint vertex
