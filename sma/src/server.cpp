@@ -332,7 +332,7 @@ class SmaServer::Impl {
   Clock::time_point collectorStart_;
   MemoryCollector collector_;  // only the running collection job touches it
   std::atomic<bool> collecting_{false};
-  bool collectorStuckLogged_ = false;  // the collection job's
+  Clock::time_point lastStuckWarning_{};  // the collection job's
   bool collectedSinceScan_ = false;    // the collection job's
   bool releasedThisCollection_ = false;  // the collection job's: scene records released in this one
   std::atomic<uint64_t> recordsReleasedBytes_{0};
@@ -1568,7 +1568,6 @@ void SmaServer::Impl::Collect(bool fresh) {
     if (inUse <= collector_.StopBytes()) return finish();
     if (fresh) {
       ++collections_;
-      collectorStuckLogged_ = false;
       releasedThisCollection_ = false;
     }
     // A new scan once the last one's candidates are used up -- unless they
@@ -1597,12 +1596,16 @@ void SmaServer::Impl::Collect(bool fresh) {
     // Everything refined was used within --memory-min-age, or is held: the
     // working set is larger than the budget. Look again at the next check.
     ++collectOverBudgetStuck_;
-    if (!collectorStuckLogged_)
+    // Once a minute at most: a walk whose working set is over the stop
+    // level meets this at every check.
+    const auto now = Clock::now();
+    if (now - lastStuckWarning_ >= std::chrono::minutes(1)) {
+      lastStuckWarning_ = now;
       log_->warn("memory: {:.1f} MiB in use, over the collector's stop level ({:.1f} MiB of a {:.1f} MiB budget), "
                  "and nothing left that no client holds and nobody used in the last {:.1f} s",
                  double(inUse) / 1048576.0, double(collector_.StopBytes()) / 1048576.0,
                  double(options_.memoryBudgetBytes) / 1048576.0, options_.memoryMinAgeSeconds);
-    collectorStuckLogged_ = true;
+    }
     return finish();
   }
   CollectStep step;
