@@ -4,7 +4,9 @@
 // nothing; after a move, the vertices a client holds come back re-shaded
 // (RESHADED) at the new pose; an animated object moves on the SMA's clock;
 // after a fast drag no sample of an intermediate pose survives (the image
-// equals a single move's, bit for bit: shading is deterministic).
+// equals a single move's, bit for bit: shading is deterministic); an
+// animation watched with movement prediction (samples shaded ahead at each
+// next step) ends with the same image as one watched without.
 //
 // The scene is scenes/cornell-box-floating.json (a box floating above the
 // Cornell box's floor, movable). The reshade test needs renderers that
@@ -16,6 +18,7 @@
 #include <cmath>
 #include <map>
 #include <filesystem>
+#include <fstream>
 #include <thread>
 #include <limits>
 #include <optional>
@@ -388,6 +391,80 @@ TEST_F(SmaMovesTest, ADragEndsWithTheImageOfASingleMoveThere) {
       }
   }
   EXPECT_EQ(differing, 0u) << "vertices whose radiance is not the single move's (a stale sample survived)";
+}
+
+// Movement prediction (issue 15): while the SMA plays an animation path,
+// each next step's changes are shaded ahead at its exact pose and stored the
+// moment the step is applied. The prepared samples are the step's own: a
+// client that watched the whole path with prediction on ends with exactly
+// the image of one that watched it with prediction off. Every move
+// invalidates everything (--invalidate-all-on-move) and first estimates and
+// refinement get the same paths, so every value must be the final pose's
+// bit for bit (see ADragEndsWithTheImageOfASingleMoveThere); and the run
+// with prediction must have used prepared samples, or it proves nothing.
+TEST_F(SmaMovesTest, PredictedAnimationStepsEndWithTheImageOfUnpredictedOnes) {
+  if (!std::filesystem::exists(kAnimatedScene)) GTEST_SKIP() << kAnimatedScene << " is not there";
+  // The animated box's path, played once: 2 s from its place to another.
+  const std::filesystem::path dir = std::filesystem::path(::testing::TempDir()) / "penumbra-predicted-steps";
+  std::filesystem::create_directories(dir);
+  const std::filesystem::path sceneFile = dir / "cornell-box-once.json";
+  const std::string scenes = std::string(PENUMBRA_SOURCE_DIR) + "/scenes";
+  {
+    std::ofstream out(sceneFile);
+    out << R"({"name": "cornell-box-once", "mesh": ")" << scenes << R"(/cornell-box/CornellBox-Original.obj",
+      "objects": {"box": {"mesh": ")" << scenes << R"(/cornell-box/floating-box.obj",
+        "animation": {"loop": false, "keyframes": [
+          {"t": 0, "translate": [-0.45, 0.55, 0.45], "rotate_deg": 30, "axis": [0, 1, 0]},
+          {"t": 2, "translate": [-0.1, 0.9, 0.2], "rotate_deg": 100, "axis": [0, 1, 0]}]}}},
+      "cameras": {"front": {"eye": [0, 1, 3.9], "target": [0, 1, 0], "up": [0, 1, 0], "fov_y_deg": 40}}})";
+  }
+  auto scene = LoadScene(sceneFile);
+  ASSERT_TRUE(scene.ok()) << scene.error().message;
+  ASSERT_EQ(scene->objects.size(), 1u);
+  const auto endFloats = scene->objects[0].animation->At(2.0).ToRowMajor();
+
+  const auto watch = [&](const std::string& prediction, std::map<uint64_t, Rgb>* radiance,
+                         std::map<std::string, double>* counters) {
+    Service renderer = StartRenderer("renderer-" + prediction, sceneFile.string());
+    Service sma = StartSma({renderer.Address()}, "sma-" + prediction, sceneFile.string(),
+                           {"--animation-hz", "20", "--first-paths", "256", "--paths", "256", "--invalidate-all-on-move",
+                            "--move-prediction", prediction});
+    SmaTestClient c = Connect(sma, "watcher");
+    const CameraView view = ViewFromPreset(c.Info().cameras(0), kWidth, kHeight);
+    ASSERT_TRUE(c.SendView(view, 1));
+    ASSERT_TRUE(WaitMovedTo(c, endFloats, 30s).ok()) << sma.process.LogTail();
+    ASSERT_TRUE(c.WaitConverged(1, 120s).ok()) << sma.process.LogTail();
+    for (const char* name : {"moves", "move_predictions", "move_predictions_hit", "samples_prepared_stored",
+                             "samples_reshaded_after_move"}) {
+      (*counters)[name] = *c.Counter(name);
+      RecordProperty(prediction + "_" + name, fmt::format("{}", (*counters)[name]));
+    }
+    for (const auto& [id, v] : c.Mesh().Vertices()) (*radiance)[id] = v.radiance;
+  };
+  std::map<uint64_t, Rgb> predicted, unpredicted;
+  std::map<std::string, double> on, off;
+  watch("on", &predicted, &on);
+  if (HasFatalFailure()) return;
+  watch("off", &unpredicted, &off);
+  if (HasFatalFailure()) return;
+
+  EXPECT_GE(on["moves"], 10.0);
+  EXPECT_GE(on["move_predictions_hit"], 5.0) << "the steps were predicted";
+  EXPECT_GT(on["samples_prepared_stored"], 0.0) << "and prepared samples were shown";
+  EXPECT_EQ(off["move_predictions"], 0.0);
+  ASSERT_FALSE(unpredicted.empty());
+  EXPECT_EQ(predicted.size(), unpredicted.size()) << "the same triangles are visible at the same pose";
+  size_t differing = 0;
+  for (const auto& [id, r] : unpredicted) {
+    auto it = predicted.find(id);
+    if (it == predicted.end()) continue;
+    for (int k = 0; k < 3; ++k)
+      if (std::abs(it->second[k] - r[k]) > 1e-5f * std::max(1.0f, r[k])) {
+        ++differing;
+        break;
+      }
+  }
+  EXPECT_EQ(differing, 0u) << "vertices whose radiance is not the final pose's (a prepared sample of another pose)";
 }
 
 }  // namespace

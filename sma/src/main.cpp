@@ -166,6 +166,11 @@ int main(int argc, char** argv) {
                                                      "split from, [1, 20]")
           ->capture_default_str();
   maxRefineDepth->excludes(maxDepthAlias);
+  std::string movePrediction = options.movePrediction ? "on" : "off";
+  app.add_option("--move-prediction", movePrediction,
+                 "Movement prediction for moving objects: after each move, shade ahead at the next pose (the animated "
+                 "objects' next step) what that move will invalidate, and use it if the move lands there (on|off)")
+      ->check(CLI::IsMember({"on", "off"}));
   // Camera movement prediction (issue 15; sma/README.md, "Movement prediction")
   std::string prediction = options.predictionOn ? "on" : "off";
   double predictionHorizon = options.prediction.horizon.count();
@@ -190,6 +195,7 @@ int main(int argc, char** argv) {
                  "certificate must name its --renderer host");
   CLI11_PARSE(app, argc, argv);
   options.predictionOn = prediction == "on";
+  options.movePrediction = movePrediction == "on";
   options.prediction.horizon = std::chrono::duration<double>(predictionHorizon);
 
   if (auto failed = serverMain.Setup()) return *failed;

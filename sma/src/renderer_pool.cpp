@@ -210,6 +210,11 @@ void RendererPool::OnReply(RendererLink& link, const wire::ShadeReply& reply) {
   }
   Dispatch();
   if (!outcome.results.empty()) onResults_(std::move(outcome.results));
+  if (!outcome.prepared.empty()) {
+    if (onPrepared_) onPrepared_(std::vector<ShadedSample>(outcome.prepared));
+    std::lock_guard lock(mutex_);
+    scheduler_.CompletePrepared(outcome.prepared);
+  }
 }
 
 void RendererPool::CheckTimeouts() {
@@ -290,22 +295,36 @@ void RendererPool::SetPose(std::shared_ptr<const ScenePose> pose) {
   pose_ = std::move(pose);
 }
 
-void RendererPool::Dispatch() {
-  std::vector<std::pair<std::shared_ptr<RendererLink>, AssignedBatch>> batches;
-  std::shared_ptr<const ScenePose> pose;
+void RendererPool::Prepare(std::span<const SampleRequest> samples, std::shared_ptr<const ScenePose> predicted) {
+  if (!predicted) return;
   {
     std::lock_guard lock(mutex_);
-    if (stopped_ || scheduler_.Queued() == 0) return;
-    // The pose and the batches' epoch are read under one lock: a batch is
+    // Under one lock with the scheduler's epoch: a prepared batch is always
+    // encoded at the pose its epoch names.
+    scheduler_.Prepare(samples, predicted->epoch);
+    preparedPose_ = std::move(predicted);
+  }
+  PostDispatch();
+}
+
+void RendererPool::Dispatch() {
+  std::vector<std::pair<std::shared_ptr<RendererLink>, AssignedBatch>> batches;
+  std::shared_ptr<const ScenePose> pose, preparedPose;
+  {
+    std::lock_guard lock(mutex_);
+    if (stopped_ || !scheduler_.AnyQueued()) return;
+    // The poses and the batches' epochs are read under one lock: a batch is
     // encoded at the epoch the scheduler expects in its reply.
     pose = pose_;
+    preparedPose = preparedPose_;
     for (AssignedBatch& batch : scheduler_.Assemble()) batches.emplace_back(FindLinkLocked(batch.renderer), std::move(batch));
   }
   // Encoded and sent without the pool's lock: a large batch's encoding must
   // not hold up replies, requests and statistics.
   for (auto& [link, batch] : batches) {
     if (!link) continue;  // cannot happen: a renderer leaves the scheduler when its link goes
-    if (!link->Send(EncodeShadeRequestFrame(batch.id, batch.pathsPerSample, batch.samples, pose.get())))
+    const ScenePose* at = batch.prepared ? preparedPose.get() : pose.get();
+    if (!link->Send(EncodeShadeRequestFrame(batch.id, batch.pathsPerSample, batch.samples, at)))
       link->Drop("cannot queue a batch");  // closing requeues it (OnLinkClosed)
   }
 }
@@ -339,6 +358,10 @@ RendererPoolStats RendererPool::Stats() const {
   s.failed = c.failed;
   s.rejected = c.rejected;
   s.retried = c.retried;
+  s.queuedPrepared = c.queuedPrepared;
+  s.preparedRequested = c.preparedRequested;
+  s.preparedShaded = c.preparedShaded;
+  s.preparedDropped = c.preparedDropped;
   for (const auto& link : links_) {
     const RendererLoad load = scheduler_.Load(link->Index());
     RendererStatus r;

@@ -121,6 +121,43 @@ void SampleScheduler::Retry(std::span<const VertexId> vertices) {
   }
 }
 
+// --- Prepared shading -----------------------------------------------------------
+
+size_t SampleScheduler::Prepare(std::span<const SampleRequest> samples, uint64_t epoch) {
+  // The earlier preparation's samples not sent yet are of no use now.
+  for (auto it = prepared_.begin(); it != prepared_.end();) {
+    if (it->second.state == EntryState::kQueued) {
+      it = prepared_.erase(it);
+      ++preparedDropped_;
+    } else {
+      ++it;
+    }
+  }
+  preparedQueue_.clear();
+  queuedPrepared_ = 0;
+  preparedEpoch_ = epoch;
+  size_t added = 0;
+  for (const SampleRequest& s : samples) {
+    auto [it, inserted] = prepared_.try_emplace(s.vertex);
+    if (!inserted) continue;  // listed twice, or an earlier preparation's still in flight
+    it->second.request = s;
+    it->second.request.round = 0;  // a first estimate at the predicted pose
+    it->second.epoch = epoch;
+    preparedQueue_.push_back(s.vertex);
+    ++queuedPrepared_;
+    ++added;
+  }
+  preparedRequested_ += added;
+  return added;
+}
+
+void SampleScheduler::CompletePrepared(std::span<const ShadedSample> samples) {
+  for (const ShadedSample& s : samples) {
+    auto it = prepared_.find(s.vertex);
+    if (it != prepared_.end() && it->second.state == EntryState::kAnswered) prepared_.erase(it);
+  }
+}
+
 // --- Renderers ------------------------------------------------------------------
 
 void SampleScheduler::RendererReady(RendererId renderer, const RendererCapacity& capacity) {
@@ -162,6 +199,24 @@ void SampleScheduler::RequeueAll(Renderer& renderer) {
 }
 
 void SampleScheduler::Requeue(uint64_t batchId, const Batch& batch, std::vector<ShadedSample>* givenUpIfInvalid) {
+  if (batch.prepared) {
+    // Back to the front of the prepared queue while their preparation is
+    // the current one; else (or refused as invalid: nobody waits for a
+    // prepared sample) forgotten.
+    for (auto v = batch.vertices.rbegin(); v != batch.vertices.rend(); ++v) {
+      auto e = prepared_.find(*v);
+      if (e == prepared_.end() || e->second.state != EntryState::kInFlight || e->second.batch != batchId) continue;
+      --preparedInFlight_;
+      if (givenUpIfInvalid || e->second.epoch != preparedEpoch_) {
+        prepared_.erase(e);
+        continue;
+      }
+      e->second.state = EntryState::kQueued;
+      ++queuedPrepared_;
+      preparedQueue_.push_front(*v);
+    }
+    return;
+  }
   // Back to the front of their queues, in their order: they have waited longest.
   for (auto v = batch.vertices.rbegin(); v != batch.vertices.rend(); ++v) {
     auto e = entries_.find(*v);
@@ -223,10 +278,19 @@ ReplyOutcome SampleScheduler::OnReply(RendererId id, const wire::ShadeReply& rep
   auto decoded = DecodeShadeReply(reply, batch.paths);
   if (!decoded) return Reject(renderer, id, fmt::format("reply for batch {}: {}", batchId, decoded.error().message));
   for (ShadedSample& sample : *decoded) sample.epoch = batch.epoch;
-  for (const ShadedSample& sample : *decoded) {
+  // The entry that asked for a sample, in flight in this batch.
+  const auto askedHere = [&](const ShadedSample& sample) {
+    if (batch.prepared) {
+      auto p = prepared_.find(sample.vertex);
+      return p != prepared_.end() && p->second.state == EntryState::kInFlight && p->second.batch == batchId &&
+             sample.round == 0;
+    }
     auto e = entries_.find(sample.vertex);
-    if (e == entries_.end() || e->second.state != EntryState::kInFlight || e->second.batch != batchId ||
-        e->second.request.round != sample.round)
+    return e != entries_.end() && e->second.state == EntryState::kInFlight && e->second.batch == batchId &&
+           e->second.request.round == sample.round;
+  };
+  for (const ShadedSample& sample : *decoded) {
+    if (!askedHere(sample))
       return Reject(renderer, id,
                     fmt::format("reply for batch {} names sample {}, which it was not asked for", batchId,
                                 WireSampleId(sample.vertex, sample.round)));
@@ -241,12 +305,19 @@ ReplyOutcome SampleScheduler::OnReply(RendererId id, const wire::ShadeReply& rep
   if (reply.remaining() == 0 && batch.answered + n != batch.vertices.size())
     return Reject(renderer, id,
                   fmt::format("batch {} ended with {} of {} samples", batchId, batch.answered + n, batch.vertices.size()));
-  for (const ShadedSample& sample : *decoded) entries_[sample.vertex].state = EntryState::kAnswered;
+  if (batch.prepared) {
+    for (const ShadedSample& sample : *decoded) prepared_.at(sample.vertex).state = EntryState::kAnswered;
+    preparedInFlight_ -= n;
+    preparedShaded_ += n;
+  } else {
+    for (const ShadedSample& sample : *decoded) entries_.at(sample.vertex).state = EntryState::kAnswered;
+    inFlight_ -= n;
+    shaded_ += n;
+  }
   batch.answered += n;
   renderer.samplesInFlight -= n;
   renderer.shaded += n;
-  inFlight_ -= n;
-  shaded_ += n;
+  const bool prepared = batch.prepared;
   ReplyOutcome outcome;
   if (reply.remaining() == 0) {
     // Service rate: pipelined batches overlap, so time a batch from the
@@ -261,7 +332,7 @@ ReplyOutcome SampleScheduler::OnReply(RendererId id, const wire::ShadeReply& rep
     renderer.batches.erase(it);
     outcome.batchDone = true;
   }
-  outcome.results = std::move(*decoded);
+  (prepared ? outcome.prepared : outcome.results) = std::move(*decoded);
   return outcome;
 }
 
@@ -361,10 +432,23 @@ bool SampleScheduler::TakeNext(Priority priority, VertexId& out) {
   return false;
 }
 
+bool SampleScheduler::TakeNextPrepared(VertexId& out) {
+  while (!preparedQueue_.empty()) {
+    const VertexId v = preparedQueue_.front();
+    preparedQueue_.pop_front();
+    auto it = prepared_.find(v);
+    if (it == prepared_.end() || it->second.state != EntryState::kQueued) continue;
+    --queuedPrepared_;
+    out = v;
+    return true;
+  }
+  return false;
+}
+
 std::vector<AssignedBatch> SampleScheduler::Assemble() {
   std::vector<AssignedBatch> out;
   const auto now = now_();
-  while (queuedTotal_ > 0) {
+  while (AnyQueued()) {
     uint32_t freeCredits = 0;
     for (const auto& [id, r] : renderers_)
       if (Accepts(r, now)) freeCredits += r.capacity.maxBatchesInFlight - uint32_t(r.batches.size());
@@ -375,43 +459,65 @@ std::vector<AssignedBatch> SampleScheduler::Assemble() {
       // it among every free credit so that all renderers work on it.
       const double byRate = r.rate > 0.0 ? r.rate * std::chrono::duration<double>(options_.targetBatchTime).count()
                                          : double(options_.minBatchSamples * 4);
-      const size_t fairShare = size_t((queuedTotal_ + freeCredits - 1) / freeCredits);
+      const size_t fairShare = size_t((queuedTotal_ + queuedPrepared_ + freeCredits - 1) / freeCredits);
       const size_t size = std::clamp<size_t>(std::min<size_t>(size_t(byRate), fairShare), options_.minBatchSamples,
                                              std::max(options_.minBatchSamples, r.capacity.maxBatchSamples));
       // One priority per batch, the most urgent one queued.
+      // Prepared samples (a predicted move's) after visible and predicted ones.
       VertexId v = kNoVertex;
       Priority priority = Priority::kVisible;
-      for (Priority p : {Priority::kVisible, Priority::kPredicted, Priority::kBackground, Priority::kImprove}) {
-        if (TakeNext(p, v)) {
-          priority = p;
-          break;
+      bool prepared = false;
+      const auto takeFirst = [&](std::initializer_list<Priority> priorities) {
+        for (Priority p : priorities) {
+          if (TakeNext(p, v)) {
+            priority = p;
+            return true;
+          }
         }
+        return false;
+      };
+      if (!takeFirst({Priority::kVisible, Priority::kPredicted})) {
+        prepared = TakeNextPrepared(v);
+        if (!prepared) takeFirst({Priority::kBackground, Priority::kImprove});
       }
       // Every queued entry sits in one of the queues.
-      PENUMBRA_CHECK(v != kNoVertex, fmt::format("{} samples counted as queued but none found", queuedTotal_));
-      // Predicted samples are the first estimates a coming view will show.
-      const bool firstEstimate = priority == Priority::kVisible || priority == Priority::kPredicted;
+      PENUMBRA_CHECK(v != kNoVertex, fmt::format("{} samples counted as queued but none found",
+                                                 queuedTotal_ + queuedPrepared_));
+      // Predicted and prepared samples are the first estimates a coming view
+      // or move will show.
+      const bool firstEstimate = prepared || priority == Priority::kVisible || priority == Priority::kPredicted;
       const uint32_t paths = priority == Priority::kImprove                  ? options_.improvePaths
                              : firstEstimate && options_.firstPaths > 0 ? options_.firstPaths
                                                                         : options_.pathsPerSample;
-      AssignedBatch assigned{id, nextBatchId_++, epoch_, paths, {}};
+      const uint64_t epoch = prepared ? preparedEpoch_ : epoch_;
+      AssignedBatch assigned{id, nextBatchId_++, epoch, paths, prepared, {}};
       Batch batch;
+      batch.prepared = prepared;
       batch.paths = paths > 0 ? paths : r.capacity.defaultPaths;
-      batch.epoch = epoch_;
+      batch.epoch = epoch;
       batch.sentAt = now;
-      for (bool first = true; first || (batch.vertices.size() < size && TakeNext(priority, v)); first = false) {
-        Entry& e = entries_.at(v);
-        e.state = EntryState::kInFlight;
-        e.batch = assigned.id;
-        --queuedTotal_;
-        ++inFlight_;
+      const auto takeMore = [&] { return prepared ? TakeNextPrepared(v) : TakeNext(priority, v); };
+      for (bool first = true; first || (batch.vertices.size() < size && takeMore()); first = false) {
+        if (prepared) {
+          PreparedEntry& e = prepared_.at(v);
+          e.state = EntryState::kInFlight;
+          e.batch = assigned.id;
+          ++preparedInFlight_;
+          assigned.samples.push_back(e.request);
+        } else {
+          Entry& e = entries_.at(v);
+          e.state = EntryState::kInFlight;
+          e.batch = assigned.id;
+          --queuedTotal_;
+          ++inFlight_;
+          assigned.samples.push_back(e.request);
+        }
         batch.vertices.push_back(v);
-        assigned.samples.push_back(e.request);
       }
       r.samplesInFlight += batch.vertices.size();
       r.batches.emplace(assigned.id, std::move(batch));
       out.push_back(std::move(assigned));
-      if (queuedTotal_ == 0) return out;
+      if (!AnyQueued()) return out;
     }
   }
   return out;
@@ -442,6 +548,10 @@ SchedulerCounters SampleScheduler::Counters() const {
   c.failed = failed_;
   c.rejected = rejected_;
   c.retried = retried_;
+  c.queuedPrepared = queuedPrepared_;
+  c.preparedRequested = preparedRequested_;
+  c.preparedShaded = preparedShaded_;
+  c.preparedDropped = preparedDropped_;
   return c;
 }
 

@@ -90,6 +90,13 @@ bool SamePlace(const RigidTransform& a, const RigidTransform& b) {
 
 }  // namespace
 
+bool SamePlacesWithin(const ScenePose& a, const ScenePose& b) {
+  if (a.objectToWorld.size() != b.objectToWorld.size()) return false;
+  for (size_t o = 0; o < a.objectToWorld.size(); ++o)
+    if (!SamePlace(a.objectToWorld[o], b.objectToWorld[o])) return false;
+  return true;
+}
+
 std::optional<ScenePose> NextPose(const ScenePose& current, std::span<const ObjectMove> moves) {
   ScenePose next = current;
   bool changed = false;

@@ -29,6 +29,7 @@
 #include "penumbra/sma/sample_cache.h"
 #include "penumbra/sma/refinement_driver.h"
 #include "penumbra/sma/scene_moves.h"
+#include "penumbra/sma/move_prediction.h"
 #include "penumbra/sma/texture_frames.h"
 #include "penumbra/sma/view_session.h"
 #include "penumbra/sma/visibility.h"
@@ -124,6 +125,7 @@ class SmaServer::Impl {
     pose_ = std::make_shared<const ScenePose>(ScenePose::Initial(scene));
     posed_ = tracer_->Initial();
     pool_->SetPose(pose_);
+    pool_->SetPreparedHandler([this](std::vector<ShadedSample>&& samples) { OnPreparedResults(std::move(samples)); });
     if (restored) {
       std::vector<SampleRequest> requests;
       for (VertexId v : UnshadedMidpoints(hierarchy_, cache_)) requests.push_back(MakeSampleRequest(hierarchy_, v));
@@ -283,6 +285,25 @@ class SmaServer::Impl {
   void ArmAnimation();
   asio::steady_timer animationTimer_{io_};
   Clock::time_point animationStart_;
+  // The step the animation clock played last: step k places each animated
+  // object at its path's time k / animationHz (so the next step's places
+  // are known ahead: move prediction).
+  std::atomic<uint64_t> animationStep_{0};
+  // --- Movement prediction for moving objects (issue 15; move_prediction.h) ---
+  // After each move: predict the next pose and post PrepareMove.
+  void PredictNextMove(const ScenePose& applied);
+  // Job thread: what the predicted move will invalidate and someone holds
+  // (or awaits), shaded ahead at the predicted pose.
+  void PrepareMove(std::shared_ptr<const ScenePose> predicted);
+  // Prepared answers (an I/O thread, from the pool).
+  void OnPreparedResults(std::vector<ShadedSample>&& samples);
+  // Stores prepared samples released for the current epoch into vertices
+  // that lack a sample; returns the vertices stored.
+  std::vector<VertexId> StorePrepared(std::span<const ShadedSample> samples);
+  MovePredictor movePredictor_{scene_, options_.animationHz};
+  MovePreparation preparation_;
+  std::atomic<uint64_t> preparedStored_{0};  // prepared samples that became the new epoch's first estimates
+  std::atomic<double> lastPrepareMs_{0.0};
   // Shutdown, on an I/O thread: abandon the work (a running trace or
   // refinement step stops at its next tile or split; it took 7 s to finish
   // them): nobody will see it.
@@ -1385,6 +1406,16 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
   AddCounter(reply, "last_move_invalidated", double(lastMoveInvalidated_.load()));
   AddCounter(reply, "samples_invalidated_urgent", double(samplesInvalidatedUrgent_.load()));
   AddCounter(reply, "last_move_invalidated_urgent", double(lastMoveInvalidatedUrgent_.load()));
+  {
+    const MovePreparationCounters p = preparation_.Counters();
+    AddCounter(reply, "move_predictions", double(p.predictions));
+    AddCounter(reply, "move_predictions_hit", double(p.hits));
+    AddCounter(reply, "move_predictions_missed", double(p.misses));
+    AddCounter(reply, "samples_prepared_arrived", double(p.samplesArrived));
+    AddCounter(reply, "samples_prepared_dropped", double(p.samplesDropped));
+    AddCounter(reply, "samples_prepared_stored", double(preparedStored_.load()));
+    AddCounter(reply, "last_prepare_ms", lastPrepareMs_.load());
+  }
   AddCounter(reply, "last_move_cached", double(lastMoveCached_.load()));
   AddCounter(reply, "last_move_reshaded", double(cache_.Reshaded() - lastMoveReshadedBase_.load()));
   AddCounter(reply, "last_move_apply_ms", lastMoveApplyMs_.load());
@@ -1424,6 +1455,9 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
   AddCounter(reply, "samples_queued_background", double(pool.queuedBackground));
   AddCounter(reply, "samples_queued_improve", double(pool.queuedImprove));
   AddCounter(reply, "samples_in_flight", double(pool.inFlight));
+  AddCounter(reply, "samples_prepared", double(pool.preparedRequested));
+  AddCounter(reply, "samples_prepared_shaded", double(pool.preparedShaded));
+  AddCounter(reply, "samples_queued_prepared", double(pool.queuedPrepared));
   AddCounter(reply, "predicted_views", double(predictedViews_.load()));
   AddCounter(reply, "samples_requested_predicted", double(samplesPredicted_.load()));
   const uint64_t newTriangles = viewTrianglesNew_.load(), newShaded = viewTrianglesNewShaded_.load();
@@ -1688,6 +1722,7 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
   //    that arrive later are refused by the cache (validFrom).
   size_t evicted = 0;
   size_t evictedUrgent = 0;  // of which urgent: the moved objects' own and where direct light changed
+  std::vector<VertexId> prepared;  // first estimates shaded ahead at this pose (move prediction), now stored
   {
     std::unique_lock lock(stateMutex_);
     for (VertexId v : invalidation.vertices) {
@@ -1695,6 +1730,9 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
       evicted += was;
       if (was && std::binary_search(invalidation.urgent.begin(), invalidation.urgent.end(), v)) ++evictedUrgent;
     }
+    // Under the same lock: a view mapped after the invalidation finds them
+    // stored, and sessions told of the move below do not ask for them.
+    prepared = StorePrepared(preparation_.Applied(*newPose, hierarchy_.StructureGeneration()));
   }
   ++moves_;
   samplesInvalidated_ += evicted;
@@ -1711,12 +1749,83 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
   notice->urgent = std::make_shared<const std::vector<VertexId>>(std::move(invalidation.urgent));
   for (uint32_t o = 0; o < newPose->objectToWorld.size(); ++o)
     if (!(oldPose->objectToWorld[o] == newPose->objectToWorld[o])) notice->movedObjects.push_back(o);
-  for (auto& session : Sessions())
+  auto arrived = std::make_shared<const std::vector<VertexId>>(std::move(prepared));
+  for (auto& session : Sessions()) {
     asio::post(session->Connection().Strand(), [session, notice] { session->OnMoved(*notice); });
+    // After MOVED on the session's strand: held ones go out as RESHADED.
+    if (!arrived->empty()) NotifyArrived(session, arrived);
+  }
   log_->debug("scene epoch {}: {} object(s) moved; {} vertices invalidated ({} of the objects'), {} of {} cached "
-              "samples evicted; applied in {:.1f} ms",
+              "samples evicted, {} prepared samples stored; applied in {:.1f} ms",
               newPose->epoch, notice->movedObjects.size(), invalidation.vertices.size(),
-              invalidation.objectVertices, evicted, cachedBefore, ms);
+              invalidation.objectVertices, evicted, cachedBefore, arrived->size(), ms);
+  if (options_.movePrediction) PredictNextMove(*newPose);
+}
+
+void SmaServer::Impl::PredictNextMove(const ScenePose& applied) {
+  std::optional<ScenePose> predicted = movePredictor_.Predict(applied, animationStep_.load());
+  if (!predicted) return;
+  auto pose = std::make_shared<const ScenePose>(std::move(*predicted));
+  // After views and predicted views, like the samples it asks for.
+  jobs_.Post(kMoveJobSession, JobClass::kPrediction, [this, pose] { PrepareMove(pose); });
+}
+
+void SmaServer::Impl::PrepareMove(std::shared_ptr<const ScenePose> predicted) {
+  if (shuttingDown_) return;
+  const auto start = Clock::now();
+  const std::shared_ptr<const ScenePose> current = CurrentPose();
+  if (current->epoch + 1 != predicted->epoch) return;  // another move came first
+  // At most this many samples per preparation: a step's urgent class of a
+  // large refined view, not a whole scene.
+  constexpr size_t kMaxPrepared = size_t(1) << 16;
+  std::vector<SampleRequest> requests;
+  uint64_t generation = 0;
+  {
+    std::shared_lock lock(stateMutex_);
+    generation = hierarchy_.StructureGeneration();
+    // What the move would invalidate urgently (the objects' own vertices
+    // and where direct light changes), of what has a sample or awaits one
+    // (someone needed it): what a viewer sees change first. Judged against
+    // the current pose only: a guess about work, never about correctness
+    // (the move itself is judged as ever, ApplyMoveStep).
+    const Invalidation plan = PlanInvalidation(hierarchy_, cache_, *current, *predicted);
+    for (VertexId v : plan.urgent) {
+      if (!cache_.IsShaded(v) && !cache_.AwaitingReshade(v)) continue;
+      requests.push_back(MakeSampleRequest(hierarchy_, v));
+      if (requests.size() >= kMaxPrepared) break;
+    }
+  }
+  if (!preparation_.Begin(predicted, generation)) return;
+  pool_->Prepare(requests, predicted);
+  lastPrepareMs_ = Ms(Clock::now() - start);
+  log_->debug("scene epoch {} predicted: {} samples prepared in {:.1f} ms", predicted->epoch, requests.size(),
+              lastPrepareMs_.load());
+}
+
+void SmaServer::Impl::OnPreparedResults(std::vector<ShadedSample>&& samples) {
+  const std::vector<ShadedSample> release = preparation_.Arrived(std::move(samples));
+  if (release.empty()) return;
+  // Their move has happened where predicted: first estimates of this epoch.
+  auto stored = std::make_shared<const std::vector<VertexId>>(StorePrepared(release));
+  if (stored->empty()) return;
+  for (auto& session : Sessions()) NotifyArrived(session, stored);
+}
+
+std::vector<VertexId> SmaServer::Impl::StorePrepared(std::span<const ShadedSample> samples) {
+  // Only where the move left no sample: one that was kept (not invalidated)
+  // or already re-shaded stays.
+  std::vector<ShadedSample> missing;
+  for (const ShadedSample& s : samples)
+    if (!cache_.IsShaded(s.vertex)) missing.push_back(s);
+  if (missing.empty()) return {};
+  std::vector<VertexId> stale;
+  cache_.Store(missing, &stale);  // none stale: shaded at the current epoch
+  std::sort(stale.begin(), stale.end());
+  std::vector<VertexId> stored;
+  for (const ShadedSample& s : missing)
+    if (!std::binary_search(stale.begin(), stale.end(), s.vertex)) stored.push_back(s.vertex);
+  preparedStored_ += stored.size();
+  return stored;
 }
 
 void SmaServer::Impl::StartAnimation() {
@@ -1729,12 +1838,23 @@ void SmaServer::Impl::StartAnimation() {
 }
 
 void SmaServer::Impl::ArmAnimation() {
-  const auto period = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / options_.animationHz));
-  animationTimer_.expires_after(period);
-  animationTimer_.async_wait([this](const error_code& ec) {
+  // Step k at animationStart_ + k periods, placing the objects at the
+  // path's time k / animationHz: the next step's places are known ahead
+  // (move prediction), whatever the timer's jitter.
+  const double hz = options_.animationHz;
+  const auto stepTime = [this, hz](uint64_t step) {
+    return animationStart_ + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(double(step) / hz));
+  };
+  animationTimer_.expires_at(stepTime(animationStep_.load() + 1));
+  animationTimer_.async_wait([this, hz](const error_code& ec) {
     if (ec || shuttingDown_) return;
+    // A timer that fired more than a step late plays where the path is now,
+    // not the steps it missed.
+    const double elapsed = std::chrono::duration<double>(Clock::now() - animationStart_).count();
+    const uint64_t step = std::max(animationStep_.load() + 1, uint64_t(std::max(0.0, std::floor(elapsed * hz))));
+    animationStep_ = step;
+    const double t = double(step) / hz;
     // Cheap here (a few interpolations); the move itself is a job.
-    const double t = std::chrono::duration<double>(Clock::now() - animationStart_).count();
     for (uint32_t i = 0; i < scene_.objects.size(); ++i)
       if (const auto& animation = scene_.objects[i].animation) SubmitMove(ObjectMove{i, animation->At(t)});
     ArmAnimation();

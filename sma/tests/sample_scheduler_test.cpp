@@ -528,5 +528,97 @@ TEST(SampleScheduler, AFirstEstimateReplacesAQueuedImprovement) {
   EXPECT_EQ(s.Queued(), 0u) << "the improvement's queue copy is gone with it";
 }
 
+// Prepared shading (a predicted move's): after visible and predicted
+// samples, before background ones; batches at the predicted epoch; answers
+// apart from the results; a vertex may be alive both ways.
+TEST(SampleScheduler, PreparedSamplesGoAfterPredictedBeforeBackgroundAtTheirEpochAndComeBackApart) {
+  FakeClock clock;
+  SampleScheduler s(Options(), clock.Function());
+  s.SetEpoch(5);
+  s.Request(Requests(0, 4), Priority::kBackground);
+  EXPECT_EQ(s.Prepare(Requests(2, 4), 6), 4u) << "vertices 2 and 3 are also requested: both stay alive";
+  s.Request(Requests(100, 4), Priority::kPredicted);
+  EXPECT_TRUE(s.AnyQueued());
+  EXPECT_EQ(s.Outstanding(), 8u) << "prepared samples are nobody's outstanding work";
+  EXPECT_TRUE(s.AnyAlive(std::vector<VertexId>{5}));
+  s.RendererReady(1, kOneCredit);
+  auto first = s.Assemble();
+  ASSERT_EQ(first.size(), 1u);
+  EXPECT_FALSE(first[0].prepared);
+  EXPECT_EQ(VerticesOf(first), (std::set<VertexId>{100, 101, 102, 103}));
+  ASSERT_FALSE(s.OnReply(1, [&] { auto r = Answer(first[0]); r.set_scene_epoch(5); return r; }()).badReply);
+
+  auto second = s.Assemble();
+  ASSERT_EQ(second.size(), 1u);
+  EXPECT_TRUE(second[0].prepared);
+  EXPECT_EQ(second[0].epoch, 6u) << "shaded at the predicted pose";
+  EXPECT_EQ(second[0].pathsPerSample, 16u) << "first estimates: stage-1 paths";
+  EXPECT_EQ(VerticesOf(second), (std::set<VertexId>{2, 3, 4, 5}));
+  wire::ShadeReply reply = Answer(second[0]);
+  reply.set_scene_epoch(5);  // not the epoch it was asked at
+  {
+    // Checked like any batch: the wrong epoch is a bad reply, and the
+    // renderer's prepared work goes back to the prepared queue.
+    auto outcome = s.OnReply(1, reply);
+    ASSERT_TRUE(outcome.badReply);
+  }
+  s.RendererReady(2, kOneCredit);
+  auto again = s.Assemble();
+  ASSERT_EQ(again.size(), 1u);
+  EXPECT_TRUE(again[0].prepared);
+  EXPECT_EQ(VerticesOf(again), (std::set<VertexId>{2, 3, 4, 5}));
+  reply = Answer(again[0]);
+  reply.set_scene_epoch(6);
+  auto outcome = s.OnReply(2, reply);
+  ASSERT_FALSE(outcome.badReply) << *outcome.badReply;
+  EXPECT_TRUE(outcome.results.empty());
+  ASSERT_EQ(outcome.prepared.size(), 4u);
+  for (const ShadedSample& r : outcome.prepared) EXPECT_EQ(r.epoch, 6u);
+  EXPECT_TRUE(s.AnyAlive(std::vector<VertexId>{5})) << "answered, not yet kept";
+  s.CompletePrepared(outcome.prepared);
+  EXPECT_FALSE(s.AnyAlive(std::vector<VertexId>{5}));
+  EXPECT_TRUE(s.AnyAlive(std::vector<VertexId>{2})) << "still requested at the current pose";
+
+  auto background = s.Assemble();
+  ASSERT_EQ(background.size(), 1u);
+  EXPECT_FALSE(background[0].prepared);
+  EXPECT_EQ(background[0].epoch, 5u);
+  EXPECT_EQ(VerticesOf(background), (std::set<VertexId>{0, 1, 2, 3}));
+  const SchedulerCounters c = s.Counters();
+  EXPECT_EQ(c.preparedRequested, 4u);
+  EXPECT_EQ(c.preparedShaded, 4u);
+}
+
+// A newer preparation replaces the queued part of the one before; what is
+// in flight is answered and a renderer lost with it does not requeue it.
+TEST(SampleScheduler, ANewPreparationDropsTheQueuedPartOfTheOldOne) {
+  FakeClock clock;
+  SampleSchedulerOptions options = Options();
+  options.minBatchSamples = 2;
+  SampleScheduler s(options, clock.Function());
+  s.Prepare(Requests(0, 4), 7);
+  s.RendererReady(1, RendererCapacity{1, 2, 32});
+  auto batches = s.Assemble();
+  ASSERT_EQ(batches.size(), 1u);
+  ASSERT_EQ(batches[0].samples.size(), 2u);
+  const std::set<VertexId> sent = VerticesOf(batches);
+  EXPECT_EQ(s.Prepare(Requests(0, 8), 8), 6u) << "the two in flight for epoch 7 are skipped";
+  EXPECT_EQ(s.Counters().preparedDropped, 2u);
+  EXPECT_EQ(s.Counters().queuedPrepared, 6u);
+  // The renderer is lost: epoch 7's samples are not asked again.
+  s.RendererLost(1);
+  EXPECT_EQ(s.Counters().queuedPrepared, 6u);
+  for (VertexId v : sent) EXPECT_FALSE(s.AnyAlive(std::vector<VertexId>{v}));
+  s.RendererReady(2, RendererCapacity{4, 100, 32});
+  batches = s.Assemble();
+  std::set<VertexId> all = VerticesOf(batches);
+  EXPECT_EQ(all.size(), 6u);
+  for (const AssignedBatch& b : batches) {
+    EXPECT_TRUE(b.prepared);
+    EXPECT_EQ(b.epoch, 8u);
+  }
+  EXPECT_FALSE(s.AnyQueued());
+}
+
 }  // namespace
 }  // namespace penumbra::sma

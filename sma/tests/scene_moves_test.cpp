@@ -12,6 +12,7 @@
 
 #include "penumbra/common/embree_scene.h"
 #include "penumbra/sma/delta.h"
+#include "penumbra/sma/move_prediction.h"
 #include "penumbra/sma/scene_moves.h"
 #include "penumbra/sma/visibility.h"
 
@@ -375,6 +376,103 @@ TEST(SceneMoves, AdjacencyNeverCrossesFromAnObjectToTheStaticPart) {
   for (NodeId n : result.split)
     EXPECT_EQ(scene.ObjectOfTriangle(hierarchy.GetNode(n).baseTriangle), 0u) << "node " << n << " split";
   EXPECT_TRUE(hierarchy.Conforming());
+}
+
+// Movement prediction (issue 15): an animated object's next step is
+// predicted from the step clock; objects clients move are not.
+TEST(MovePredictor, TheNextAnimationStepIsPredictedExactlyAndNothingElseMoves) {
+  const Scene scene = FloorWithObjects();
+  const MovePredictor predictor(scene, 10.0);
+  ScenePose current = predictor.AtStep(ScenePose::Initial(scene), 3);
+  current.epoch = 4;
+  const RigidTransform box = current.objectToWorld[0];
+  for (uint64_t latest : {3u, 4u}) {  // the clock may have played step 4 already
+    auto next = predictor.Predict(current, latest);
+    ASSERT_TRUE(next) << latest;
+    EXPECT_EQ(next->epoch, 5u);
+    EXPECT_EQ(next->objectToWorld[0], box) << "a client's object stays";
+    EXPECT_EQ(next->objectToWorld[1], scene.objects[1].animation->At(0.4)) << "exactly the path at step 4";
+  }
+  EXPECT_FALSE(predictor.Predict(current, 6)) << "the pose shows neither step 6 nor 5: no guess";
+  // A client moved the box meanwhile: still the spinner's next step.
+  current.objectToWorld[0].translation.x += 0.5f;
+  auto next = predictor.Predict(current, 3);
+  ASSERT_TRUE(next);
+  EXPECT_EQ(next->objectToWorld[0], current.objectToWorld[0]);
+
+  // A path that ended rests: nothing moves, nothing is predicted.
+  Scene once = FloorWithObjects();
+  once.objects[1].animation->loop = false;
+  const MovePredictor resting(once, 10.0);
+  ScenePose end = resting.AtStep(ScenePose::Initial(once), 12);
+  EXPECT_FALSE(resting.Predict(end, 12));
+  EXPECT_FALSE(MovePredictor(scene, 0.0).Predict(current, 3)) << "no animation clock";
+}
+
+std::vector<ShadedSample> SamplesAt(uint64_t epoch, VertexId first, VertexId count) {
+  std::vector<ShadedSample> out;
+  for (VertexId v = first; v < first + count; ++v) {
+    ShadedSample s;
+    s.vertex = v;
+    s.radiance = Rgb(0.25f);
+    s.paths = 16;
+    s.epoch = epoch;
+    out.push_back(s);
+  }
+  return out;
+}
+
+// Prepared samples reach the cache only for the pose they were shaded at,
+// with the hierarchy's structure unchanged; late answers follow a hit.
+TEST(MovePreparation, SamplesAreReleasedOnlyWhenTheMoveLandsWherePredicted) {
+  const Scene scene = FloorWithObjects();
+  const MovePredictor predictor(scene, 10.0);
+  ScenePose current = ScenePose::Initial(scene);
+  auto predicted = std::make_shared<ScenePose>(predictor.AtStep(current, 1));
+  predicted->epoch = 1;
+
+  MovePreparation prep;
+  ASSERT_TRUE(prep.Begin(predicted, /*generation=*/7));
+  EXPECT_TRUE(prep.Arrived(SamplesAt(1, 0, 3)).empty()) << "kept until the move";
+  EXPECT_TRUE(prep.Arrived(SamplesAt(0, 10, 2)).empty()) << "another epoch's: dropped";
+  ScenePose applied = *predicted;  // the move, as the clock makes it
+  auto released = prep.Applied(applied, 7);
+  ASSERT_EQ(released.size(), 3u);
+  EXPECT_EQ(prep.Arrived(SamplesAt(1, 3, 2)).size(), 2u) << "late answers for the hit go to the cache";
+  EXPECT_EQ(prep.Predicted(), nullptr);
+  EXPECT_FALSE(prep.Begin(predicted, 7)) << "an epoch already applied";
+
+  // A miss: the move went elsewhere (a client's move came with it).
+  auto next = std::make_shared<ScenePose>(predictor.AtStep(applied, 2));
+  next->epoch = 2;
+  ASSERT_TRUE(prep.Begin(next, 7));
+  EXPECT_TRUE(prep.Arrived(SamplesAt(2, 0, 4)).empty());
+  ScenePose elsewhere = *next;
+  elsewhere.objectToWorld[0].translation.z += 0.25f;
+  EXPECT_TRUE(prep.Applied(elsewhere, 7).empty());
+  EXPECT_TRUE(prep.Arrived(SamplesAt(2, 4, 2)).empty()) << "late answers for a miss are dropped";
+
+  // A miss: a collection changed the structure (vertex ids may be reused).
+  auto third = std::make_shared<ScenePose>(predictor.AtStep(elsewhere, 3));
+  third->epoch = 3;
+  ASSERT_TRUE(prep.Begin(third, 7));
+  EXPECT_TRUE(prep.Arrived(SamplesAt(3, 0, 4)).empty());
+  EXPECT_TRUE(prep.Applied(*third, 8).empty());
+
+  // A preparation replaced before its move drops what it kept.
+  auto fourth = std::make_shared<ScenePose>(predictor.AtStep(*third, 4));
+  fourth->epoch = 4;
+  ASSERT_TRUE(prep.Begin(fourth, 8));
+  EXPECT_TRUE(prep.Arrived(SamplesAt(4, 0, 5)).empty());
+  ASSERT_TRUE(prep.Begin(fourth, 8));
+
+  const MovePreparationCounters c = prep.Counters();
+  EXPECT_EQ(c.predictions, 5u);
+  EXPECT_EQ(c.hits, 1u);
+  EXPECT_EQ(c.misses, 2u);
+  EXPECT_EQ(c.samplesArrived, 3u + 2u + 2u + 4u + 2u + 4u + 5u);
+  EXPECT_EQ(c.samplesReleased, 5u);
+  EXPECT_EQ(c.samplesDropped, 2u + 4u + 2u + 4u + 5u);
 }
 
 }  // namespace

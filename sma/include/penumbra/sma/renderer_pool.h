@@ -91,6 +91,10 @@ struct RendererPoolStats {
   uint64_t failed = 0;       // samples a renderer refused as invalid (stored black)
   uint64_t rejected = 0;     // samples whose radiance was impossible (their renderer was quarantined)
   uint64_t retried = 0;      // samples shaded at a pose a move had changed, asked again
+  uint64_t queuedPrepared = 0;     // shading ahead of a predicted move (Prepare), waiting
+  uint64_t preparedRequested = 0;  // prepared samples queued since start
+  uint64_t preparedShaded = 0;     // prepared samples answered since start
+  uint64_t preparedDropped = 0;    // queued prepared samples a newer preparation replaced
   std::vector<RendererStatus> renderers;
 };
 
@@ -133,6 +137,17 @@ class RendererPool : public std::enable_shared_from_this<RendererPool> {
   /// before the call keeps the pose it was assembled with.
   void SetPose(std::shared_ptr<const ScenePose> pose);
 
+  /// Shading ahead of a predicted move (issue 15; SampleScheduler::Prepare):
+  /// first estimates of `samples` at `predicted`, a pose that is not current
+  /// yet, sent when no visible or predicted sample waits. Replaces the
+  /// preparation before. Their answers go to the prepared handler, never to
+  /// the result handler. Thread-safe.
+  void Prepare(std::span<const SampleRequest> samples, std::shared_ptr<const ScenePose> predicted);
+  /// Receives the answers to prepared batches (an I/O thread), each with the
+  /// predicted epoch it was shaded at; the pool forgets them after it
+  /// returns. Set before Start().
+  void SetPreparedHandler(ResultHandler onPrepared) { onPrepared_ = std::move(onPrepared); }
+
   /// Samples queued or in flight.
   size_t Outstanding() const;
   bool AnyRendererReady() const;
@@ -158,6 +173,7 @@ class RendererPool : public std::enable_shared_from_this<RendererPool> {
   asio::io_context& io_;
   const RendererPoolOptions options_;
   ResultHandler onResults_;
+  ResultHandler onPrepared_;
   StoredCheck isStored_;
   std::atomic<bool> dispatchPosted_{false};
   asio::steady_timer resolveTimer_;
@@ -168,6 +184,7 @@ class RendererPool : public std::enable_shared_from_this<RendererPool> {
   bool stopped_ = false;
   SampleScheduler scheduler_;
   std::shared_ptr<const ScenePose> pose_;  // batches are encoded at it (null: static scene)
+  std::shared_ptr<const ScenePose> preparedPose_;  // prepared batches are encoded at it (Prepare)
   std::vector<std::shared_ptr<RendererLink>> links_;
   uint32_t nextLinkIndex_ = 1;  // RendererStatus::index, and the scheduler's RendererId
   std::vector<std::vector<tcp::endpoint>> resolved_;  // per configured renderer

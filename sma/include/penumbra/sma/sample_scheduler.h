@@ -29,6 +29,13 @@
 //    front of their queue.
 //  * Quarantine: a renderer that answered nonsense gets no work until
 //    `quarantine` has passed on the scheduler's clock.
+//  * Prepared shading (issue 15, moving objects): first estimates at a
+//    *predicted* scene pose, one not current yet (Prepare), kept apart from
+//    the requests above -- a vertex may be alive in both -- and assembled
+//    after visible and predicted samples, before background ones. Their
+//    batches carry the predicted epoch and their results come back apart
+//    (ReplyOutcome::prepared): nothing about them reaches the cache unless
+//    the move they were prepared for happens as predicted (move_prediction.h).
 //
 // Threads: not synchronised; the pool calls it under its own mutex.
 
@@ -81,12 +88,16 @@ struct AssignedBatch {
   uint64_t id = 0;
   uint64_t epoch = 0;           // the scene epoch (pose) it is to be shaded at (SetEpoch)
   uint32_t pathsPerSample = 0;  // as sent (0: the renderer's default)
+  bool prepared = false;        // shading ahead of a predicted move (Prepare): `epoch` is the predicted pose's
   std::vector<SampleRequest> samples;
 };
 
 /// What a reply part came to.
 struct ReplyOutcome {
   std::vector<ShadedSample> results;  // to store, then Complete()
+  /// Answers to a prepared batch (Prepare): shaded at its predicted epoch
+  /// (ShadedSample::epoch), for the caller to keep, then CompletePrepared().
+  std::vector<ShadedSample> prepared;
   /// Set when the reply was nonsense: the renderer's batches were requeued
   /// and it is quarantined; its link should be dropped.
   std::optional<std::string> badReply;
@@ -116,6 +127,10 @@ struct SchedulerCounters {
   uint64_t failed = 0;     // samples a renderer refused as invalid three times (stored black)
   uint64_t rejected = 0;   // samples whose radiance was impossible (their renderer was quarantined)
   uint64_t retried = 0;    // samples shaded at a pose a move had changed, asked again (Retry)
+  uint64_t queuedPrepared = 0;    // prepared samples (Prepare) waiting
+  uint64_t preparedRequested = 0;  // prepared samples queued since start
+  uint64_t preparedShaded = 0;     // prepared samples answered since start
+  uint64_t preparedDropped = 0;    // queued prepared samples a newer preparation replaced
 };
 
 class SampleScheduler {
@@ -138,7 +153,7 @@ class SampleScheduler {
   /// would land in a reused slot).
   bool AnyAlive(std::span<const VertexId> vertices) const {
     for (VertexId v : vertices)
-      if (entries_.contains(v)) return true;
+      if (entries_.contains(v) || prepared_.contains(v)) return true;
     return false;
   }
   /// The results have been stored: forget these vertices.
@@ -152,6 +167,17 @@ class SampleScheduler {
   /// the pool encodes them with). A reply must name its batch's epoch.
   void SetEpoch(uint64_t epoch) { epoch_ = epoch; }
   uint64_t Epoch() const { return epoch_; }
+
+  // --- Prepared shading (a predicted move's; see the file comment) ---
+  /// Queues first estimates of `samples` at scene epoch `epoch`, a pose
+  /// predicted for a coming move (the pool encodes these batches with it).
+  /// Replaces the preparation before: its samples still queued are dropped;
+  /// those in flight are answered as usual. A vertex whose earlier prepared
+  /// sample is still in flight is skipped. Returns the number queued.
+  size_t Prepare(std::span<const SampleRequest> samples, uint64_t epoch);
+  /// The prepared answers have been kept or stored: forget these vertices.
+  void CompletePrepared(std::span<const ShadedSample> samples);
+  uint64_t PreparedEpoch() const { return preparedEpoch_; }
 
   // --- Renderers (events from their links) ---
   /// Connected and past its handshake: it may get work (unless quarantined).
@@ -188,8 +214,12 @@ class SampleScheduler {
   std::vector<AssignedBatch> Assemble();
 
   // --- Observation ---
+  /// Requested samples queued or in flight (prepared ones not included:
+  /// nobody waits for them).
   size_t Outstanding() const { return size_t(queuedTotal_ + inFlight_); }
   size_t Queued() const { return size_t(queuedTotal_); }
+  /// Anything to assemble: requested or prepared samples queued.
+  bool AnyQueued() const { return queuedTotal_ + queuedPrepared_ > 0; }
   bool Quarantined(RendererId renderer) const;
   /// How long a renderer must still wait before it may be reconnected.
   std::chrono::milliseconds QuarantineLeft(RendererId renderer) const;
@@ -210,7 +240,14 @@ class SampleScheduler {
     uint8_t invalidReplies = 0;
     uint64_t batch = 0;  // while in flight: the batch carrying it
   };
+  struct PreparedEntry {
+    SampleRequest request;
+    uint64_t epoch = 0;
+    EntryState state = EntryState::kQueued;
+    uint64_t batch = 0;
+  };
   struct Batch {
+    bool prepared = false;  // its vertices are in prepared_, not entries_
     std::vector<VertexId> vertices;
     size_t answered = 0;
     uint32_t paths = 0;  // paths per sample asked for (the renderer's default when the request said 0)
@@ -233,6 +270,7 @@ class SampleScheduler {
 
   bool Accepts(const Renderer& r, Clock::time_point now) const;
   bool TakeNext(Priority priority, VertexId& out);
+  bool TakeNextPrepared(VertexId& out);
   // A queued first estimate not wanted by a view: to the predicted queue if
   // a prediction asked for it, else to the background queue.
   void QueueBelowVisible(VertexId v, Entry& e, bool front);
@@ -251,6 +289,14 @@ class SampleScheduler {
   std::deque<VertexId> predictedQueue_;
   std::deque<VertexId> backgroundQueue_;
   std::deque<VertexId> improveQueue_;
+  std::unordered_map<VertexId, PreparedEntry> prepared_;
+  std::deque<VertexId> preparedQueue_;
+  uint64_t preparedEpoch_ = 0;
+  uint64_t queuedPrepared_ = 0;
+  uint64_t preparedInFlight_ = 0;
+  uint64_t preparedRequested_ = 0;
+  uint64_t preparedShaded_ = 0;
+  uint64_t preparedDropped_ = 0;
   std::map<RendererId, Renderer> renderers_;  // by id: dispatch order is stable
   uint64_t nextBatchId_ = 1;
   uint64_t queuedVisible_ = 0;

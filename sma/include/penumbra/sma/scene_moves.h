@@ -58,6 +58,10 @@ Expected<ObjectMove> CheckMoveObject(const wire::MoveObject& move, const Scene& 
 /// no change).
 std::optional<ScenePose> NextPose(const ScenePose& current, std::span<const ObjectMove> moves);
 
+/// Whether two poses put every object at the same place, within the 1e-6
+/// NextPose treats as no change (epochs aside).
+bool SamePlacesWithin(const ScenePose& a, const ScenePose& b);
+
 /// Moves waiting to be applied, at most one per object: a move arriving
 /// while earlier ones wait (or are being applied) replaces the waiting move
 /// of its object, so a client dragging at 30 moves/s costs at most one

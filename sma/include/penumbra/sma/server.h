@@ -99,6 +99,12 @@ struct SmaOptions {
   /// baseline benchmarks compare with, and what tests that need every
   /// sample shaded at the final pose ask for.
   bool invalidateEverythingOnMove = false;
+  /// Movement prediction for moving objects (issue 15; move_prediction.h):
+  /// after each move, the next pose is predicted (the animated objects at
+  /// their paths' next step) and what it will invalidate and someone needs
+  /// is shaded at it ahead of time (after views' and predicted samples,
+  /// before refinement's); used if the move lands exactly there.
+  bool movePrediction = true;
   /// Camera movement prediction (issue 15; camera_prediction.h). Once a
   /// client's new view is applied (its visibility), the view its camera is expected to
   /// show `prediction.horizon` later (widened by `prediction.widen`) is

@@ -1,0 +1,103 @@
+#pragma once
+// Movement prediction for moving objects (issue 15, the paper's prediction
+// applied to issue 14's moves): guess the scene's next pose, shade ahead at
+// it what the move will invalidate and a viewer sees, and hand those samples
+// to the cache the moment the move happens -- if it happens where predicted.
+//
+//  * MovePredictor: the next pose. An animated object's place is known: the
+//    SMA plays its path on a fixed step clock (step k places it at the
+//    path's time k / animationHz), so the next step's place is its path at
+//    the next step's time. Objects that clients move are not predicted: a
+//    prepared sample is used only at exactly the pose it was shaded at, and
+//    a client's next move never repeats a prediction to the last bit (its 12
+//    floats are re-orthonormalised; extrapolating a steady drag lands within
+//    1e-6 of it, not on it). Using samples shaded that close would need a
+//    bound on how much such a difference changes them -- issue 14's
+//    indirect-light bound is far too coarse for that (docs/moving-objects.md).
+//  * MovePreparation: the prepared samples' state. Samples shaded at the
+//    predicted pose are kept until the move; when the pose applied is the
+//    predicted one (every object exactly where predicted) and the
+//    hierarchy's structure did not change meanwhile (no collection reused a
+//    vertex id), they are the new epoch's first estimates and go to the
+//    cache at once; answers still on their way go there as they arrive.
+//    Otherwise they are dropped: a sample shaded at a pose that never
+//    happened is never stored.
+//
+// Threads: MovePredictor is not synchronised (the move job owns it);
+// MovePreparation is thread-safe (the move job, a job thread preparing, and
+// the I/O thread the renderer pool answers on).
+
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <vector>
+
+#include "penumbra/common/rigid_transform.h"
+#include "penumbra/common/scene.h"
+#include "penumbra/sma/sample_cache.h"
+#include "penumbra/sma/scene_moves.h"
+
+namespace penumbra::sma {
+
+class MovePredictor {
+ public:
+  MovePredictor(const Scene& scene, double animationHz);
+
+  /// The pose expected at epoch current.epoch + 1: each animated object at
+  /// its path's place at the step after the one `current` shows -- found
+  /// among `latestStep` (the clock's last) and the step before it, since the
+  /// clock may play a step while the previous one is applied --, every
+  /// other object where it is. Nothing when no object would move, or
+  /// `current` shows neither step.
+  std::optional<ScenePose> Predict(const ScenePose& current, uint64_t latestStep) const;
+  /// Where the animated objects are at `step` in `pose` (the others kept).
+  ScenePose AtStep(const ScenePose& pose, uint64_t step) const;
+
+ private:
+  const Scene& scene_;
+  double hz_;
+};
+
+/// Counters of MovePreparation (and the SMA's prepared-shading metrics).
+struct MovePreparationCounters {
+  uint64_t predictions = 0;       // preparations begun
+  uint64_t hits = 0;              // moves applied where a preparation predicted
+  uint64_t misses = 0;            // preparations whose move went elsewhere (or a collection intervened)
+  uint64_t samplesArrived = 0;    // prepared samples answered
+  uint64_t samplesReleased = 0;   // handed to the cache (Applied, or Arrived after it)
+  uint64_t samplesDropped = 0;    // answered for a pose that did not happen
+};
+
+class MovePreparation {
+ public:
+  /// Starts preparing for `predicted` (whose epoch is the current epoch + 1)
+  /// while the hierarchy's structure is `generation`; the preparation
+  /// before, if its move has not happened, is dropped. Refused (false) for
+  /// an epoch already applied.
+  bool Begin(std::shared_ptr<const ScenePose> predicted, uint64_t generation);
+  /// Answers to prepared batches (ShadedSample::epoch: the epoch they were
+  /// prepared for). Returns those for the cache now: their move happened
+  /// where predicted. Those for the move still ahead are kept; the rest are
+  /// dropped.
+  std::vector<ShadedSample> Arrived(std::vector<ShadedSample> samples);
+  /// `applied` is the current pose now, with the hierarchy at `generation`.
+  /// Returns the samples prepared for it when it is the predicted pose and
+  /// the structure did not change since Begin (later answers for it then
+  /// come out of Arrived); nothing otherwise.
+  std::vector<ShadedSample> Applied(const ScenePose& applied, uint64_t generation);
+  /// The pose being prepared for; null when none is ahead.
+  std::shared_ptr<const ScenePose> Predicted() const;
+  MovePreparationCounters Counters() const;
+
+ private:
+  mutable std::mutex mutex_;
+  std::shared_ptr<const ScenePose> predicted_;  // ahead: its move not applied yet
+  uint64_t generation_ = 0;
+  std::vector<ShadedSample> kept_;
+  uint64_t appliedEpoch_ = 0;   // the newest epoch applied
+  uint64_t releasing_ = 0;      // epoch whose late answers go to the cache (0: none)
+  MovePreparationCounters counters_;
+};
+
+}  // namespace penumbra::sma
