@@ -124,7 +124,8 @@ Expected<RunFigures> RunOnce(const Options& o, bool predict) {
   for (const auto& [epoch, n] : updated) f.updatedPerEpoch.push_back(n);
   for (const char* name : {"moves", "move_predictions", "move_predictions_hit", "move_predictions_missed",
                            "samples_prepared", "samples_prepared_stored", "samples_prepared_dropped",
-                           "samples_reshaded_after_move", "samples_shaded", "last_prepare_ms"}) {
+                           "samples_reshaded_after_move", "samples_stale_refused", "samples_shaded",
+                           "last_prepare_ms"}) {
     auto v = client->Counter(name);
     if (!v) return v.error();
     f.counters[name] = *v;

@@ -61,18 +61,19 @@ std::vector<ShadedSample> MovePreparation::Arrived(std::vector<ShadedSample> sam
   return release;
 }
 
-std::vector<ShadedSample> MovePreparation::Applied(const ScenePose& applied, uint64_t generation) {
+MovePreparation::AppliedOutcome MovePreparation::Applied(const ScenePose& applied, uint64_t generation) {
   std::lock_guard lock(mutex_);
   appliedEpoch_ = std::max(appliedEpoch_, applied.epoch);
   releasing_ = 0;
-  std::vector<ShadedSample> release;
-  if (!predicted_) return release;
-  if (predicted_->epoch > applied.epoch) return release;  // still ahead
-  const bool hit = predicted_->epoch == applied.epoch && generation == generation_ && predicted_->SamePlaces(applied);
-  if (hit) {
+  AppliedOutcome out;
+  if (!predicted_) return out;
+  if (predicted_->epoch > applied.epoch) return out;  // still ahead
+  out.preparedEpoch = predicted_->epoch;
+  out.hit = predicted_->epoch == applied.epoch && generation == generation_ && predicted_->SamePlaces(applied);
+  if (out.hit) {
     ++counters_.hits;
     counters_.samplesReleased += kept_.size();
-    release = std::move(kept_);
+    out.samples = std::move(kept_);
     releasing_ = applied.epoch;
   } else {
     ++counters_.misses;
@@ -80,7 +81,7 @@ std::vector<ShadedSample> MovePreparation::Applied(const ScenePose& applied, uin
   }
   kept_.clear();
   predicted_.reset();
-  return release;
+  return out;
 }
 
 std::shared_ptr<const ScenePose> MovePreparation::Predicted() const {

@@ -307,6 +307,16 @@ void RendererPool::Prepare(std::span<const SampleRequest> samples, std::shared_p
   PostDispatch();
 }
 
+void RendererPool::EndPreparation(uint64_t epoch, bool hit) {
+  size_t moved = 0;
+  {
+    std::lock_guard lock(mutex_);
+    // As Request: a vertex stored meanwhile is not asked again.
+    moved = scheduler_.EndPreparation(epoch, hit, isStored_);
+  }
+  if (moved > 0) PostDispatch();
+}
+
 void RendererPool::Dispatch() {
   std::vector<std::pair<std::shared_ptr<RendererLink>, AssignedBatch>> batches;
   std::shared_ptr<const ScenePose> pose, preparedPose;

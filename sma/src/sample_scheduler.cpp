@@ -158,6 +158,23 @@ void SampleScheduler::CompletePrepared(std::span<const ShadedSample> samples) {
   }
 }
 
+size_t SampleScheduler::EndPreparation(uint64_t epoch, bool hit, const std::function<bool(VertexId)>& stored) {
+  if (epoch != preparedEpoch_) return 0;
+  std::vector<SampleRequest> wanted;
+  for (auto it = prepared_.begin(); it != prepared_.end();) {
+    if (it->second.state != EntryState::kQueued) {
+      ++it;
+      continue;
+    }
+    if (hit && !(stored && stored(it->first))) wanted.push_back(it->second.request);
+    else if (!hit) ++preparedDropped_;
+    it = prepared_.erase(it);
+  }
+  preparedQueue_.clear();
+  queuedPrepared_ = 0;
+  return wanted.empty() ? 0 : Request(wanted, Priority::kPredicted);
+}
+
 // --- Renderers ------------------------------------------------------------------
 
 void SampleScheduler::RendererReady(RendererId renderer, const RendererCapacity& capacity) {

@@ -63,6 +63,9 @@ struct MoveNotice {
   /// Invalidation::urgent, sorted: held vertices in it are re-shaded at
   /// visible priority (a shadow moved there), the others at background.
   std::shared_ptr<const std::vector<VertexId>> urgent;
+  /// Prepared samples the move stored (move prediction): shaded at the new
+  /// pose already; sessions are told of them (as arrived) after the move.
+  std::shared_ptr<const std::vector<VertexId>> prepared;
 };
 
 // A job of its own in the JobSchedulers' round-robin (not a client's).
@@ -301,6 +304,13 @@ class SmaServer::Impl {
   // that lack a sample; returns the vertices stored.
   std::vector<VertexId> StorePrepared(std::span<const ShadedSample> samples);
   MovePredictor movePredictor_{scene_, options_.animationHz};
+  // What clients held and a move invalidated, at the latest epoch any
+  // session reported (each session's OnMoved, on its strand): what the next
+  // step will most likely ask again. Guarded by heldReshadeMutex_ (a leaf).
+  void NoteHeldReshade(uint64_t epoch, const std::vector<VertexId>& sortedVertices);
+  std::mutex heldReshadeMutex_;
+  uint64_t heldReshadeEpoch_ = 0;
+  std::vector<VertexId> heldReshade_;  // sorted
   MovePreparation preparation_;
   std::atomic<uint64_t> preparedStored_{0};  // prepared samples that became the new epoch's first estimates
   std::atomic<double> lastPrepareMs_{0.0};
@@ -1152,6 +1162,15 @@ void SmaServer::Impl::Session::OnMoved(const MoveNotice& notice) {
   mirror_.ForEachVertex([&](VertexId v) {
     if (!server_.cache_.IsShaded(v)) reshade.push_back(v);
   });
+  // Prepared samples the move stored are shaded already, and held: the
+  // next step will want them again too.
+  std::vector<VertexId> heldChanged = reshade;
+  if (notice.prepared)
+    for (VertexId v : *notice.prepared)
+      if (mirror_.HoldsVertex(v)) heldChanged.push_back(v);
+  std::sort(heldChanged.begin(), heldChanged.end());
+  heldChanged.erase(std::unique(heldChanged.begin(), heldChanged.end()), heldChanged.end());
+  server_.NoteHeldReshade(epoch, heldChanged);
   if (!reshade.empty()) {
     std::sort(reshade.begin(), reshade.end());
     std::vector<SampleRequest> urgent, later;
@@ -1723,6 +1742,7 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
   size_t evicted = 0;
   size_t evictedUrgent = 0;  // of which urgent: the moved objects' own and where direct light changed
   std::vector<VertexId> prepared;  // first estimates shaded ahead at this pose (move prediction), now stored
+  MovePreparation::AppliedOutcome preparedFor;
   {
     std::unique_lock lock(stateMutex_);
     for (VertexId v : invalidation.vertices) {
@@ -1732,8 +1752,13 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
     }
     // Under the same lock: a view mapped after the invalidation finds them
     // stored, and sessions told of the move below do not ask for them.
-    prepared = StorePrepared(preparation_.Applied(*newPose, hierarchy_.StructureGeneration()));
+    preparedFor = preparation_.Applied(*newPose, hierarchy_.StructureGeneration());
+    prepared = StorePrepared(preparedFor.samples);
   }
+  // The preparation's samples not sent yet: asked for at the new pose after
+  // a hit (sessions' requests below then find them alive), dropped after a
+  // miss.
+  if (preparedFor.preparedEpoch != 0) pool_->EndPreparation(preparedFor.preparedEpoch, preparedFor.hit);
   ++moves_;
   samplesInvalidated_ += evicted;
   lastMoveInvalidated_ = evicted;
@@ -1750,6 +1775,7 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
   for (uint32_t o = 0; o < newPose->objectToWorld.size(); ++o)
     if (!(oldPose->objectToWorld[o] == newPose->objectToWorld[o])) notice->movedObjects.push_back(o);
   auto arrived = std::make_shared<const std::vector<VertexId>>(std::move(prepared));
+  notice->prepared = arrived;
   for (auto& session : Sessions()) {
     asio::post(session->Connection().Strand(), [session, notice] { session->OnMoved(*notice); });
     // After MOVED on the session's strand: held ones go out as RESHADED.
@@ -1778,19 +1804,31 @@ void SmaServer::Impl::PrepareMove(std::shared_ptr<const ScenePose> predicted) {
   // At most this many samples per preparation: a step's urgent class of a
   // large refined view, not a whole scene.
   constexpr size_t kMaxPrepared = size_t(1) << 16;
+  // What clients held that the last move made them ask again: the next
+  // step's displayed changes are most likely among them (a client's view
+  // and the object move little in a step).
+  std::vector<VertexId> held;
+  {
+    std::lock_guard lock(heldReshadeMutex_);
+    held = heldReshade_;
+  }
+  if (held.empty()) return;
   std::vector<SampleRequest> requests;
   uint64_t generation = 0;
   {
     std::shared_lock lock(stateMutex_);
     generation = hierarchy_.StructureGeneration();
     // What the move would invalidate urgently (the objects' own vertices
-    // and where direct light changes), of what has a sample or awaits one
-    // (someone needed it): what a viewer sees change first. Judged against
-    // the current pose only: a guess about work, never about correctness
-    // (the move itself is judged as ever, ApplyMoveStep).
+    // and where direct light changes), of what clients hold: what a viewer
+    // sees change first. Judged against the current pose only: a guess
+    // about work, never about correctness (the move itself is judged as
+    // ever, ApplyMoveStep).
     const Invalidation plan = PlanInvalidation(hierarchy_, cache_, *current, *predicted);
-    for (VertexId v : plan.urgent) {
-      if (!cache_.IsShaded(v) && !cache_.AwaitingReshade(v)) continue;
+    std::vector<VertexId> wanted;
+    std::set_intersection(plan.urgent.begin(), plan.urgent.end(), held.begin(), held.end(),
+                          std::back_inserter(wanted));
+    for (VertexId v : wanted) {
+      if (v >= hierarchy_.VertexCount() || !hierarchy_.VertexAlive(v)) continue;  // collected since it was held
       requests.push_back(MakeSampleRequest(hierarchy_, v));
       if (requests.size() >= kMaxPrepared) break;
     }
@@ -1800,6 +1838,21 @@ void SmaServer::Impl::PrepareMove(std::shared_ptr<const ScenePose> predicted) {
   lastPrepareMs_ = Ms(Clock::now() - start);
   log_->debug("scene epoch {} predicted: {} samples prepared in {:.1f} ms", predicted->epoch, requests.size(),
               lastPrepareMs_.load());
+}
+
+void SmaServer::Impl::NoteHeldReshade(uint64_t epoch, const std::vector<VertexId>& sortedVertices) {
+  std::lock_guard lock(heldReshadeMutex_);
+  if (epoch < heldReshadeEpoch_) return;
+  if (epoch > heldReshadeEpoch_) {
+    heldReshadeEpoch_ = epoch;
+    heldReshade_ = sortedVertices;
+    return;
+  }
+  std::vector<VertexId> both;
+  both.reserve(heldReshade_.size() + sortedVertices.size());
+  std::set_union(heldReshade_.begin(), heldReshade_.end(), sortedVertices.begin(), sortedVertices.end(),
+                 std::back_inserter(both));
+  heldReshade_ = std::move(both);
 }
 
 void SmaServer::Impl::OnPreparedResults(std::vector<ShadedSample>&& samples) {

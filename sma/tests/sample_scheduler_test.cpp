@@ -620,5 +620,50 @@ TEST(SampleScheduler, ANewPreparationDropsTheQueuedPartOfTheOldOne) {
   EXPECT_FALSE(s.AnyQueued());
 }
 
+// The move prepared for lands where predicted: what is still queued is
+// wanted at the (now current) pose as ordinary requests; after a miss it
+// is dropped. Answers in flight come back as prepared either way.
+TEST(SampleScheduler, EndingAPreparationTurnsItsQueuedSamplesIntoRequestsOrDropsThem) {
+  FakeClock clock;
+  SampleSchedulerOptions options = Options();
+  options.minBatchSamples = 2;
+  SampleScheduler s(options, clock.Function());
+  s.SetEpoch(5);
+  s.Prepare(Requests(0, 6), 6);
+  s.RendererReady(1, RendererCapacity{1, 2, 32});
+  auto inFlight = s.Assemble();
+  ASSERT_EQ(inFlight.size(), 1u);
+  ASSERT_TRUE(inFlight[0].prepared);
+  EXPECT_EQ(s.EndPreparation(5, true), 0u) << "not the epoch prepared for";
+  s.SetEpoch(6);  // the move, applied where predicted
+  const std::set<VertexId> sent = VerticesOf(inFlight);
+  const VertexId storedMeanwhile = *std::set<VertexId>{2, 3, 4, 5}.begin();
+  EXPECT_EQ(s.EndPreparation(6, true, [&](VertexId v) { return v == storedMeanwhile; }), 3u);
+  EXPECT_EQ(s.Counters().queuedPrepared, 0u);
+  EXPECT_EQ(s.Counters().queuedPredicted, 3u);
+  EXPECT_EQ(s.Outstanding(), 3u);
+  wire::ShadeReply reply = Answer(inFlight[0]);
+  reply.set_scene_epoch(6);
+  auto outcome = s.OnReply(1, reply);
+  ASSERT_FALSE(outcome.badReply) << *outcome.badReply;
+  EXPECT_EQ(outcome.prepared.size(), 2u) << "answered as prepared";
+  s.CompletePrepared(outcome.prepared);
+  auto batches = s.Assemble();
+  ASSERT_EQ(batches.size(), 1u);
+  EXPECT_FALSE(batches[0].prepared);
+  EXPECT_EQ(batches[0].epoch, 6u);
+  for (const auto& r : batches[0].samples) {
+    EXPECT_FALSE(sent.contains(r.vertex));
+    EXPECT_NE(r.vertex, storedMeanwhile);
+  }
+
+  // A miss: the queued part is dropped.
+  s.Prepare(Requests(10, 4), 7);
+  EXPECT_EQ(s.EndPreparation(7, false), 0u);
+  EXPECT_FALSE(s.AnyAlive(std::vector<VertexId>{10}));
+  EXPECT_EQ(s.Counters().queuedPrepared, 0u);
+  EXPECT_EQ(s.Counters().preparedDropped, 4u);
+}
+
 }  // namespace
 }  // namespace penumbra::sma

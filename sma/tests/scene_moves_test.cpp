@@ -437,7 +437,9 @@ TEST(MovePreparation, SamplesAreReleasedOnlyWhenTheMoveLandsWherePredicted) {
   EXPECT_TRUE(prep.Arrived(SamplesAt(0, 10, 2)).empty()) << "another epoch's: dropped";
   ScenePose applied = *predicted;  // the move, as the clock makes it
   auto released = prep.Applied(applied, 7);
-  ASSERT_EQ(released.size(), 3u);
+  EXPECT_TRUE(released.hit);
+  EXPECT_EQ(released.preparedEpoch, 1u);
+  ASSERT_EQ(released.samples.size(), 3u);
   EXPECT_EQ(prep.Arrived(SamplesAt(1, 3, 2)).size(), 2u) << "late answers for the hit go to the cache";
   EXPECT_EQ(prep.Predicted(), nullptr);
   EXPECT_FALSE(prep.Begin(predicted, 7)) << "an epoch already applied";
@@ -449,7 +451,10 @@ TEST(MovePreparation, SamplesAreReleasedOnlyWhenTheMoveLandsWherePredicted) {
   EXPECT_TRUE(prep.Arrived(SamplesAt(2, 0, 4)).empty());
   ScenePose elsewhere = *next;
   elsewhere.objectToWorld[0].translation.z += 0.25f;
-  EXPECT_TRUE(prep.Applied(elsewhere, 7).empty());
+  const auto missed = prep.Applied(elsewhere, 7);
+  EXPECT_FALSE(missed.hit);
+  EXPECT_EQ(missed.preparedEpoch, 2u);
+  EXPECT_TRUE(missed.samples.empty());
   EXPECT_TRUE(prep.Arrived(SamplesAt(2, 4, 2)).empty()) << "late answers for a miss are dropped";
 
   // A miss: a collection changed the structure (vertex ids may be reused).
@@ -457,7 +462,8 @@ TEST(MovePreparation, SamplesAreReleasedOnlyWhenTheMoveLandsWherePredicted) {
   third->epoch = 3;
   ASSERT_TRUE(prep.Begin(third, 7));
   EXPECT_TRUE(prep.Arrived(SamplesAt(3, 0, 4)).empty());
-  EXPECT_TRUE(prep.Applied(*third, 8).empty());
+  EXPECT_FALSE(prep.Applied(*third, 8).hit);
+  EXPECT_TRUE(prep.Applied(*third, 8).samples.empty());
 
   // A preparation replaced before its move drops what it kept.
   auto fourth = std::make_shared<ScenePose>(predictor.AtStep(*third, 4));

@@ -81,11 +81,17 @@ class MovePreparation {
   /// where predicted. Those for the move still ahead are kept; the rest are
   /// dropped.
   std::vector<ShadedSample> Arrived(std::vector<ShadedSample> samples);
+  /// What a move's application found prepared.
+  struct AppliedOutcome {
+    uint64_t preparedEpoch = 0;  // the epoch a preparation ended for (0: none did)
+    bool hit = false;            // the move landed where it predicted, the structure unchanged
+    std::vector<ShadedSample> samples;  // prepared for it and answered: for the cache (hit only)
+  };
   /// `applied` is the current pose now, with the hierarchy at `generation`.
-  /// Returns the samples prepared for it when it is the predicted pose and
-  /// the structure did not change since Begin (later answers for it then
-  /// come out of Arrived); nothing otherwise.
-  std::vector<ShadedSample> Applied(const ScenePose& applied, uint64_t generation);
+  /// On a hit -- it is the predicted pose and the structure did not change
+  /// since Begin -- the samples prepared for it are returned (later answers
+  /// for it then come out of Arrived); otherwise they are dropped.
+  AppliedOutcome Applied(const ScenePose& applied, uint64_t generation);
   /// The pose being prepared for; null when none is ahead.
   std::shared_ptr<const ScenePose> Predicted() const;
   MovePreparationCounters Counters() const;

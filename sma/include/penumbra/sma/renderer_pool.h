@@ -147,6 +147,8 @@ class RendererPool : public std::enable_shared_from_this<RendererPool> {
   /// predicted epoch it was shaded at; the pool forgets them after it
   /// returns. Set before Start().
   void SetPreparedHandler(ResultHandler onPrepared) { onPrepared_ = std::move(onPrepared); }
+  /// SampleScheduler::EndPreparation (call after SetPose to the pose applied).
+  void EndPreparation(uint64_t epoch, bool hit);
 
   /// Samples queued or in flight.
   size_t Outstanding() const;

@@ -177,6 +177,14 @@ class SampleScheduler {
   size_t Prepare(std::span<const SampleRequest> samples, uint64_t epoch);
   /// The prepared answers have been kept or stored: forget these vertices.
   void CompletePrepared(std::span<const ShadedSample> samples);
+  /// The move prepared for at `epoch` has been applied. `hit`: where
+  /// predicted, so the epoch's prepared samples still queued are wanted at
+  /// the current pose: they become ordinary requests at predicted priority
+  /// (a view's visible request then promotes them as usual). Otherwise they
+  /// are dropped. Those in flight are answered either way. `stored` (when
+  /// given) names vertices whose sample is in the cache already: not asked
+  /// again. Returns the number of requests made.
+  size_t EndPreparation(uint64_t epoch, bool hit, const std::function<bool(VertexId)>& stored = {});
   uint64_t PreparedEpoch() const { return preparedEpoch_; }
 
   // --- Renderers (events from their links) ---
