@@ -206,6 +206,19 @@ uint64_t ComputeIdentity(const Scene& s) {
     h.Update(uint64_t(o.triangleCount));
     const auto m = o.objectToWorld.ToRowMajor();
     h.Update(m.data(), sizeof m);
+    // Only for an animated object (a scene without animations keeps its
+    // identity): two paths that start at the same place are different
+    // scenes -- the SMA plays them, and a cache snapshot holds samples shaded
+    // at their poses.
+    if (o.animation) {
+      h.Update(uint64_t(o.animation->loop ? 2 : 1));
+      h.Update(uint64_t(o.animation->keys.size()));
+      for (const ObjectKeyframe& k : o.animation->keys) {
+        h.Update(&k.timeS, sizeof k.timeS);
+        const auto key = k.objectToWorld.ToRowMajor();
+        h.Update(key.data(), sizeof key);
+      }
+    }
   }
   // Only when there are instances: a scene without them keeps the identity
   // it had before they existed (saved cache snapshots stay valid).

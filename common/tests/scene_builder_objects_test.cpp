@@ -8,6 +8,7 @@
 
 #include <cmath>
 #include <limits>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -168,6 +169,34 @@ TEST(SceneBuilderObjectsTest, IdentityCoversTheObjectsNamesAndPlaces) {
   EXPECT_EQ(make("box", 1.0f), make("box", 1.0f));
   EXPECT_NE(make("box", 1.0f), make("box", 2.0f));
   EXPECT_NE(make("box", 1.0f), make("crate", 1.0f));
+}
+
+// Two animation paths from the same place are different scenes (the SMA
+// plays them; snapshots hold samples of their poses); a scene without one
+// keeps the identity it had before paths counted.
+TEST(SceneBuilderObjectsTest, IdentityCoversAnimationPaths) {
+  auto make = [](std::optional<float> endLift, bool loop) {
+    SceneBuilder b;
+    const uint32_t m = White(b);
+    AddFloorSquare(b, Vec3(0, 0, 0), m);
+    MovableObject o = Named("box", RigidTransform::FromAxisAngle(Vec3(0, 1, 0), 0.0f, Vec3(0, 1.0f, 0)));
+    if (endLift) {
+      ObjectAnimation path;
+      path.loop = loop;
+      path.keys = {ObjectKeyframe{0.0f, o.objectToWorld},
+                   ObjectKeyframe{2.0f, RigidTransform::FromAxisAngle(Vec3(0, 1, 0), 0.0f, Vec3(0, *endLift, 0))}};
+      o.animation = path;
+    }
+    b.BeginObject(o);
+    AddFloorSquare(b, Vec3(0, 0, 0), m);
+    Scene s;
+    EXPECT_TRUE(b.BuildInto(s).ok());
+    return s.identity;
+  };
+  EXPECT_EQ(make(2.0f, true), make(2.0f, true));
+  EXPECT_NE(make(2.0f, true), make(3.0f, true));
+  EXPECT_NE(make(2.0f, true), make(2.0f, false));
+  EXPECT_NE(make(2.0f, true), make(std::nullopt, true));
 }
 
 TEST(SceneBuilderObjectsTest, FinalizeRefusesEmissiveObjectsDuplicateNamesAndEmptyObjects) {
