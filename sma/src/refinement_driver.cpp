@@ -9,16 +9,23 @@ RefinementDriver::RefinementDriver(RefinementParams params, uint64_t maxSamplesP
 
 void RefinementDriver::Restart() {
   refiner_ = std::make_shared<Refiner>(params_);
+  requestedBefore_ = 0;
   done_ = false;
   pending_.clear();
   total_ = doneCount_ = 0;
+}
+
+void RefinementDriver::RestartSameView() {
+  const size_t requested = Requested();
+  Restart();
+  requestedBefore_ = requested;
 }
 
 RefinementDriver::Start RefinementDriver::StartStep(bool stage1Done) {
   if (!Enabled() || running_ || done_ || !stage1Done) return Start::kNothing;
   // The samples one client's refinement may create for one view are capped
   // (fuzzed options once grew the SMA by 17 MiB/s, for good).
-  if (refiner_->Requested() >= maxSamplesPerView_) {
+  if (Requested() >= maxSamplesPerView_) {
     done_ = true;
     return Start::kCapReached;
   }

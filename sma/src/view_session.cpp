@@ -34,8 +34,9 @@ void ViewSession::OnNewView(uint64_t viewId, const CameraView& view, Clock::time
   RestartRefinement();
 }
 
-void ViewSession::RestartRefinement() {
-  driver_.Restart();
+void ViewSession::RestartRefinement(bool sameView) {
+  if (sameView) driver_.RestartSameView();
+  else driver_.Restart();
   improvementDone_ = false;
   improvePending_.clear();
 }
@@ -174,8 +175,9 @@ void ViewSession::OnDrained() {
 void ViewSession::OnSceneMoved(std::span<const VertexId> reshades) {
   reshadesAwaited_.insert(reshades.begin(), reshades.end());
   // Lighting changed: what was converged may now be worth splitting (the
-  // criteria split where it changed) or improving.
-  if (hasVisible_) RestartRefinement();
+  // criteria split where it changed) or improving -- within what is left
+  // of this view's sample cap.
+  if (hasVisible_) RestartRefinement(/*sameView=*/true);
 }
 
 void ViewSession::SetRefinementParams(const RefinementParams& params) {

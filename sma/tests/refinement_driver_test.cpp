@@ -204,8 +204,13 @@ TEST(RefinementDriverTest, TheSampleCapEndsTheViewsRefinement) {
   w.ShadeAllRequested(driver);
   EXPECT_TRUE(driver.Finished());
   EXPECT_EQ(driver.StartStep(true), RefinementDriver::Start::kNothing);
+  // A move restarts the same view's refinement, within the same budget.
+  driver.RestartSameView();
+  EXPECT_EQ(driver.Requested(), created);
+  EXPECT_EQ(driver.StartStep(true), RefinementDriver::Start::kCapReached);
   // A new view starts again, with a fresh budget.
   driver.Restart();
+  EXPECT_EQ(driver.Requested(), 0u);
   EXPECT_EQ(driver.StartStep(true), RefinementDriver::Start::kStep);
 }
 

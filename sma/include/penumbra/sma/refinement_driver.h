@@ -68,6 +68,11 @@ class RefinementDriver {
   /// A new view (or new options): a new Refiner, nothing pending. A step
   /// still running keeps the old Refiner, and OnStepDone recognises it.
   void Restart();
+  /// The same view, lit anew (a move): a new Refiner as Restart, but the
+  /// samples this view's refinement asked for so far still count against
+  /// its cap -- an animation's every step would otherwise give the view a
+  /// fresh budget, and its refinement could grow without bound.
+  void RestartSameView();
 
   enum class Start {
     kNothing,     // off, running, finished, or not allowed now
@@ -118,12 +123,14 @@ class RefinementDriver {
   size_t SamplesDone() const { return std::min(doneCount_, total_); }
   uint64_t Splits() const { return splits_; }        // every view's, for statistics
   uint64_t Samples() const { return samples_; }
-  size_t Requested() const { return refiner_->Requested(); }
+  /// Samples this view's refinement asked for (across RestartSameView).
+  size_t Requested() const { return requestedBefore_ + refiner_->Requested(); }
 
  private:
   RefinementParams params_;
   uint64_t maxSamplesPerView_;
   std::shared_ptr<Refiner> refiner_;
+  size_t requestedBefore_ = 0;  // by this view's Refiners replaced by RestartSameView
   bool running_ = false;
   bool done_ = false;
   std::unordered_set<VertexId> pending_;  // split vertices not yet shaded

@@ -208,7 +208,8 @@ class ViewSession {
   double Stage2Ms() const { return stage2Ms_; }
 
  private:
-  void RestartRefinement();
+  // `sameView`: a move lit it anew; its refinement keeps counting against its cap.
+  void RestartRefinement(bool sameView = false);
 
   bool handshook_ = false;
   bool hasView_ = false;
