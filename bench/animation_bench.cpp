@@ -71,18 +71,12 @@ Expected<RunFigures> RunOnce(const Options& o, bool predict) {
   if (!stack) return stack.error();
   auto client = SmaTestClient::Connect(stack->sma.port, "animation-bench");
   if (!client) return client.error();
-  CameraView view;
-  bool found = false;
-  for (const auto& p : client->Info().cameras())
-    if (p.name() == o.camera) {
-      view = ViewFromPreset(p, o.width, o.height);
-      found = true;
-    }
-  if (!found) return Fail("no camera '" + o.camera + "'");
+  auto view = ViewFromPreset(client->Info(), o.camera, o.width, o.height);
+  if (!view) return view.error();
   // Stage 1, or --warmup seconds at most: with the object moving all along
   // (and the machine loaded) stage 1 may keep being put off by the moves.
   const auto warmup = std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::duration<double>(o.warmup));
-  auto stage1 = TimeView(*client, view, 1, warmup, /*untilStage1=*/true);
+  auto stage1 = TimeView(*client, *view, 1, warmup, /*untilStage1=*/true);
   if (!stage1 && stage1.error().message.find("not converged") == std::string::npos) return stage1.error();
   if (!stage1) std::printf("# prediction %s: stage 1 not reached in %.0f s; measuring from there\n", predict ? "on" : "off", o.warmup);
 

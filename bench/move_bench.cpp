@@ -162,17 +162,12 @@ int Run(const Options& o) {
     std::fprintf(stderr, "move_bench: %s\n", start.error().message.c_str());
     return 1;
   }
-  CameraView view;
-  bool found = false;
-  for (const auto& p : client->Info().cameras())
-    if (p.name() == o.camera) {
-      view = ViewFromPreset(p, o.width, o.height);
-      found = true;
-    }
-  if (!found) {
-    std::fprintf(stderr, "move_bench: no camera '%s'\n", o.camera.c_str());
+  auto preset = ViewFromPreset(client->Info(), o.camera, o.width, o.height);
+  if (!preset) {
+    std::fprintf(stderr, "move_bench: %s\n", preset.error().message.c_str());
     return 1;
   }
+  const CameraView view = *preset;
   std::printf("# move_bench: %s, object %s, camera %s, %dx%d, renderer --spp %d --max-bounces %d; load %s\n",
               o.scene.filename().string().c_str(), o.object.c_str(), o.camera.c_str(), o.width, o.height, o.spp,
               o.maxBounces, LoadAverage().c_str());

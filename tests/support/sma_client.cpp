@@ -133,4 +133,10 @@ CameraView ViewFromPreset(const wire::CameraPreset& preset, int width, int heigh
   return view;
 }
 
+Expected<CameraView> ViewFromPreset(const wire::SceneInfo& info, const std::string& name, int width, int height) {
+  for (const auto& preset : info.cameras())
+    if (preset.name() == name) return ViewFromPreset(preset, width, height);
+  return Fail("the scene has no camera preset '" + name + "'");
+}
+
 }  // namespace penumbra::testing

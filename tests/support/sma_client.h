@@ -74,5 +74,8 @@ Expected<std::string> RendererCounterPrefix(const ChildProcess& sma, const std::
 
 /// A CameraView from a SceneInfo preset, at the given resolution.
 CameraView ViewFromPreset(const wire::CameraPreset& preset, int width, int height);
+/// The SceneInfo's preset called `name` as a CameraView; an error naming it
+/// when the scene has none of that name.
+Expected<CameraView> ViewFromPreset(const wire::SceneInfo& info, const std::string& name, int width, int height);
 
 }  // namespace penumbra::testing
