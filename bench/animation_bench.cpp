@@ -12,6 +12,9 @@
 //   * in time: the fraction of epochs whose first RESHADED arrived before
 //     the next MOVED (the display caught up within the step);
 //   * vertices updated per epoch (RESHADED vertices at exactly that epoch);
+//   * the display's error while it moves: sampled every 100 ms, the share of
+//     the vertices the client holds that still show a sample of an older
+//     pose (awaiting their reshade);
 //   * the SMA's counters: predictions, hits, prepared samples stored,
 //     samples shaded in all.
 // The figures are printed side by side with on/off ratios from the same
@@ -51,6 +54,7 @@ struct Options {
 };
 
 struct RunFigures {
+  std::vector<double> staleShare;  // sampled every 100 ms: held vertices awaiting their reshade / held
   std::vector<double> lagsMs;
   size_t epochs = 0;
   size_t inTime = 0;
@@ -86,17 +90,31 @@ Expected<RunFigures> RunOnce(const Options& o, bool predict) {
   uint64_t lastMoved = 0;
   bool lastMovedAnswered = true;
   const auto end = Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(o.seconds));
-  auto lastHeartbeat = Clock::now();
+  // The display's error while the object moves: every 100 ms, the share of
+  // the vertices the client holds that still show a sample of an older pose
+  // (the SMA's per-client counters; answered in the stream, read below).
+  constexpr uint64_t kStatsIds = uint64_t(1) << 40;
+  uint64_t statsSent = 0;
+  auto nextStats = Clock::now();
   while (Clock::now() < end) {
-    if (Clock::now() - lastHeartbeat > 3s) {
-      wire::Envelope heartbeat;
-      heartbeat.mutable_heartbeat()->set_sent_unix_ms(1);
-      client->Wire().Send(heartbeat);
-      lastHeartbeat = Clock::now();
+    if (Clock::now() >= nextStats) {
+      wire::Envelope stats;
+      stats.mutable_stats_request()->set_request_id(kStatsIds + statsSent++);
+      client->Wire().Send(stats);  // also keeps the connection alive
+      nextStats += 100ms;
     }
-    auto e = client->Wire().Receive(20ms);
+    auto e = client->Wire().Receive(10ms);
     if (!e && e.error().message == "timeout") continue;
     if (!e) return e.error();
+    if (e->has_stats_reply() && e->stats_reply().request_id() >= kStatsIds) {
+      double held = 0.0, awaited = 0.0;
+      for (const auto& c : e->stats_reply().counters()) {
+        if (c.name() == "client_vertices_held") held = c.value();
+        if (c.name() == "client_reshades_awaited") awaited = c.value();
+      }
+      if (held > 0.0) f.staleShare.push_back(awaited / held);
+      continue;
+    }
     if (e->has_delta()) {
       const wire::Delta& d = e->delta();
       const auto now = Clock::now();
@@ -162,6 +180,14 @@ int Run(const Options& o) {
   row("update lag p99 (ms)", Percentile(off.lagsMs, 99), Percentile(on.lagsMs, 99), true);
   row("epochs updated before the next MOVED (%)", off.epochs ? 100.0 * double(off.inTime) / double(off.epochs) : 0.0,
       on.epochs ? 100.0 * double(on.inTime) / double(on.epochs) : 0.0, false);
+  const auto mean = [](const std::vector<double>& v) {
+    double sum = 0.0;
+    for (double x : v) sum += x;
+    return v.empty() ? 0.0 : sum / double(v.size());
+  };
+  row("held vertices showing an older pose, mean %", 100.0 * mean(off.staleShare), 100.0 * mean(on.staleShare), true);
+  row("held vertices showing an older pose, p90 %", 100.0 * Percentile(off.staleShare, 90),
+      100.0 * Percentile(on.staleShare, 90), true);
   row("RESHADED vertices per epoch, p50", Percentile(off.updatedPerEpoch, 50), Percentile(on.updatedPerEpoch, 50),
       false);
   for (const auto& [name, value] : on.counters) row(name.c_str(), off.counters.at(name), value, false);
