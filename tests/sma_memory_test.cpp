@@ -44,15 +44,16 @@ double CounterOr(SmaTestClient& c, const std::string& name) {
   return v.ok() ? *v : -1.0;
 }
 
-// The held mesh as a scene of its own (world positions: the Cornell box has
-// no movable objects), to cast the same pixel rays at it.
-Scene HeldAsScene(const HeldMesh& mesh, std::vector<uint64_t>& triangleIds) {
+// The held mesh as a scene of its own, in world space at `pose` (a movable
+// object's vertices come in its own space), to cast the same pixel rays at it.
+Scene HeldAsScene(const HeldMesh& mesh, const ScenePose& pose, std::vector<uint64_t>& triangleIds) {
   Scene s;
   s.twoSided = false;  // a pixel hitting a held triangle from either side hits it
   std::map<uint64_t, uint32_t> index;
   for (const auto& [id, v] : mesh.Vertices()) {
     index[id] = uint32_t(s.vertices.size());
-    s.vertices.push_back(Vertex{v.position, Vec3(0, 1, 0)});
+    const Vec3 world = v.object == 0 ? v.position : pose.Of(v.object - 1).ApplyPoint(v.position);
+    s.vertices.push_back(Vertex{world, Vec3(0, 1, 0)});
   }
   triangleIds.clear();
   for (const auto& [id, corners] : mesh.Triangles()) {
@@ -68,11 +69,20 @@ Scene HeldAsScene(const HeldMesh& mesh, std::vector<uint64_t>& triangleIds) {
 // brute-force ray cast hits clearly (and nothing where it clearly misses),
 // and every held triangle is hit by some pixel (the SMA sends what its rays
 // see, through the same pixel centres).
-void ExpectExact(const Scene& scene, const CameraView& view, const HeldMesh& mesh, const std::string& when) {
+// `pose`: where the scene's movable objects are.
+void ExpectExact(const Scene& scene, const ScenePose& pose, const CameraView& view, const HeldMesh& mesh,
+                 const std::string& when) {
   EXPECT_EQ(mesh.CountTVertices(), 0u) << when;
   std::vector<uint64_t> ids;
-  const Scene held = HeldAsScene(mesh, ids);
-  const std::vector<int64_t> truth = BruteForcePixelHits(scene, view);
+  const Scene held = HeldAsScene(mesh, pose, ids);
+  // The scene at `pose`: its objects' vertices moved to their world places.
+  Scene posed = scene;
+  for (uint32_t o = 0; o < scene.objects.size(); ++o) {
+    const MovableObject& object = scene.objects[o];
+    for (uint32_t i = object.firstVertex; i < object.firstVertex + object.vertexCount; ++i)
+      posed.vertices[i].position = pose.Of(o).ApplyPoint(scene.vertices[i].position);
+  }
+  const std::vector<int64_t> truth = BruteForcePixelHits(posed, view);
   const std::vector<int64_t> shown = BruteForcePixelHits(held, view);
   size_t holes = 0, extra = 0;
   std::vector<bool> hit(ids.size(), false);
@@ -99,26 +109,30 @@ CameraView Preset(const SmaTestClient& c, const std::string& name) {
 // (measured on an SMA of its own: it is the scene's) plus `refinementKiB`.
 class SmaMemoryTest : public ::testing::Test {
  protected:
-  void StartStack(double refinementKiB) {
-    auto loaded = LoadScene(kScene);
+  void StartStack(double refinementKiB, const std::string& sceneFile = kScene,
+                  const std::vector<std::string>& smaArgs = {}) {
+    auto loaded = LoadScene(sceneFile);
     ASSERT_TRUE(loaded.ok()) << loaded.error().message;
     scene_ = std::move(*loaded);
+    pose_ = ScenePose::Initial(scene_);
     renderer_ = MustStart(PENUMBRA_RENDERER_EXE,
-                          {"--scene", kScene, "--threads", "1", "--spp", "16", "--max-bounces", "2"}, "renderer");
+                          {"--scene", sceneFile, "--threads", "1", "--spp", "16", "--max-bounces", "2"}, "renderer");
     double baseBytes = 0.0;
     {
-      Service probe = MustStart(PENUMBRA_SMA_EXE, {"--scene", kScene, "--renderer", renderer_.Address()}, "sma-probe");
+      Service probe =
+          MustStart(PENUMBRA_SMA_EXE, {"--scene", sceneFile, "--renderer", renderer_.Address()}, "sma-probe");
       auto c = SmaTestClient::Connect(probe.port, "probe");
       ASSERT_TRUE(c.ok()) << c.error().message;
       baseBytes = CounterOr(*c, "memory_in_use_bytes");
       ASSERT_GT(baseBytes, 0.0);
     }
     budget_ = baseBytes + refinementKiB * 1024.0;
-    sma_ = MustStart(PENUMBRA_SMA_EXE,
-                     {"--scene", kScene, "--renderer", renderer_.Address(), "--criterion", "nld_os", "--improve-paths",
-                      "0", "--memory-budget", fmt::format("{:.6f}", budget_ / 1048576.0), "--memory-min-age", "0.3",
-                      "--memory-collect-start", "0.8", "--memory-collect-stop", "0.6"},
-                     "sma");
+    std::vector<std::string> args = {"--scene", sceneFile, "--renderer", renderer_.Address(), "--criterion", "nld_os",
+                                     "--improve-paths", "0", "--memory-budget", fmt::format("{:.6f}", budget_ / 1048576.0),
+                                     "--memory-min-age", "0.3", "--memory-collect-start", "0.8",
+                                     "--memory-collect-stop", "0.6"};
+    args.insert(args.end(), smaArgs.begin(), smaArgs.end());
+    sma_ = MustStart(PENUMBRA_SMA_EXE, args, "sma");
     auto connected = SmaTestClient::Connect(sma_.port, "walker");
     ASSERT_TRUE(connected.ok()) << connected.error().message << "\n" << sma_.process.LogTail();
     client_.emplace(std::move(*connected));
@@ -137,7 +151,7 @@ class SmaMemoryTest : public ::testing::Test {
     EXPECT_TRUE(client.SendView(view, viewId));
     const Status converged = client.WaitConverged(viewId, 120s);
     EXPECT_TRUE(converged.ok()) << name << ": " << converged.error().message << "\n" << sma_.process.LogTail();
-    ExpectExact(scene_, view, client.Mesh(), fmt::format("view {} ({})", viewId, name));
+    ExpectExact(scene_, pose_, view, client.Mesh(), fmt::format("view {} ({})", viewId, name));
     std::this_thread::sleep_for(1500ms);
     const double inUse = CounterOr(client, "memory_in_use_bytes");
     std::printf("view %llu (%s): %zu triangles held; %.0f KiB in use of %.0f (%.0f the client's mirror); "
@@ -150,6 +164,7 @@ class SmaMemoryTest : public ::testing::Test {
   }
 
   Scene scene_;
+  ScenePose pose_;  // where the scene's movable objects are when the views converge
   Service renderer_, sma_;
   double budget_ = 0.0;
   std::optional<SmaTestClient> client_;
@@ -203,6 +218,47 @@ TEST_F(SmaMemoryTest, ABudgetBelowWhatAViewHoldsNeverTakesWhatTheClientHolds) {
   for (size_t step = 0; step < walk.size(); ++step) Visit(walk[step], step + 1);
   EXPECT_GT(CounterOr(client, "collected_nodes"), 0.0);
   EXPECT_GT(CounterOr(client, "memory_collections_stuck"), 0.0);
+}
+
+// The collector and moving objects together: the box of
+// tests/data/cornell-box-once.json moves for 4 s (20 steps/s, each
+// invalidating most of what is cached, the next step's samples prepared
+// ahead) while the client looks at one view, then at another, and the
+// collector takes the first view's refinement under a budget below what the
+// views hold -- while the box still moves. Mappings, prepared samples and
+// refinement steps older than a collection must be re-made, never applied.
+// At rest, each view converges to an exact mesh at the final pose.
+TEST_F(SmaMemoryTest, CollectionsWhileAnObjectMovesKeepTheMeshExact) {
+  const std::string once = std::string(PENUMBRA_SOURCE_DIR) + "/tests/data/cornell-box-once.json";
+  ASSERT_NO_FATAL_FAILURE(StartStack(250.0, once, {"--animation-hz", "20"}));
+  SmaTestClient& client = *client_;
+  ASSERT_EQ(scene_.objects.size(), 1u);
+  const ObjectAnimation& path = *scene_.objects[0].animation;
+  pose_.objectToWorld[0] = path.At(path.DurationS());  // where it rests
+  const auto start = std::chrono::steady_clock::now();
+  // Deltas applied as they come, until `until`.
+  const auto watch = [&](std::chrono::steady_clock::time_point until) {
+    while (std::chrono::steady_clock::now() < until) {
+      auto e = client.Wire().Receive(50ms);
+      if (!e && e.error().message == "timeout") continue;
+      ASSERT_TRUE(e.ok()) << e.error().message << "\n" << sma_.process.LogTail();
+      ASSERT_TRUE(client.Apply(*e).ok());
+    }
+  };
+  ASSERT_TRUE(client.SendView(Preset(client, "corner"), 1));
+  ASSERT_NO_FATAL_FAILURE(watch(start + 1500ms));
+  ASSERT_TRUE(client.SendView(Preset(client, "front"), 2));
+  ASSERT_NO_FATAL_FAILURE(watch(start + 3300ms));
+  const double movesSoFar = CounterOr(client, "moves");
+  const double collectedWhileMoving = CounterOr(client, "collected_nodes");
+  EXPECT_LT(movesSoFar, 20.0 * path.DurationS()) << "the box still moves";
+  EXPECT_GT(collectedWhileMoving, 0.0) << "the collector took the corner view's refinement meanwhile";
+  ASSERT_NO_FATAL_FAILURE(watch(start + 4500ms));
+  const std::vector<std::string> walk = {"front", "corner", "front"};
+  for (size_t step = 0; step < walk.size(); ++step) Visit(walk[step], step + 3);
+  EXPECT_GE(CounterOr(client, "moves"), 40.0);
+  EXPECT_GT(CounterOr(client, "move_predictions_hit"), 0.0);
+  RecordProperty("collected_nodes_while_moving", fmt::format("{}", collectedWhileMoving));
 }
 
 }  // namespace

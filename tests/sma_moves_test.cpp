@@ -18,7 +18,6 @@
 #include <cmath>
 #include <map>
 #include <filesystem>
-#include <fstream>
 #include <thread>
 #include <limits>
 #include <optional>
@@ -404,24 +403,12 @@ TEST_F(SmaMovesTest, ADragEndsWithTheImageOfASingleMoveThere) {
 // with prediction must have used prepared samples, or it proves nothing.
 TEST_F(SmaMovesTest, PredictedAnimationStepsEndWithTheImageOfUnpredictedOnes) {
   if (!std::filesystem::exists(kAnimatedScene)) GTEST_SKIP() << kAnimatedScene << " is not there";
-  // The animated box's path, played once: 2 s from its place to another.
-  const std::filesystem::path dir = std::filesystem::path(::testing::TempDir()) / "penumbra-predicted-steps";
-  std::filesystem::create_directories(dir);
-  const std::filesystem::path sceneFile = dir / "cornell-box-once.json";
-  const std::string scenes = std::string(PENUMBRA_SOURCE_DIR) + "/scenes";
-  {
-    std::ofstream out(sceneFile);
-    out << R"({"name": "cornell-box-once", "mesh": ")" << scenes << R"(/cornell-box/CornellBox-Original.obj",
-      "objects": {"box": {"mesh": ")" << scenes << R"(/cornell-box/floating-box.obj",
-        "animation": {"loop": false, "keyframes": [
-          {"t": 0, "translate": [-0.45, 0.55, 0.45], "rotate_deg": 30, "axis": [0, 1, 0]},
-          {"t": 2, "translate": [-0.1, 0.9, 0.2], "rotate_deg": 100, "axis": [0, 1, 0]}]}}},
-      "cameras": {"front": {"eye": [0, 1, 3.9], "target": [0, 1, 0], "up": [0, 1, 0], "fov_y_deg": 40}}})";
-  }
+  // The animated box's path, played once: 4 s from its place to another.
+  const std::filesystem::path sceneFile = std::string(PENUMBRA_SOURCE_DIR) + "/tests/data/cornell-box-once.json";
   auto scene = LoadScene(sceneFile);
   ASSERT_TRUE(scene.ok()) << scene.error().message;
   ASSERT_EQ(scene->objects.size(), 1u);
-  const auto endFloats = scene->objects[0].animation->At(2.0).ToRowMajor();
+  const auto endFloats = scene->objects[0].animation->At(scene->objects[0].animation->DurationS()).ToRowMajor();
 
   const auto watch = [&](const std::string& prediction, std::map<uint64_t, Rgb>* radiance,
                          std::map<std::string, double>* counters) {
