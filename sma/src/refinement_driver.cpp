@@ -8,17 +8,16 @@ RefinementDriver::RefinementDriver(RefinementParams params, uint64_t maxSamplesP
     : params_(params), maxSamplesPerView_(maxSamplesPerView), refiner_(std::make_shared<Refiner>(params)) {}
 
 void RefinementDriver::Restart() {
-  refiner_ = std::make_shared<Refiner>(params_);
-  requestedBefore_ = 0;
-  done_ = false;
-  pending_.clear();
-  total_ = doneCount_ = 0;
+  RestartSameView();
+  requestedThisView_ = 0;
+  ++viewSerial_;
 }
 
 void RefinementDriver::RestartSameView() {
-  const size_t requested = Requested();
-  Restart();
-  requestedBefore_ = requested;
+  refiner_ = std::make_shared<Refiner>(params_);
+  done_ = false;
+  pending_.clear();
+  total_ = doneCount_ = 0;
 }
 
 RefinementDriver::Start RefinementDriver::StartStep(bool stage1Done) {
@@ -30,6 +29,7 @@ RefinementDriver::Start RefinementDriver::StartStep(bool stage1Done) {
     return Start::kCapReached;
   }
   running_ = true;
+  stepSerial_ = viewSerial_;
   return Start::kStep;
 }
 
@@ -77,7 +77,10 @@ RefinementStep RefinementDriver::RunStep(std::shared_ptr<Refiner> refiner, const
 RefinementDriver::After RefinementDriver::OnStepDone(RefinementStep step, const SampleCache& cache,
                                                      bool remapPending) {
   running_ = false;
-  if (step.refiner != refiner_) return After::kStale;  // the view changed meanwhile
+  // A step of this view counts against its cap even when a move replaced
+  // its Refiner meanwhile; one of an earlier view does not.
+  if (stepSerial_ == viewSerial_) requestedThisView_ += step.created.size();
+  if (step.refiner != refiner_) return After::kStale;  // the view changed (or was lit anew) meanwhile
   splits_ += step.chosen;
   samples_ += step.created.size();
   // Results may have landed before this step's report: only wait for what

@@ -214,6 +214,30 @@ TEST(RefinementDriverTest, TheSampleCapEndsTheViewsRefinement) {
   EXPECT_EQ(driver.StartStep(true), RefinementDriver::Start::kStep);
 }
 
+// A move while a step runs replaces its Refiner: the step comes back stale,
+// and still counts against the view's cap (an animation moves at every
+// step); a step of a view since replaced does not.
+TEST(RefinementDriverTest, AStepReplacedByAMoveStillCountsAgainstTheViewsCap) {
+  World w;
+  RefinementDriver driver(EdgeParams(), /*maxSamplesPerView=*/1);
+  ASSERT_EQ(driver.StartStep(true), RefinementDriver::Start::kStep);
+  RefinementStep step = w.Step(driver);
+  const size_t created = step.created.size();
+  ASSERT_GT(created, 0u);
+  driver.RestartSameView();  // the move, while the step ran
+  EXPECT_EQ(driver.OnStepDone(std::move(step), w.cache, false), RefinementDriver::After::kStale);
+  EXPECT_EQ(driver.Requested(), created);
+  EXPECT_EQ(driver.StartStep(true), RefinementDriver::Start::kCapReached);
+
+  RefinementDriver other(EdgeParams(), /*maxSamplesPerView=*/1);
+  ASSERT_EQ(other.StartStep(true), RefinementDriver::Start::kStep);
+  RefinementStep old = w.Step(other);
+  other.Restart();  // a new view while the step ran
+  EXPECT_EQ(other.OnStepDone(std::move(old), w.cache, false), RefinementDriver::After::kStale);
+  EXPECT_EQ(other.Requested(), 0u);
+  EXPECT_EQ(other.StartStep(true), RefinementDriver::Start::kStep);
+}
+
 TEST(RefinementDriverTest, AStepOfAReplacedRefinerIsStaleAndCountsNothing) {
   World w;
   RefinementDriver driver(EdgeParams(), 1'000'000);

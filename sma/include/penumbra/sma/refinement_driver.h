@@ -123,14 +123,20 @@ class RefinementDriver {
   size_t SamplesDone() const { return std::min(doneCount_, total_); }
   uint64_t Splits() const { return splits_; }        // every view's, for statistics
   uint64_t Samples() const { return samples_; }
-  /// Samples this view's refinement asked for (across RestartSameView).
-  size_t Requested() const { return requestedBefore_ + refiner_->Requested(); }
+  /// Samples this view's refinement asked for (across RestartSameView), as
+  /// its steps reported them (OnStepDone).
+  size_t Requested() const { return requestedThisView_; }
 
  private:
   RefinementParams params_;
   uint64_t maxSamplesPerView_;
   std::shared_ptr<Refiner> refiner_;
-  size_t requestedBefore_ = 0;  // by this view's Refiners replaced by RestartSameView
+  // The cap's count, kept on the strand (a running step's Refiner is its
+  // job thread's until OnStepDone): every step of this view, including
+  // those of Refiners RestartSameView replaced.
+  size_t requestedThisView_ = 0;
+  uint64_t viewSerial_ = 0;  // bumped by Restart (a new view), not by RestartSameView
+  uint64_t stepSerial_ = 0;  // viewSerial_ when the running step started
   bool running_ = false;
   bool done_ = false;
   std::unordered_set<VertexId> pending_;  // split vertices not yet shaded
