@@ -1666,8 +1666,12 @@ void SmaServer::Impl::TrimFreedHeap() {
   const auto after = metrics::ResidentMemoryBytes();
   ++trims_;
   if (before && after && *after < *before) trimmedBytes_ += *before - *after;
-  log_->debug("memory: malloc_trim after a collection: resident {:.1f} -> {:.1f} MiB in {:.1f} ms",
-              double(before.value_or(0)) / 1048576.0, double(after.value_or(0)) / 1048576.0, ms);
+  // Logged when it mattered: a walk under a small budget collects every few
+  // seconds.
+  const bool notable = (before && after && *before >= *after + (size_t(4) << 20)) || ms >= 20.0;
+  log_->log(notable ? spdlog::level::info : spdlog::level::debug,
+            "memory: malloc_trim after a collection: resident {:.1f} -> {:.1f} MiB in {:.1f} ms",
+            double(before.value_or(0)) / 1048576.0, double(after.value_or(0)) / 1048576.0, ms);
 }
 
 void SmaServer::Impl::ArmRendererWatch() {
