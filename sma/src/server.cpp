@@ -1567,10 +1567,19 @@ void SmaServer::Impl::Collect(bool fresh) {
   // Runs after every waiting new view, re-map and prediction, taking turns
   // with the sessions' refinement steps (JobClass::kRefinement); it posts
   // itself again after each bounded step.
-  const auto finish = [this] {
-    TrimFreedHeap();
-    collecting_ = false;
-  };
+  // finish() ends the collection when this job returns: the trim (tens of
+  // ms) runs after the state lock below is released, so it holds up no
+  // split, and before collecting_ lets the next collection job in.
+  struct EndOfCollection {
+    Impl* impl;
+    bool finished = false;
+    ~EndOfCollection() {
+      if (!finished) return;
+      impl->TrimFreedHeap();
+      impl->collecting_ = false;
+    }
+  } end{this};
+  const auto finish = [&end] { end.finished = true; };
   if (shuttingDown_) return finish();
   size_t inUse = 0;
   {
