@@ -1663,8 +1663,9 @@ void SmaServer::Impl::TrimFreedHeap() {
   // scene records' chunks, dropped cache chunks -- stayed resident after it,
   // so resident memory went on growing past the data in use
   // (docs/performance.md "Memory over a long walk"). malloc_trim(0) walks
-  // all arenas and madvises their free pages away: a few ms, here on the
-  // collection job's thread, never an I/O thread, once per collection.
+  // all arenas and madvises their free pages away: 20-70 ms on the street,
+  // so on the collection job's thread, never an I/O thread, after the state
+  // lock is released, once per collection.
   constexpr size_t kTrimAfterFreedBytes = size_t(1) << 20;
   if (freedSinceTrim_ < kTrimAfterFreedBytes) return;
   freedSinceTrim_ = 0;
