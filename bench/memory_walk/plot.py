@@ -79,6 +79,7 @@ def main():
             "evicted": last_number(column(rows, "samples_evicted")),
             "remade": last_number(column(rows, "samples_reshaded_after_eviction")),
             "seconds": t[-1],
+            "trimmed": last_number(column(rows, "trimmed_bytes")) / MIB,
         }
     ax_rss.set_ylabel("SMA resident memory (MiB)")
     ax_data.set_ylabel("SMA data: cache + hierarchy + clients (MiB)")
@@ -96,8 +97,8 @@ def main():
     base = summary.get(0)
     print("| run | walk (s) | RSS at start (MiB) | peak RSS (MiB) | VmHWM (MiB) | final RSS (MiB) | peak data (MiB) | peak in use (MiB) |"
           " RSS saved vs unbounded | data saved | samples shaded | evicted | re-shaded after eviction |"
-          " prediction hit rate |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          " prediction hit rate | peak RSS - (start + budget) (MiB) | handed back by malloc_trim (MiB) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for budget, s in summary.items():
         saved = "baseline" if budget == 0 or not base else f"{100.0 * (1.0 - s['peak_rss'] / base['peak_rss']):.0f} %"
         data_saved = ("baseline" if budget == 0 or not base
@@ -105,9 +106,11 @@ def main():
         remade = (f"{s['remade']:.0f} ({100.0 * s['remade'] / s['shaded']:.1f} %)"
                   if s['shaded'] == s['shaded'] and s['shaded'] > 0 and s['remade'] == s['remade'] else "")
         name = "unbounded" if budget == 0 else f"budget {budget} MiB"
+        over = "" if budget == 0 else f"{s['peak_rss'] - (s['start_rss'] + budget):+.0f}"
+        trimmed = f"{s['trimmed']:.0f}" if s['trimmed'] == s['trimmed'] else ""
         print(f"| {name} | {s['seconds']:.0f} | {s['start_rss']:.0f} | {s['peak_rss']:.0f} | {s['hwm']:.0f} | {s['final_rss']:.0f} |"
               f" {s['peak_data']:.0f} | {s['peak_in_use']:.0f} | {saved} | {data_saved} | {s['shaded']:.0f} |"
-              f" {s['evicted']:.0f} | {remade} | {s['hit']:.3f} |")
+              f" {s['evicted']:.0f} | {remade} | {s['hit']:.3f} | {over} | {trimmed} |")
 
 
 if __name__ == "__main__":

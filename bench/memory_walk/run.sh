@@ -58,7 +58,7 @@ for budget in $budgets; do
   wait_for_file "$logs/s.port"
   wait_for_file "$logs/h.port"
   csv="$out/walk-$budget.csv"
-  echo "t_s,rss_bytes,hwm_bytes,memory_bytes,memory_cache_bytes,memory_hierarchy_bytes,memory_clients_bytes,samples_shaded,prediction_hit_rate,memory_in_use_bytes,samples_evicted,samples_reshaded_after_eviction,collected_nodes" >"$csv"
+  echo "t_s,rss_bytes,hwm_bytes,memory_bytes,memory_cache_bytes,memory_hierarchy_bytes,memory_clients_bytes,samples_shaded,prediction_hit_rate,memory_in_use_bytes,samples_evicted,samples_reshaded_after_eviction,collected_nodes,trimmed_bytes" >"$csv"
   "$build/client/penumbra-client" --connect "127.0.0.1:$(cat "$logs/s.port")" --headless --gl egl \
     --camera-path "$scene#$path_name" --seconds "$seconds" --stats "$logs/client-stats.jsonl" \
     --log-level warn >"$logs/client.log" 2>&1 &

@@ -34,6 +34,7 @@ wanted = [
     "penumbra_sma_samples_evicted_total",
     "penumbra_sma_samples_reshaded_after_eviction_total",
     "penumbra_sma_collected_nodes_total",
+    "penumbra_sma_memory_trimmed_bytes_total",
 ]
 row = [f"{time.time() - t0:.1f}", kib("VmRSS"), kib("VmHWM")] + [metrics.get(w, "") for w in wanted]
 print(",".join(row))

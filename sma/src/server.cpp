@@ -367,6 +367,14 @@ class SmaServer::Impl {
   bool collectedSinceScan_ = false;    // the collection job's
   bool releasedThisCollection_ = false;  // the collection job's: scene records released in this one
   std::atomic<uint64_t> recordsReleasedBytes_{0};
+  // What a collection freed since the last malloc_trim (the collection
+  // job's), and what the trims handed back: resident bytes before less after.
+  size_t freedSinceTrim_ = 0;
+  std::atomic<uint64_t> trims_{0};
+  std::atomic<uint64_t> trimmedBytes_{0};
+  // Job thread, at the end of a collection that freed something: hands the
+  // heap pages it left free back to the system (malloc_trim).
+  void TrimFreedHeap();
   std::atomic<uint64_t> collections_{0};        // collections started (over the start level)
   std::atomic<uint64_t> collectedGroups_{0};
   std::atomic<uint64_t> collectedNodes_{0};
@@ -1461,6 +1469,8 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
   AddCounter(reply, "collect_kept_groups", double(collectKept_.load()));
   AddCounter(reply, "samples_evicted", double(samplesEvicted_.load()));
   AddCounter(reply, "scene_records_released_bytes", double(recordsReleasedBytes_.load()));
+  AddCounter(reply, "memory_trims", double(trims_.load()));
+  AddCounter(reply, "memory_trimmed_bytes", double(trimmedBytes_.load()));
   AddCounter(reply, "samples_reshaded_after_eviction", double(samplesRemade_.load()));
   AddCounter(reply, "remaps_after_collection", double(remapsAfterCollection_.load()));
   if (const auto rss = metrics::ResidentMemoryBytes()) AddCounter(reply, "process_resident_bytes", double(*rss));
@@ -1610,7 +1620,19 @@ void SmaServer::Impl::Collect(bool fresh) {
   // Runs after every waiting new view, re-map and prediction, taking turns
   // with the sessions' refinement steps (JobClass::kRefinement); it posts
   // itself again after each bounded step.
-  const auto finish = [this] { collecting_ = false; };
+  // finish() ends the collection when this job returns: the trim (tens of
+  // ms) runs after the state lock below is released, so it holds up no
+  // split, and before collecting_ lets the next collection job in.
+  struct EndOfCollection {
+    Impl* impl;
+    bool finished = false;
+    ~EndOfCollection() {
+      if (!finished) return;
+      impl->TrimFreedHeap();
+      impl->collecting_ = false;
+    }
+  } end{this};
+  const auto finish = [&end] { end.finished = true; };
   if (shuttingDown_) return finish();
   size_t inUse = 0;
   {
@@ -1640,7 +1662,9 @@ void SmaServer::Impl::Collect(bool fresh) {
       releasedThisCollection_ = true;
       {
         std::unique_lock lock(stateMutex_);
-        recordsReleasedBytes_ += hierarchy_.ReleaseSceneRecords();
+        const size_t released = hierarchy_.ReleaseSceneRecords();
+        recordsReleasedBytes_ += released;
+        freedSinceTrim_ += released;
         inUse = DataInUse();
       }
       memoryInUse_ = inUse;
@@ -1673,6 +1697,7 @@ void SmaServer::Impl::Collect(bool fresh) {
                            });
   }
   collectedSinceScan_ = collectedSinceScan_ || step.groups > 0;
+  freedSinceTrim_ += step.bytesFreed;
   collectedGroups_ += step.groups;
   collectedNodes_ += step.nodesFreed;
   collectedVertices_ += step.verticesFreed;
@@ -1682,6 +1707,34 @@ void SmaServer::Impl::Collect(bool fresh) {
               step.groups, step.nodesFreed, step.verticesFreed, step.samplesDropped, step.kept, step.young,
               double(step.bytesFreed) / 1048576.0);
   jobs_.Post(kCollectorSession, JobClass::kRefinement, [this] { Collect(/*fresh=*/false); });
+}
+
+void SmaServer::Impl::TrimFreedHeap() {
+  // glibc keeps the pages of freed chunks resident (in the middle of a heap,
+  // and in every thread's arena) and reuses them only for allocations that
+  // fit: what a collection frees -- collapsed subtrees' vectors, released
+  // scene records' chunks, dropped cache chunks -- stayed resident after it,
+  // so resident memory went on growing past the data in use
+  // (docs/performance.md "Memory over a long walk"). malloc_trim(0) walks
+  // all arenas and madvises their free pages away: 20-70 ms on the street,
+  // so on the collection job's thread, never an I/O thread, after the state
+  // lock is released, once per collection.
+  constexpr size_t kTrimAfterFreedBytes = size_t(1) << 20;
+  if (freedSinceTrim_ < kTrimAfterFreedBytes) return;
+  freedSinceTrim_ = 0;
+  const auto before = metrics::ResidentMemoryBytes();
+  const auto start = Clock::now();
+  malloc_trim(0);
+  const double ms = std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+  const auto after = metrics::ResidentMemoryBytes();
+  ++trims_;
+  if (before && after && *after < *before) trimmedBytes_ += *before - *after;
+  // Logged when it mattered: a walk under a small budget collects every few
+  // seconds.
+  const bool notable = (before && after && *before >= *after + (size_t(4) << 20)) || ms >= 20.0;
+  log_->log(notable ? spdlog::level::info : spdlog::level::debug,
+            "memory: malloc_trim after a collection: resident {:.1f} -> {:.1f} MiB in {:.1f} ms",
+            double(before.value_or(0)) / 1048576.0, double(after.value_or(0)) / 1048576.0, ms);
 }
 
 void SmaServer::Impl::ArmRendererWatch() {
