@@ -125,16 +125,7 @@ void SampleScheduler::Retry(std::span<const VertexId> vertices) {
 
 size_t SampleScheduler::Prepare(std::span<const SampleRequest> samples, uint64_t epoch) {
   // The earlier preparation's samples not sent yet are of no use now.
-  for (auto it = prepared_.begin(); it != prepared_.end();) {
-    if (it->second.state == EntryState::kQueued) {
-      it = prepared_.erase(it);
-      ++preparedDropped_;
-    } else {
-      ++it;
-    }
-  }
-  preparedQueue_.clear();
-  queuedPrepared_ = 0;
+  preparedDropped_ += TakeQueuedPrepared().size();
   preparedEpoch_ = epoch;
   size_t added = 0;
   for (const SampleRequest& s : samples) {
@@ -160,19 +151,28 @@ void SampleScheduler::CompletePrepared(std::span<const ShadedSample> samples) {
 
 size_t SampleScheduler::EndPreparation(uint64_t epoch, bool hit, const std::function<bool(VertexId)>& stored) {
   if (epoch != preparedEpoch_) return 0;
-  std::vector<SampleRequest> wanted;
+  std::vector<SampleRequest> queued = TakeQueuedPrepared();
+  if (!hit) {
+    preparedDropped_ += queued.size();
+    return 0;
+  }
+  if (stored) std::erase_if(queued, [&](const SampleRequest& r) { return stored(r.vertex); });
+  return queued.empty() ? 0 : Request(queued, Priority::kPredicted);
+}
+
+std::vector<SampleRequest> SampleScheduler::TakeQueuedPrepared() {
+  std::vector<SampleRequest> queued;
   for (auto it = prepared_.begin(); it != prepared_.end();) {
-    if (it->second.state != EntryState::kQueued) {
+    if (it->second.state == EntryState::kQueued) {
+      queued.push_back(it->second.request);
+      it = prepared_.erase(it);
+    } else {
       ++it;
-      continue;
     }
-    if (hit && !(stored && stored(it->first))) wanted.push_back(it->second.request);
-    else if (!hit) ++preparedDropped_;
-    it = prepared_.erase(it);
   }
   preparedQueue_.clear();
   queuedPrepared_ = 0;
-  return wanted.empty() ? 0 : Request(wanted, Priority::kPredicted);
+  return queued;
 }
 
 // --- Renderers ------------------------------------------------------------------

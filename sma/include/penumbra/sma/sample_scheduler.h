@@ -279,6 +279,8 @@ class SampleScheduler {
   bool Accepts(const Renderer& r, Clock::time_point now) const;
   bool TakeNext(Priority priority, VertexId& out);
   bool TakeNextPrepared(VertexId& out);
+  // Removes every prepared sample not sent yet; returns their requests.
+  std::vector<SampleRequest> TakeQueuedPrepared();
   // A queued first estimate not wanted by a view: to the predicted queue if
   // a prediction asked for it, else to the background queue.
   void QueueBelowVisible(VertexId v, Entry& e, bool front);
