@@ -60,7 +60,10 @@ enum class Priority : uint8_t { kVisible, kPredicted, kBackground, kImprove };
 
 struct SampleSchedulerOptions {
   uint32_t pathsPerSample = 0;      // background samples (refinement); 0: each renderer's default
-  uint32_t firstPaths = 16;         // visible samples (stage 1); 0: as pathsPerSample
+  // Visible samples (stage 1); 0: as pathsPerSample. 8 puts a new Sponza view's
+  // first complete image under 300 ms on two cores (docs/refinement.md); the
+  // improvement rounds average their paths in, so nothing shaded is wasted.
+  uint32_t firstPaths = 8;
   uint32_t improvePaths = 64;       // each improvement round
   uint32_t creditsPerRenderer = 4;  // batches in flight per renderer (and at most its own limit)
   uint32_t minBatchSamples = 8;
