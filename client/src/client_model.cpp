@@ -57,6 +57,11 @@ void ClientModel::ResetMesh() {
   objectToWorld.reserve(scene_->objects.size());
   for (const ClientObject& o : scene_->objects) objectToWorld.push_back(o.objectToWorld);
   mesh_.Reset(scene_->MaterialTextures(), scene_->textureCount, objectToWorld, scene_->sceneEpoch);
+  std::vector<Bounds3> spaceBounds{scene_->bounds};
+  for (const ClientObject& o : scene_->objects) spaceBounds.push_back(o.objectBounds);
+  // The SceneInfo's bounds were checked when it was read; a scene without
+  // geometry (empty bounds) leaves new vertices unchecked -- it sends none.
+  if (auto ok = mesh_.SetVertexBounds(spaceBounds); !ok) log_->warn("vertex positions unchecked: {}", ok.error().message);
 }
 
 void ClientModel::OnDelta(const DeltaReceived& event, SessionRequests& requests) {

@@ -63,6 +63,26 @@ void MeshStore::Reset(std::span<const int32_t> materialTextures, uint32_t textur
   objectsChanged_ = true;
   sceneEpoch_ = sceneEpoch;
   movesApplied_ = 0;
+  vertexBounds_.clear();
+}
+
+Status MeshStore::SetVertexBounds(std::span<const Bounds3> spaceBounds) {
+  if (spaceBounds.size() != size_t(ObjectCount()) + 1)
+    return Fail(fmt::format("{} vertex bounds for {} spaces (the static part and {} movable objects)",
+                            spaceBounds.size(), ObjectCount() + 1, ObjectCount()));
+  std::vector<Bounds3> grown;
+  grown.reserve(spaceBounds.size());
+  for (size_t i = 0; i < spaceBounds.size(); ++i) {
+    const Bounds3& b = spaceBounds[i];
+    const bool finite = std::isfinite(b.min.x) && std::isfinite(b.min.y) && std::isfinite(b.min.z) &&
+                        std::isfinite(b.max.x) && std::isfinite(b.max.y) && std::isfinite(b.max.z);
+    if (!finite || b.Empty())
+      return Fail(fmt::format("the vertex bounds of space {} are empty or not finite", i));
+    const float margin = std::max(1e-3f * glm::length(b.Diagonal()), 1e-6f);
+    grown.push_back(Bounds3{b.min - Vec3(margin), b.max + Vec3(margin)});
+  }
+  vertexBounds_ = std::move(grown);
+  return Status::Ok();
 }
 
 RigidTransform MeshStore::ConfirmedTransform(uint32_t id) const {
@@ -153,7 +173,25 @@ Status MeshStore::CheckShape(const wire::Delta& d) const {
       !AllFinite(d.updated_vertex_irradiance()))
     return Fail(fmt::format("delta {}: a vertex position, radiance, irradiance or texture coordinate is not finite",
                             d.sequence()));
-  return CheckObjects(d);
+  if (auto ok = CheckObjects(d); !ok) return ok;
+  return CheckPositions(d);
+}
+
+Status MeshStore::CheckPositions(const wire::Delta& d) const {
+  if (vertexBounds_.empty()) return Status::Ok();
+  for (int i = 0; i < d.vertex_ids_size(); ++i) {
+    // CheckObjects bounded the object ids by ObjectCount().
+    const uint32_t object = d.vertex_objects_size() > 0 ? d.vertex_objects(i) : 0;
+    const Rgb p = RgbAt(d.vertex_positions(), i);
+    const Bounds3& b = vertexBounds_[object];
+    if (p.x < b.min.x || p.y < b.min.y || p.z < b.min.z || p.x > b.max.x || p.y > b.max.y || p.z > b.max.z)
+      return Fail(fmt::format("delta {}: vertex {} at ({}, {}, {}) lies outside {} ({}, {}, {})-({}, {}, {})",
+                              d.sequence(), d.vertex_ids(i), p.x, p.y, p.z,
+                              object == 0 ? std::string("the scene's bounds")
+                                          : fmt::format("object {}'s bounds", object),
+                              b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z));
+  }
+  return Status::Ok();
 }
 
 Status MeshStore::CheckObjects(const wire::Delta& d) const {

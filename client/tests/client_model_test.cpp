@@ -74,7 +74,7 @@ TEST(ClientModelTest, ABadDeltaEmptiesTheMeshAndTheNextConnectionStartsClean) {
 
   // Adds a good triangle, then one whose vertex was never sent.
   DeltaBuilder bad(2, 1, wire::DELTA_KIND_SHADED);
-  bad.Vertex(7, Vec3(2, 0, 0), Rgb(1)).Triangle(11, {1, 2, 7}, 0).Triangle(12, {1, 2, 99}, 0);
+  bad.Vertex(7, Vec3(0.5f, 0.5f, 0), Rgb(1)).Triangle(11, {1, 2, 7}, 0).Triangle(12, {1, 2, 99}, 0);
   model.Apply(Events(DeltaReceived{1, 1, bad.Delta()}, GreyTriangle(1, 3, 1)), requests);
   ASSERT_EQ(requests.abandoned.size(), 1u);
   EXPECT_EQ(requests.abandoned[0].first, 1u);

@@ -161,6 +161,9 @@ class MeshRendererTest : public GlTest {
     Connected connected;
     connected.connection = 1;
     connected.scene = testing::UnitSquareScene(1);
+    // Some tests park triangles far off screen (x up to 2100): the scene says
+    // it is that large, or the store would refuse them (MeshStore::SetVertexBounds).
+    connected.scene.bounds.Extend(Vec3(2101.0f, 1.0f, 0.0f));
     Apply(std::move(connected));
   }
 

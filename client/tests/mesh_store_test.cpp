@@ -297,6 +297,42 @@ class MeshStoreObjectsTest : public MeshStoreTest {
   const RigidTransform panel_ = RigidTransform::FromAxisAngle(Vec3(1, 0, 0), -0.3f, Vec3(0, 0, 5));
 };
 
+// Every vertex the SMA makes lies within its space's bounds: a vertex far
+// outside (a hostile peer's, or an SMA bug's) is refused before anything
+// changes, static and object-space alike; a point just past the box (within
+// 1e-3 of its diagonal: rounding of a midpoint) is not.
+TEST_F(MeshStoreObjectsTest, AVertexOutsideItsSpacesBoundsIsRefused) {
+  const Bounds3 unit{Vec3(0), Vec3(1, 1, 0)};
+  const Bounds3 wide{Vec3(-10), Vec3(10)};
+  ASSERT_FALSE(store_.SetVertexBounds(std::vector<Bounds3>{wide, unit}).ok());  // one per space
+  ASSERT_FALSE(store_.SetVertexBounds(std::vector<Bounds3>{wide, Bounds3{}, unit}).ok());  // an empty box
+  ASSERT_TRUE(store_.SetVertexBounds(std::vector<Bounds3>{wide, unit, unit}).ok());
+
+  DeltaBuilder far = ThreeParts();
+  far.Mutable().set_vertex_positions(0, 1e9f);  // static vertex 1
+  ExpectRefused(far.Delta(), "vertex 1 at (");
+  ExpectRefused(far.Delta(), "outside the scene's bounds");
+  EXPECT_EQ(store_.VertexCount(), 0u);
+  EXPECT_EQ(store_.LastSequence(), 0u);
+
+  DeltaBuilder outsideObject = ThreeParts();
+  outsideObject.Mutable().set_vertex_positions(3 * 4 + 1, 1.01f);  // object 1's vertex 5, y: inside `wide`
+  ExpectRefused(outsideObject.Delta(), "object 1's bounds");
+
+  DeltaBuilder rounding = ThreeParts();
+  rounding.Mutable().set_vertex_positions(3 * 7, -1e-4f);  // object 2's vertex 8: 1e-4 outside
+  EXPECT_TRUE(store_.Apply(rounding.Delta()).ok());
+  EXPECT_EQ(store_.VertexCount(), 9u);
+}
+
+// Reset forgets the bounds: a new connection's SceneInfo sets them again.
+TEST_F(MeshStoreTest, ResetForgetsTheVertexBounds) {
+  ASSERT_TRUE(store_.SetVertexBounds(std::vector<Bounds3>{Bounds3{Vec3(5), Vec3(6)}}).ok());
+  ExpectRefused(Quad().Delta(), "outside the scene's bounds");
+  store_.Reset(std::vector<int32_t>{-1, 0}, 1);
+  EXPECT_TRUE(store_.Apply(Quad().Delta()).ok());
+}
+
 TEST_F(MeshStoreObjectsTest, AnObjectsVertexIsPlacedByItsTransform) {
   ASSERT_TRUE(store_.Apply(ThreeParts().Delta()).ok());
   EXPECT_EQ(store_.ObjectCount(), 2u);

@@ -8,7 +8,10 @@
 // After every delta the store's own view must be consistent: the vertex
 // slots cover every held vertex, and every triangle slot in use names a
 // vertex slot in range. Input: a stream of frames whose envelopes carry
-// deltas (other bodies are skipped).
+// deltas (other bodies are skipped). Every held vertex lies within the
+// bounds the store was given (MeshStore::SetVertexBounds).
+
+#include <cmath>
 
 #include "fuzz_support.h"
 #include "penumbra/client/mesh_store.h"
@@ -21,16 +24,27 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   const std::vector<int32_t> materialTextures{-1, -1, -1, -1, -1, -1, 0, 1};
   const std::vector<RigidTransform> objects{RigidTransform::Identity(),
                                             RigidTransform::FromAxisAngle(Vec3(0, 1, 0), 0.5f, Vec3(1, 0, 0))};
+  // Vertices must lie within 10 m of the origin in every space (the seeds'
+  // do); the fuzzer's far-flung ones are refused.
+  const Bounds3 room{Vec3(-10.0f), Vec3(10.0f)};
+  const std::vector<Bounds3> spaceBounds{room, room, room};
   client::MeshStore store;
-  store.Reset(materialTextures, 2, objects);
+  auto reset = [&] {
+    store.Reset(materialTextures, 2, objects);
+    PENUMBRA_CHECK(store.SetVertexBounds(spaceBounds).ok(), "three finite boxes for three spaces");
+  };
+  reset();
   for (const wire::Envelope& envelope : fuzz::DecodeFrameStream(data, size)) {
     if (!envelope.has_delta()) continue;
     if (!store.Apply(envelope.delta())) {
-      store.Reset(materialTextures, 2, objects);
+      reset();
       continue;
     }
     const auto vertexSlots = store.VertexSlots();
     PENUMBRA_CHECK(vertexSlots.size() >= store.VertexCount(), "fewer vertex slots than vertices");
+    for (const client::GpuVertex& v : vertexSlots)  // released slots are zeroed: inside too
+      for (int c = 0; c < 3; ++c)
+        PENUMBRA_CHECK(std::abs(v.position[c]) <= 10.1f, "a held vertex outside the bounds set");
     size_t triangles = 0;
     for (client::TriangleGroup& group : store.Groups()) {
       PENUMBRA_CHECK(group.slots.size() >= group.allocator.HighWater(), "triangle slots behind the allocator");

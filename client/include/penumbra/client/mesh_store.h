@@ -97,13 +97,25 @@ class MeshStore {
   /// i + 1 at index i) at `sceneEpoch`; empty for a static scene.
   void Reset(std::span<const int32_t> materialTextures, uint32_t textureCount,
              std::span<const RigidTransform> objectToWorld = {}, uint64_t sceneEpoch = 0);
+  /// Where new vertices may lie, after Reset: index 0 the static part's
+  /// world bounds (SceneInfo's), index i object i's object-space bounds (one
+  /// per movable object). Every vertex the SMA makes is a corner of a scene
+  /// triangle or a point between corners, so it lies inside its space's
+  /// bounds; Apply refuses a new vertex farther out than 1e-3 of that box's
+  /// diagonal (1e-6 at least) -- a peer's garbage or an SMA bug, which a
+  /// rasterizer would otherwise be handed as a triangle kilometres wide.
+  /// Reset clears them (nothing checked until set). Fails, changing nothing,
+  /// on a count other than 1 + ObjectCount() or a box that is empty or not
+  /// finite.
+  Status SetVertexBounds(std::span<const Bounds3> spaceBounds);
 
   /// Applies one delta in the protocol's order: removals, then vertices, then
   /// triangles. Fails with a message naming the delta's sequence and the
   /// offending id on any violation: a sequence gap, arrays of inconsistent
   /// length, a value that is not finite, an unknown material, a removal of a
   /// triangle not held, a vertex sent while held, a triangle added while held
-  /// or using a vertex not held, a vertex sent but used by no triangle. After
+  /// or using a vertex not held, a vertex sent but used by no triangle, a new
+  /// vertex outside its space's bounds (SetVertexBounds). After
   /// With movable objects: vertex_objects (one per new vertex, ids in
   /// range, corners of a triangle all of one object) is checked too; a
   /// MOVED delta carries only valid ids and rigid transforms (12 floats
@@ -189,6 +201,7 @@ class MeshStore {
 
   Status CheckShape(const wire::Delta& d) const;
   Status CheckObjects(const wire::Delta& d) const;
+  Status CheckPositions(const wire::Delta& d) const;
   void ApplyMoves(const wire::Delta& d);
   void WriteObjectSlot(uint32_t id);
   Status RemoveTriangle(uint64_t id);
@@ -212,6 +225,7 @@ class MeshStore {
   std::vector<RigidTransform> objectToWorld_;  // confirmed; id i + 1 at index i
   std::vector<std::optional<RigidTransform>> localTransform_;  // same indices
   std::vector<GpuObjectTransform> objectSlots_;  // 1 + ObjectCount(): the displayed transforms
+  std::vector<Bounds3> vertexBounds_;  // SetVertexBounds, grown by the tolerance; empty: unchecked
   bool objectsChanged_ = true;
   uint64_t sceneEpoch_ = 0;
   uint64_t movesApplied_ = 0;
