@@ -439,8 +439,10 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
  private:
   using JobStart = ViewSession::JobStart;
   struct JobTimings {
+    double queuedMs = 0.0;  // posted -> a job thread took it
     double traceMs = 0.0;
     double mapMs = 0.0;
+    Clock::time_point done{};  // the job posted its result to the strand
   };
 
   void OnMessage(wire::Envelope&& envelope);
@@ -701,10 +703,13 @@ void SmaServer::Impl::Session::StartJob() {
   state_.OnJobStarted(next, Clock::now());
   auto self = shared_from_this();
   std::shared_ptr<HitBuffer> hits = newView ? nullptr : hits_;
-  JobsFor(view).Post(id_, newView ? JobClass::kNewView : JobClass::kRefresh, [self, view, id, hits, newView]() mutable {
+  const auto posted = Clock::now();
+  JobsFor(view).Post(id_, newView ? JobClass::kNewView : JobClass::kRefresh,
+                     [self, view, id, hits, newView, posted]() mutable {
     Impl& server = self->server_;
     JobTimings t;
     auto t0 = Clock::now();
+    t.queuedMs = Ms(t0 - posted);
     // A re-map of hits traced before a move traces again: the object may
     // now hide or reveal triangles.
     const std::shared_ptr<const PosedEmbreeScene> posed = server.CurrentPosed();
@@ -725,6 +730,7 @@ void SmaServer::Impl::Session::StartJob() {
     auto t2 = Clock::now();
     t.traceMs = newView ? Ms(t1 - t0) : 0.0;
     t.mapMs = Ms(t2 - t1);
+    t.done = Clock::now();
     asio::post(self->connection_->Strand(),
                [self, id, newView, hits, visible, t] { self->OnJobDone(id, newView, hits, visible, t); });
   });
@@ -746,14 +752,17 @@ void SmaServer::Impl::Session::OnJobDone(uint64_t viewId, bool newView, std::sha
   // same view (no trace, a re-map) would overwrite its trace time with 0.
   if (newView) lastTimings_ = timings;
   const auto planStart = Clock::now();
+  const double strandWaitMs = Ms(planStart - timings.done);
   ApplyVisibility(newView);
   if (done.firstForView) {
     lastFirstDeltaMs_ = Ms(Clock::now() - state_.ViewReceived());
     server_.RecordView(timings.traceMs, timings.mapMs, lastFirstDeltaMs_);
-    log_->debug("{}: view {}: trace {:.1f} ms, map {:.1f} ms, plan+send {:.1f} ms, view->first delta {:.1f} ms; "
-                "{} visible, {} held, {} pending ({} samples)",
-                connection_->Id(), viewId, timings.traceMs, timings.mapMs, Ms(Clock::now() - planStart),
-                lastFirstDeltaMs_, visible_->nodes.size(), mirror_.TriangleCount(), state_.PendingNodes(),
+    // Where a view's first delta waited: for a job thread (queued), for the
+    // session's strand on the I/O thread (strand wait), or worked.
+    log_->debug("{}: view {}: queued {:.1f} ms, trace {:.1f} ms, map {:.1f} ms, strand wait {:.1f} ms, "
+                "plan+send {:.1f} ms, view->first delta {:.1f} ms; {} visible, {} held, {} pending ({} samples)",
+                connection_->Id(), viewId, timings.queuedMs, timings.traceMs, timings.mapMs, strandWaitMs,
+                Ms(Clock::now() - planStart), lastFirstDeltaMs_, visible_->nodes.size(), mirror_.TriangleCount(), state_.PendingNodes(),
                 state_.WaitingSamples());
   }
   UpdateReservation();
