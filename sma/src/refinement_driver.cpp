@@ -50,6 +50,7 @@ RefinementStep RefinementDriver::RunStep(std::shared_ptr<Refiner> refiner, const
   }
   if (!chosen.empty()) {
     std::unique_lock lock(context.stateMutex);
+    const auto locked = std::chrono::steady_clock::now();
     // A collection between the choice and now may have freed or reused the
     // chosen ids: choose again from a fresh mapping.
     if (context.hierarchy.StructureGeneration() != generation) {
@@ -66,6 +67,7 @@ RefinementStep RefinementDriver::RunStep(std::shared_ptr<Refiner> refiner, const
     }
     context.cache.Reserve(context.hierarchy.VertexCount());
     if (context.request && !step.created.empty()) context.request(step.created);
+    step.exclusiveMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - locked).count();
   }
   refiner->CountRequested(step.created.size());
   step.chosen = chosen.size();

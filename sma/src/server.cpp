@@ -439,6 +439,7 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
  private:
   using JobStart = ViewSession::JobStart;
   struct JobTimings {
+    double beforePostMs = 0.0;  // the view's arrival -> its job posted (the session's previous job, a drain)
     double queuedMs = 0.0;  // posted -> a job thread took it
     double traceMs = 0.0;
     double mapMs = 0.0;
@@ -704,11 +705,13 @@ void SmaServer::Impl::Session::StartJob() {
   auto self = shared_from_this();
   std::shared_ptr<HitBuffer> hits = newView ? nullptr : hits_;
   const auto posted = Clock::now();
+  const double beforePostMs = Ms(posted - state_.ViewReceived());
   JobsFor(view).Post(id_, newView ? JobClass::kNewView : JobClass::kRefresh,
-                     [self, view, id, hits, newView, posted]() mutable {
+                     [self, view, id, hits, newView, posted, beforePostMs]() mutable {
     Impl& server = self->server_;
     JobTimings t;
     auto t0 = Clock::now();
+    t.beforePostMs = beforePostMs;
     t.queuedMs = Ms(t0 - posted);
     // A re-map of hits traced before a move traces again: the object may
     // now hide or reveal triangles.
@@ -759,9 +762,9 @@ void SmaServer::Impl::Session::OnJobDone(uint64_t viewId, bool newView, std::sha
     server_.RecordView(timings.traceMs, timings.mapMs, lastFirstDeltaMs_);
     // Where a view's first delta waited: for a job thread (queued), for the
     // session's strand on the I/O thread (strand wait), or worked.
-    log_->debug("{}: view {}: queued {:.1f} ms, trace {:.1f} ms, map {:.1f} ms, strand wait {:.1f} ms, "
+    log_->debug("{}: view {}: before its job {:.1f} ms, queued {:.1f} ms, trace {:.1f} ms, map {:.1f} ms, strand wait {:.1f} ms, "
                 "plan+send {:.1f} ms, view->first delta {:.1f} ms; {} visible, {} held, {} pending ({} samples)",
-                connection_->Id(), viewId, timings.queuedMs, timings.traceMs, timings.mapMs, strandWaitMs,
+                connection_->Id(), viewId, timings.beforePostMs, timings.queuedMs, timings.traceMs, timings.mapMs, strandWaitMs,
                 Ms(Clock::now() - planStart), lastFirstDeltaMs_, visible_->nodes.size(), mirror_.TriangleCount(), state_.PendingNodes(),
                 state_.WaitingSamples());
   }
@@ -1106,6 +1109,7 @@ void SmaServer::Impl::Session::MaybeRefine() {
 
 void SmaServer::Impl::Session::OnRefineStepDone(RefinementStep step) {
   const size_t chosen = step.chosen, created = step.created.size();
+  const double exclusiveMs = step.exclusiveMs;
   const bool exhausted = step.exhausted;
   server_.samplesRemade_ += step.remadeVertices;
   if (step.staleMapping) {
@@ -1120,8 +1124,8 @@ void SmaServer::Impl::Session::OnRefineStepDone(RefinementStep step) {
     std::shared_lock lock(server_.stateMutex_);
     after = state_.OnRefineStepDone(std::move(step), server_.cache_);
   }
-  log_->trace("{}: refinement step: {} split, {} new vertices, exhausted {}; pending {}, next {}", connection_->Id(),
-              chosen, created, exhausted, state_.Refinement().PendingSamples(), int(after));
+  log_->debug("{}: refinement step: {} split, {} new vertices, exclusive {:.1f} ms, exhausted {}; pending {}, next {}",
+              connection_->Id(), chosen, created, exclusiveMs, exhausted, state_.Refinement().PendingSamples(), int(after));
   switch (after) {
     case RefinementDriver::After::kStale:    // the view changed meanwhile: its refinement may start
     case RefinementDriver::After::kStepNow:  // nothing outstanding will wake it: look again now

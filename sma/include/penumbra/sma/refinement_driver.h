@@ -52,6 +52,7 @@ struct RefinementStep {
   /// re-mapped first (hierarchy.h, "Collection").
   bool staleMapping = false;
   size_t remadeVertices = 0;  // of `created`, made again after a collection (RefineResult)
+  double exclusiveMs = 0.0;   // the state lock held exclusive (splits and requests): every reader waits
 };
 
 class RefinementDriver {
