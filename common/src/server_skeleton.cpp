@@ -14,12 +14,13 @@ using Clock = std::chrono::steady_clock;
 
 ServerSkeletonBase::ServerSkeletonBase(asio::io_context& io, ServerSkeletonOptions options, ServerHooks hooks)
     : io_(io),
+      control_(asio::make_strand(io)),
       options_(std::move(options)),
       hooks_(std::move(hooks)),
       log_(Logger(options_.role.logger)),
-      signals_(io, SIGINT, SIGTERM),
-      statsTimer_(io),
-      drainTimer_(io) {}
+      signals_(control_, SIGINT, SIGTERM),
+      statsTimer_(control_),
+      drainTimer_(control_) {}
 
 ServerSkeletonBase::~ServerSkeletonBase() = default;
 
@@ -56,7 +57,7 @@ void ServerSkeletonBase::RunIo(int ioThreads) {
 }
 
 void ServerSkeletonBase::Shutdown() {
-  asio::post(io_, [this] { BeginShutdown(); });
+  asio::post(control_, [this] { BeginShutdown(); });
 }
 
 void ServerSkeletonBase::BeginShutdown() {

@@ -1619,14 +1619,14 @@ size_t SmaServer::Impl::DataInUse() {
 
 void SmaServer::Impl::ArmCollectorClock() {
   collectorTimer_.expires_after(kTick);
-  collectorTimer_.async_wait([this](const error_code& ec) {
+  collectorTimer_.async_wait(asio::bind_executor(skeleton_.Control(), [this](const error_code& ec) {
     if (ec || shuttingDown_) return;
     const auto ticks = uint32_t((Clock::now() - collectorStart_) / kTick);
     hierarchy_.SetTick(ticks);  // an atomic: no lock
     if (collector_.Enabled() && ticks % kCollectCheckTicks == 0 && !collecting_.exchange(true))
       jobs_.Post(kCollectorSession, JobClass::kRefinement, [this] { Collect(/*fresh=*/true); });
     ArmCollectorClock();
-  });
+  }));
 }
 
 void SmaServer::Impl::Collect(bool fresh) {
@@ -1752,13 +1752,13 @@ void SmaServer::Impl::TrimFreedHeap() {
 
 void SmaServer::Impl::ArmRendererWatch() {
   rendererWatchTimer_.expires_after(std::chrono::milliseconds(500));
-  rendererWatchTimer_.async_wait([this](const error_code& ec) {
+  rendererWatchTimer_.async_wait(asio::bind_executor(skeleton_.Control(), [this](const error_code& ec) {
     if (ec || shuttingDown_) return;
     const size_t renderers = pool_->ReadyRenderers();
     for (auto& session : Sessions())
       asio::post(session->Connection().Strand(), [session, renderers] { session->OnRendererCount(renderers); });
     ArmRendererWatch();
-  });
+  }));
 }
 
 void SmaServer::Impl::ApplyMoves() {
@@ -1965,7 +1965,7 @@ void SmaServer::Impl::ArmAnimation() {
     return animationStart_ + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(double(step) / hz));
   };
   animationTimer_.expires_at(stepTime(animationStep_.load() + 1));
-  animationTimer_.async_wait([this, hz](const error_code& ec) {
+  animationTimer_.async_wait(asio::bind_executor(skeleton_.Control(), [this, hz](const error_code& ec) {
     if (ec || shuttingDown_) return;
     // A timer that fired more than a step late plays where the path is now,
     // not the steps it missed.
@@ -1977,9 +1977,11 @@ void SmaServer::Impl::ArmAnimation() {
     for (uint32_t i = 0; i < scene_.objects.size(); ++i)
       if (const auto& animation = scene_.objects[i].animation) SubmitMove(ObjectMove{i, animation->At(t)});
     ArmAnimation();
-  });
+  }));
 }
 
+// On the skeleton's control strand, like the timers' handlers: cancelling
+// them here never races one re-arming itself on another I/O thread.
 void SmaServer::Impl::StopWork() {
   shuttingDown_ = true;
   rendererWatchTimer_.cancel();

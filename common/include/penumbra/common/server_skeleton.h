@@ -8,8 +8,11 @@
 // (1 s by default) whatever a peer does.
 //
 // Threads: the tier owns the io_context and runs it (RunIo). Listen() is
-// called before, from the thread that will run it. Accepting, the stats
-// hook, the shutdown hook and the drain polling run on I/O threads.
+// called before, from the thread that will run it. Accepting runs on I/O
+// threads; the signals, the stats hook, the shutdown hook and the drain
+// polling run on the control strand (Control()), so with several I/O
+// threads they never run at once -- a tier's own server-wide timers are
+// bound to it too, so that the shutdown hook may cancel them.
 // Shutdown(), Draining(), Sessions(), SessionCount() and Remove() are
 // thread-safe.
 //
@@ -107,6 +110,10 @@ class ServerSkeletonBase {
   /// Begins the graceful shutdown. Thread-safe; idempotent.
   void Shutdown();
   bool Draining() const { return draining_.load(); }
+  /// The strand of the server-wide timers and the shutdown (see the file
+  /// comment): bind a tier's own timer handlers to it
+  /// (`asio::bind_executor(Control(), handler)`).
+  const asio::strand<asio::io_context::executor_type>& Control() const { return control_; }
   /// The options as fitted by Listen() (maxConnections).
   const ServerSkeletonOptions& Options() const { return options_; }
   virtual size_t SessionCount() const = 0;
@@ -125,6 +132,7 @@ class ServerSkeletonBase {
   void ArmStats();
 
   asio::io_context& io_;
+  asio::strand<asio::io_context::executor_type> control_;
   ServerSkeletonOptions options_;
   ServerHooks hooks_;
   std::shared_ptr<spdlog::logger> log_;
