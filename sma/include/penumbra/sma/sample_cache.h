@@ -134,8 +134,10 @@ class SampleCache {
   /// The earliest scene epoch a sample of this vertex may have been shaded
   /// at to be stored (0 for a vertex never invalidated).
   uint64_t ValidFrom(VertexId v) const;
-  /// Relative standard error of a shaded sample's irradiance luminance (0
-  /// for a sample that reads black with no spread: nothing to improve).
+  /// Relative standard error of a shaded sample's irradiance luminance: 0
+  /// for an unshaded vertex and for a lit sample with no spread (every path
+  /// agreed, e.g. an open uniform sky); infinite for a sample that reads
+  /// black (paths that found nothing do not show there is nothing to find).
   float RelativeError(VertexId v) const;
   /// Luminance of the shaded radiance (0 when unshaded).
   float Luminance(VertexId v) const { return penumbra::Luminance(Radiance(v)); }
