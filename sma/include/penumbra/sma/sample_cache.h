@@ -137,8 +137,10 @@ class SampleCache {
   /// Relative standard error of a shaded sample's irradiance luminance: 0
   /// for an unshaded vertex and for a lit sample with no spread (every path
   /// agreed, e.g. an open uniform sky); infinite for a sample that reads
-  /// black (paths that found nothing do not show there is nothing to find).
+  /// black from fewer than kBlackPaths paths (paths that found nothing do
+  /// not show there is nothing to find), 0 once that many have found nothing.
   float RelativeError(VertexId v) const;
+  static constexpr uint32_t kBlackPaths = 256;
   /// Luminance of the shaded radiance (0 when unshaded).
   float Luminance(VertexId v) const { return penumbra::Luminance(Radiance(v)); }
 
