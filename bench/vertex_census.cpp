@@ -150,8 +150,9 @@ void Inspect(const Scene& scene, const RayScene& rays, const Shader& shader, uin
 // weighted by paths, while the relative standard error is above `target` and
 // fewer than `cap` paths are in; each round on its own random stream. Returns
 // the final irradiance luminance under the rule that stops at a black
-// estimate (before this round's change) and under the one that does not, and
-// a reference estimate of `referencePaths` paths.
+// estimate (before this round's change) and under the one that improves it
+// until 256 paths found nothing, and a reference estimate of
+// `referencePaths` paths.
 struct Improved {
   double stopAtBlack = 0.0, keepLooking = 0.0, reference = 0.0;
   uint32_t pathsStopAtBlack = 0, pathsKeepLooking = 0;
@@ -167,7 +168,8 @@ Improved SimulateImprovement(const Shader& shader, ShadeInput in, int first, int
   bool stoppedOld = false;
   for (uint64_t k = 1;; ++k) {
     const bool black = !(mean > 0.0);
-    const bool uncertain = black ? true : err / mean > target;
+    // Black: unknown until 256 paths found nothing (SampleCache::kBlackPaths).
+    const bool uncertain = black ? paths < 256 : err / mean > target;
     if (!stoppedOld && (paths >= uint32_t(cap) || black || !(err / mean > target))) {
       stoppedOld = true;
       r.stopAtBlack = mean;
