@@ -174,7 +174,7 @@ float SampleCache::RelativeError(VertexId v) const {
   // of 16 paths (docs/refinement.md, third round). Its error is unknown
   // until kBlackPaths paths have found nothing -- then fewer than 3 in
   // kBlackPaths of its paths carry light (the rule of three, 95 %), and it is
-  // taken as black: hidden and buried vertices are not improved for ever.
+  // taken as black: hidden and buried vertices are not improved to the cap.
   if (!(e > 0.0f)) return sample->paths < kBlackPaths ? std::numeric_limits<float>::infinity() : 0.0f;
   return err > 0.0f ? err / e : 0.0f;
 }
