@@ -65,6 +65,7 @@ struct Options {
   std::vector<int64_t> inspect;
   bool inspectBack = false;
   bool simulate = false;
+  int blackPaths = 80;  // SampleCache::kBlackPaths
   float gouraudMinReach = 0.0f;
 };
 
@@ -151,7 +152,7 @@ void Inspect(const Scene& scene, const RayScene& rays, const Shader& shader, uin
 // fewer than `cap` paths are in; each round on its own random stream. Returns
 // the final irradiance luminance under the rule that stops at a black
 // estimate (before this round's change) and under the one that improves it
-// until 256 paths found nothing, and a reference estimate of
+// until `blackPaths` paths found nothing, and a reference estimate of
 // `referencePaths` paths.
 struct Improved {
   double stopAtBlack = 0.0, keepLooking = 0.0, reference = 0.0;
@@ -159,7 +160,7 @@ struct Improved {
 };
 
 Improved SimulateImprovement(const Shader& shader, ShadeInput in, int first, int round, int cap, double target,
-                             int referencePaths) {
+                             int referencePaths, int blackPaths) {
   Improved r;
   const uint64_t id = in.sampleId;
   ShadeOutput out = shader.Shade(in, first, nullptr);
@@ -168,8 +169,8 @@ Improved SimulateImprovement(const Shader& shader, ShadeInput in, int first, int
   bool stoppedOld = false;
   for (uint64_t k = 1;; ++k) {
     const bool black = !(mean > 0.0);
-    // Black: unknown until 256 paths found nothing (SampleCache::kBlackPaths).
-    const bool uncertain = black ? paths < 256 : err / mean > target;
+    // Black: unknown until blackPaths paths found nothing (SampleCache::kBlackPaths).
+    const bool uncertain = black ? paths < uint32_t(blackPaths) : err / mean > target;
     if (!stoppedOld && (paths >= uint32_t(cap) || black || !(err / mean > target))) {
       stoppedOld = true;
       r.stopAtBlack = mean;
@@ -334,7 +335,7 @@ int Run(const Options& o) {
         in.b1 = b.x;
         in.b2 = b.y;
         if (o.simulate) {
-          const Improved r = SimulateImprovement(shader, in, o.firstPaths, 64, 1024, 0.02, o.paths);
+          const Improved r = SimulateImprovement(shader, in, o.firstPaths, 64, 1024, 0.02, o.paths, o.blackPaths);
           std::lock_guard lock(darkMutex);
           improved.push_back(r);
           continue;
@@ -526,6 +527,8 @@ int main(int argc, char** argv) {
   app.add_option("--gouraud", o.gouraudMinReach,
                  "compare linear interpolation of the corners with the centroid instead, on triangles whose centroid "
                  "is this far from a corner");
+  app.add_option("--black-paths", o.blackPaths, "... taking a sample as black once this many paths found nothing")
+      ->check(CLI::Range(1, 1 << 20));
   app.add_option("--csv", o.csv, "write one line per dark vertex here");
   CLI11_PARSE(app, argc, argv);
   penumbra::SetupLogging("warn");
