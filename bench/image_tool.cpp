@@ -3,7 +3,10 @@
 //   penumbra-image-tool compare REFERENCE.exr IMAGE.exr [--blur R]
 //       One JSON line: {"rel_mae": .., "ssim": .., "mean_ratio": ..}
 //       (common/image_metrics.h), after a box blur of radius R of both
-//       (default 0; 2 takes a noisy reference's noise out).
+//       (default 0; 2 takes a noisy reference's noise out). With
+//       --error-map OUT.png, also a picture of where the error is; with
+//       --split F, also the figures over the dim pixels (reference at most F
+//       times its mean luminance) and the bright ones, a line each.
 //   penumbra-image-tool tonemap IN.exr OUT.png [--like REFERENCE.exr] [--exposure STOPS]
 //       Drago 2003 (common/tonemap.h) with the luminance statistics of
 //       REFERENCE (default: of IN itself), so that every image of one view
@@ -47,7 +50,60 @@ Expected<RgbImage> Load(const std::string& path) {
   return out;
 }
 
-int Compare(const std::string& referencePath, const std::string& imagePath, int blur) {
+// Where the relative MAE comes from: each pixel's |image - reference|
+// (summed over channels), over the mean per pixel of the reference's sum,
+// red where the image is brighter, blue where darker; full at 1 (a pixel off
+// by as much as the average pixel). The relative MAE is this map's mean.
+Status WriteErrorMap(const std::string& path, const RgbImage& image, const RgbImage& reference) {
+  double total = 0.0;
+  for (const Rgb& p : reference.pixels) total += double(p.r) + double(p.g) + double(p.b);
+  const double meanPixel = total / double(std::max<size_t>(1, reference.pixels.size()));
+  std::vector<float> rgb;
+  rgb.reserve(image.pixels.size() * 3);
+  for (size_t i = 0; i < image.pixels.size(); ++i) {
+    const Rgb& a = image.pixels[i];
+    const Rgb& b = reference.pixels[i];
+    const double error = std::abs(a.r - b.r) + std::abs(a.g - b.g) + std::abs(a.b - b.b);
+    const float v = meanPixel > 0.0 ? float(std::min(1.0, error / meanPixel)) : 0.0f;
+    const bool brighter = Luminance(a) > Luminance(b);
+    rgb.insert(rgb.end(), {brighter ? v : 0.0f, 0.0f, brighter ? 0.0f : v});
+  }
+  return WriteImage(path, image.width, image.height, rgb);
+}
+
+// The relative MAE restricted to the reference's pixels at most `factor`
+// times its mean luminance ("dim": walls, furniture) and to the others
+// ("bright": sun patches, windows, lights), with each part's share of the
+// total error. A bright sun patch whose edge moves by a pixel outweighs a
+// wall's blotches in the whole-image figure.
+void PrintSplit(const RgbImage& image, const RgbImage& reference, double factor) {
+  double meanLuminance = 0.0;
+  for (const Rgb& p : reference.pixels) meanLuminance += Luminance(p);
+  meanLuminance /= double(std::max<size_t>(1, reference.pixels.size()));
+  double error[2] = {0.0, 0.0}, total[2] = {0.0, 0.0}, sum[2] = {0.0, 0.0}, refSum[2] = {0.0, 0.0};
+  size_t count[2] = {0, 0};
+  for (size_t i = 0; i < image.pixels.size(); ++i) {
+    const Rgb& a = image.pixels[i];
+    const Rgb& b = reference.pixels[i];
+    const int part = Luminance(b) > factor * meanLuminance ? 1 : 0;
+    for (int c = 0; c < 3; ++c) {
+      error[part] += std::abs(double(a[c]) - double(b[c]));
+      total[part] += std::abs(double(b[c]));
+    }
+    sum[part] += Luminance(a);
+    refSum[part] += Luminance(b);
+    ++count[part];
+  }
+  const double allError = error[0] + error[1];
+  const char* names[2] = {"dim", "bright"};
+  for (int part = 0; part < 2; ++part)
+    std::printf("{\"part\": \"%s\", \"pixels\": %zu, \"rel_mae\": %.6f, \"mean_ratio\": %.6f, \"error_share\": %.4f}\n",
+                names[part], count[part], total[part] > 0.0 ? error[part] / total[part] : 0.0,
+                refSum[part] > 0.0 ? sum[part] / refSum[part] : 0.0, allError > 0.0 ? error[part] / allError : 0.0);
+}
+
+int Compare(const std::string& referencePath, const std::string& imagePath, int blur,
+            const std::string& errorMap = {}, double split = 0.0) {
   auto reference = Load(referencePath);
   auto image = Load(imagePath);
   if (!reference || !image) {
@@ -55,6 +111,12 @@ int Compare(const std::string& referencePath, const std::string& imagePath, int 
     return 1;
   }
   const RgbImage a = BoxBlur(*image, blur), b = BoxBlur(*reference, blur);
+  if (!errorMap.empty() && a.pixels.size() == b.pixels.size()) {
+    if (auto ok = WriteErrorMap(errorMap, a, b); !ok) {
+      std::fprintf(stderr, "penumbra-image-tool: %s\n", ok.error().message.c_str());
+      return 1;
+    }
+  }
   auto mae = RelativeMeanAbsoluteError(a, b);
   auto ssim = ToneMappedSsim(a, b);
   auto ratio = MeanLuminanceRatio(a, b);
@@ -64,6 +126,7 @@ int Compare(const std::string& referencePath, const std::string& imagePath, int 
     return 1;
   }
   std::printf("{\"rel_mae\": %.6f, \"ssim\": %.6f, \"mean_ratio\": %.6f}\n", *mae, *ssim, *ratio);
+  if (split > 0.0) PrintSplit(a, b, split);
   return 0;
 }
 
@@ -180,6 +243,15 @@ int main(int argc, char** argv) {
   int blur = 0;
   compare->add_option("--blur", blur, "Box-blur both by this radius first (2: a 5x5 window)")
       ->check(CLI::Range(0, 64))->capture_default_str();
+  std::string errorMap;
+  compare->add_option("--error-map", errorMap,
+                      "Also write where the error is (PNG: red brighter, blue darker than the reference; full at the "
+                      "mean pixel)");
+  double split = 0.0;
+  compare->add_option("--split", split,
+                      "Also the figures over the reference's pixels at most this many times its mean luminance "
+                      "and over the rest, one JSON line each")
+      ->check(CLI::Range(0.0, 1e6));
   auto* compareList = app.add_subcommand(
       "compare-list", "compare for each line 'REFERENCE IMAGE BLUR' of stdin; one JSON line each on stdout");
   auto* tonemap = app.add_subcommand("tonemap", "Drago-map a linear image to PNG");
@@ -191,7 +263,7 @@ int main(int argc, char** argv) {
   cornell->add_option("image", a, "Tone-mapped PNG of the front preset")->required();
   CLI11_PARSE(app, argc, argv);
   penumbra::SetupLogging("warn");
-  if (*compare) return penumbra::Compare(a, b, blur);
+  if (*compare) return penumbra::Compare(a, b, blur, errorMap, split);
   if (*compareList) return penumbra::CompareList();
   if (*cornell) return penumbra::CheckCornellBox(a);
   return penumbra::ToneMap(a, b, like, exposure);

@@ -17,7 +17,9 @@
 #include "penumbra/renderer/shading.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <iterator>
 #include <limits>
 #include <optional>
 #include <vector>
@@ -39,6 +41,11 @@ constexpr float kInfinity = std::numeric_limits<float>::infinity();
 // with the coordinates (one ulp is 1.2e-7 of them), and 1e-5 keeps ~80 ulps
 // of margin while staying far below any feature worth shading.
 constexpr float kRelativeOffset = 1e-5f;
+
+// A sample is enclosed when nearly every direction meets a surface within
+// this fraction of the way from it to the inside of its triangle: much
+// nearer than the surface it stands for extends (header: "Buried samples").
+constexpr float kEnclosureReach = 1.0f / 8.0f;
 
 float MaxComponent(const Rgb& c) { return std::max({c.r, c.g, c.b}); }
 
@@ -117,6 +124,10 @@ struct Shader::Impl {
   // `inside` is a point off the same side of the sample's triangle, well inside it.
   Vec3 UnburiedOrigin(const PosedRayScene& at, const PathVertex& start, const Vec3& inside, Pcg32& rng,
                       ShadeCounters& counters) const;
+  // Whether nearly every direction of `start`'s hemisphere from `origin`
+  // meets a surface within `reach` (header: "Buried samples").
+  bool Enclosed(const PosedRayScene& at, const PathVertex& start, const Vec3& origin, float reach, Pcg32& rng,
+                ShadeCounters& counters) const;
   // How far a ray origin at `p` moves off its surface: `offset`, unless p
   // lies on a movable object taken beyond twice the scene's reach, whose
   // coordinates' rounding needs an offset relative to its own. Static points
@@ -263,26 +274,72 @@ Vec3 Shader::Impl::UnburiedOrigin(const PosedRayScene& at, const PathVertex& sta
   const float distance = glm::length(toSample);
   if (!(distance > 4.0f * offset)) return start.origin;
   const Vec3 along = toSample / distance;
+  const float backOff = std::max(4.0f * offset, 0.01f * distance);
+
+  // Inside a solid: the way from the inside point enters it through a front
+  // face, and from the sample nearly nothing but its inside is seen.
   ++counters.rays;
   const std::optional<RayHit> entry = at.Intersect(inside, along, 0.0f, distance);
-  // Nothing in the way, or the way leaves a solid rather than entering one
-  // (the inside point is enclosed itself, or the occluder is wound inward):
-  // nothing better to shade than the sample itself.
-  if (!entry || glm::dot(entry->normal, along) >= 0.0f) return start.origin;
+  if (entry && glm::dot(entry->normal, along) < 0.0f) {
+    constexpr int kProbes = 16;
+    const bool openSky = scene.sky.has_value() || scene.sun.has_value();
+    int seesOut = 0;
+    for (int i = 0; i < kProbes; ++i) {
+      const Vec3 direction = start.frame.ToWorld(sampling::CosineHemisphere(rng.NextFloat(), rng.NextFloat()));
+      ++counters.rays;
+      const std::optional<RayHit> hit = at.Intersect(start.origin, direction, 0.0f, kInfinity);
+      if (hit ? glm::dot(hit->normal, direction) < 0.0f : openSky) ++seesOut;
+    }
+    if (seesOut * 10 <= kProbes) {
+      ++counters.buriedSamples;
+      return inside + std::max(0.0f, entry->t - backOff) * along;
+    }
+  }
 
+  // Enclosed, whatever the facing: nearly every direction meets a surface
+  // within an eighth of the way to the inside point -- a thin cavity between
+  // a wall and the cornice or skirting laid over it, the inside of an
+  // inward-wound or open-backed solid. Shade the nearest point on the way to
+  // the inside point that sees past the surface the sample stands for
+  // (more than one probe in 16 goes further than the inside point): just
+  // past each surface the way crosses, else at growing fractions of the way.
+  // (Open merely at the eighth, a point may still be inside a cornice.)
+  if (!Enclosed(at, start, start.origin, kEnclosureReach * distance, rng, counters)) return start.origin;
+  constexpr int kMaxCrossings = 4;
+  constexpr float kFractions[] = {1.0f / 16.0f, 1.0f / 8.0f, 1.0f / 4.0f, 1.0f / 2.0f, 1.0f};
+  std::array<float, kMaxCrossings + std::size(kFractions)> candidates{};
+  size_t count = 0;
+  for (float t = 0.0f; count < kMaxCrossings;) {
+    ++counters.rays;
+    const std::optional<RayHit> crossing = at.Intersect(start.origin, -along, t, distance);
+    if (!crossing) break;
+    t = crossing->t + backOff;
+    if (t < distance) candidates[count++] = t;
+  }
+  for (float f : kFractions) candidates[count++] = f * distance;
+  std::sort(candidates.begin(), candidates.begin() + ptrdiff_t(count));
+  for (size_t i = 0; i < count; ++i) {
+    const Vec3 candidate = start.origin - candidates[i] * along;
+    if (Enclosed(at, start, candidate, distance, rng, counters)) continue;
+    ++counters.buriedSamples;
+    return candidate;
+  }
+  return start.origin;  // its whole way is enclosed: nothing better to shade
+}
+
+bool Shader::Impl::Enclosed(const PosedRayScene& at, const PathVertex& start, const Vec3& origin, float reach,
+                            Pcg32& rng, ShadeCounters& counters) const {
   constexpr int kProbes = 16;
-  const bool openSky = scene.sky.has_value() || scene.sun.has_value();
-  int seesOut = 0;
+  constexpr int kMaxOpen = 1;  // of kProbes: "nearly every direction" is 15 of 16
+  int open = 0;
   for (int i = 0; i < kProbes; ++i) {
     const Vec3 direction = start.frame.ToWorld(sampling::CosineHemisphere(rng.NextFloat(), rng.NextFloat()));
+    if (glm::dot(direction, start.geometricNormal) <= 0.0f) continue;  // into its own surface
     ++counters.rays;
-    const std::optional<RayHit> hit = at.Intersect(start.origin, direction, 0.0f, kInfinity);
-    if (hit ? glm::dot(hit->normal, direction) < 0.0f : openSky) ++seesOut;
+    ++counters.shadowRays;
+    if (!at.Occluded(origin, direction, 0.0f, reach) && ++open > kMaxOpen) return false;
   }
-  if (seesOut * 10 > kProbes) return start.origin;  // it sees the scene: in a crease, not buried
-  ++counters.buriedSamples;
-  const float backOff = std::max(4.0f * offset, 0.01f * distance);
-  return inside + std::max(0.0f, entry->t - backOff) * along;
+  return true;
 }
 
 Rgb Shader::Impl::SampleSun(const PosedRayScene& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const {
@@ -371,8 +428,11 @@ ShadeOutput Shader::Shade(const PosedRayScene& posed, const ShadeInput& in, int 
     }
     if (abandoned) break;
     // Adaptive sampling: another round while the estimate is too uncertain.
+    // Paths that all found nothing do not show that there is nothing to
+    // find (a dim corner lit through one narrow gap reads 0 in most sets of
+    // 16 paths): a black estimate is not known to be accurate.
     const double mean = Luminance(sum) / traced;
-    if (traced < maxPaths && standardError() > double(s.settings.targetRelativeError) * mean)
+    if (traced < maxPaths && (mean == 0.0 || standardError() > double(s.settings.targetRelativeError) * mean))
       target = std::min(maxPaths, traced + round);
   }
   work.paths = uint64_t(traced);

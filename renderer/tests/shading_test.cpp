@@ -144,6 +144,115 @@ TEST(ShadingTest, ABuriedSampleIsShadedWhereItsSurfaceEmerges) {
   EXPECT_GT(Luminance(bottom.irradiance), 0.5f * kPi);
 }
 
+// A floor quad (y = 0, 1 m square, facing +y) whose corner vertex sits at the
+// centre of a closed 4 cm cube, under a uniform sky. Real models wind such
+// solids any way -- outward, inward, some faces each way -- so which way the
+// cube's faces point must not matter: from the corner every direction meets
+// the cube within 2-4 cm, far nearer than the floor triangle extends (its
+// centroid is 75 cm away), and the sample is shaded just outside the cube,
+// where it sees the sky. The opposite corner, in the open, is not moved.
+class EnclosedCornerTest : public ::testing::TestWithParam<int> {};
+
+TEST_P(EnclosedCornerTest, IsShadedJustOutsideTheBoxWhateverItsWinding) {
+  SceneBuilder b;
+  const uint32_t m = b.AddMaterial(MakeMaterial(Rgb(0.5f)));
+  b.AddQuad(Vec3(0.0f), Vec3(0.0f, 0.0f, 1.0f), Vec3(1.0f, 0.0f, 0.0f), m);  // floor, cross(z, x) = +y
+  // The cube's six faces, each inward or outward by a bit of the parameter.
+  const Vec3 lo(-0.02f), hi(0.02f), size = hi - lo;
+  for (int face = 0; face < 6; ++face) {
+    const int axis = face / 2, side = face % 2;
+    const bool inward = (GetParam() >> face) & 1;
+    Vec3 front(0.0f);
+    front[axis] = (side == 0) == inward ? 1.0f : -1.0f;
+    Vec3 corner = lo;
+    corner[axis] = side == 0 ? lo[axis] : hi[axis];
+    Vec3 e1(0.0f), e2(0.0f);
+    e1[(axis + 1) % 3] = size[(axis + 1) % 3];
+    e2[(axis + 2) % 3] = size[(axis + 2) % 3];
+    if (glm::dot(glm::cross(e1, e2), front) < 0.0f) std::swap(e1, e2);
+    b.AddQuad(corner, e1, e2, m);
+  }
+  Scene scene;
+  scene.sky = UniformSky(Rgb(1.0f));
+  const TestScene t = Finish(b, std::move(scene));
+  const Shader shader(t.scene, *t.rays, ShadingSettings{});
+
+  ShadeCounters enclosed;
+  const ShadeOutput corner = shader.Shade(SampleAt(t.scene, Vec3(0.0f), kUp), 256, &enclosed);
+  EXPECT_EQ(enclosed.buriedSamples, 1u);
+  // Just outside the cube the sky fills most of the hemisphere (the cube
+  // hides a wedge of it, the floor's edge lets the ground's sky in): well
+  // above half of pi L, where inside the cube it would be 0.
+  EXPECT_GT(Luminance(corner.irradiance), 0.6f * kPi);
+
+  ShadeCounters open;
+  const ShadeOutput far = shader.Shade(SampleAt(t.scene, Vec3(1.0f, 0.0f, 1.0f), kUp), 256, &open);
+  EXPECT_EQ(open.buriedSamples, 0u);
+  EXPECT_GT(Luminance(far.irradiance), 0.9f * kPi);
+}
+
+// All outward (0), all inward (63), and two mixtures.
+INSTANTIATE_TEST_SUITE_P(Windings, EnclosedCornerTest, ::testing::Values(0, 63, 0b010101, 0b100110),
+                         [](const ::testing::TestParamInfo<int>& param) {
+                           return param.param == 0 ? std::string("Outward")
+                                  : param.param == 63 ? std::string("Inward")
+                                                      : "Mixed" + std::to_string(param.param);
+                         });
+
+// A wall (z = 0, 2 m square, facing +z) on a floor, with a skirting board laid
+// over its foot: a thin two-sided board (one quad, no thickness) 1 mm in
+// front of it and 15 cm high, under a uniform sky. The wall's bottom corner
+// sits in the 1 mm gap between the two: whichever side of the board it
+// looks at, nearly every direction meets the board or the floor within
+// millimetres, and nothing on the way up the wall crosses a surface (the gap
+// is open at the top), so only the enclosure finds it. It is shaded above
+// the board, where the sky and the lit floor are seen.
+TEST(ShadingTest, AVertexInTheGapBehindAThinBoardIsShadedWhereTheWallEmerges) {
+  SceneBuilder b;
+  const uint32_t m = b.AddMaterial(MakeMaterial(Rgb(0.5f)));
+  b.AddQuad(Vec3(0.0f), Vec3(2.0f, 0.0f, 0.0f), Vec3(0.0f, 2.0f, 0.0f), m);          // wall, +z
+  AddHorizontalSquare(b, Vec3(1.0f, 0.0f, 1.0f), 4.0f, m, true);                      // floor, +y
+  // The board runs on past both ends of the wall, as into a room's corners.
+  b.AddQuad(Vec3(-1.0f, 0.0f, 0.001f), Vec3(0.0f, 0.15f, 0.0f), Vec3(4.0f, 0.0f, 0.0f), m);  // board, -z
+  Scene scene;
+  scene.sky = UniformSky(Rgb(1.0f));
+  const TestScene t = Finish(b, std::move(scene));
+  const Shader shader(t.scene, *t.rays, ShadingSettings{});
+  const Vec3 kFront(0.0f, 0.0f, 1.0f);
+
+  ShadeCounters gap;
+  const ShadeOutput foot = shader.Shade(SampleAt(t.scene, Vec3(0.0f), kFront), 1024, &gap);
+  EXPECT_EQ(gap.buriedSamples, 1u);
+  // Above the board the upper half of the hemisphere is sky (pi L / 2) and
+  // most of the lower half is the sky-lit floor of albedo 0.5.
+  EXPECT_GT(Luminance(foot.irradiance), 0.55f * kPi);
+  EXPECT_LT(Luminance(foot.irradiance), 1.0f * kPi);
+}
+
+// A thin two-sided wall (x = 1, one quad) meeting another wall (z = 0) in a
+// T-junction, under a uniform sky. Its corner in the junction is in a crease
+// on both of its sides -- half of each side's hemisphere is the other wall,
+// half is open -- and is shaded where it is, on either side.
+TEST(ShadingTest, AThinWallsCornerInAJunctionIsACreaseOnBothSides) {
+  SceneBuilder b;
+  const uint32_t m = b.AddMaterial(MakeMaterial(Rgb(0.5f)));
+  b.AddQuad(Vec3(0.0f), Vec3(2.0f, 0.0f, 0.0f), Vec3(0.0f, 2.0f, 0.0f), m);  // wall, +z
+  b.AddQuad(Vec3(1.0f, 0.0f, 0.0f), Vec3(0.0f, 2.0f, 0.0f), Vec3(0.0f, 0.0f, 1.0f), m);  // thin wall, +x
+  Scene scene;
+  scene.sky = UniformSky(Rgb(1.0f));
+  const TestScene t = Finish(b, std::move(scene));
+  const Shader shader(t.scene, *t.rays, ShadingSettings{});
+  for (const Vec3& side : {Vec3(1.0f, 0.0f, 0.0f), Vec3(-1.0f, 0.0f, 0.0f)}) {
+    ShadeCounters counters;
+    const ShadeOutput out = shader.Shade(SampleAt(t.scene, Vec3(1.0f, 1.0f, 0.0f), side), 1024, &counters);
+    EXPECT_EQ(counters.buriedSamples, 0u) << "side " << side.x;
+    // Half the hemisphere is sky (pi L / 2) and half the wall, lit by the
+    // sky over at most half its own hemisphere: between 1/2 and 3/4 of pi L.
+    EXPECT_GT(Luminance(out.irradiance), 0.5f * kPi) << "side " << side.x;
+    EXPECT_LT(Luminance(out.irradiance), 0.8f * kPi) << "side " << side.x;
+  }
+}
+
 // Every cosine-sampled direction escapes and carries L: E = pi L exactly, on
 // either side of the plane, at a vertex as well as inside.
 TEST(ShadingTest, UnoccludedPlaneUnderUniformSkyReceivesPiL) {
@@ -420,6 +529,24 @@ TEST(ShadingTest, AdaptiveSamplingAddsNoPathWhereEveryPathAgrees) {
   ShadeCounters counters;
   shader.Shade(SampleAt(t.scene, Vec3(0.0f), kUp), 32, &counters);
   EXPECT_EQ(counters.paths, 32u);
+}
+
+// Paths that all found nothing do not show there is nothing to find: a
+// black estimate gets further rounds up to the cap. (A sample on the floor of
+// a sealed box: nothing ever reaches it, so it takes them all.)
+TEST(ShadingTest, AdaptiveSamplingKeepsLookingWhereEveryPathFoundNothing) {
+  SceneBuilder b;
+  const uint32_t m = b.AddMaterial(MakeMaterial(Rgb(0.5f)));
+  AddBox(b, Vec3(-1.0f, 0.0f, -1.0f), Vec3(1.0f, 2.0f, 1.0f), m, true);
+  Scene scene;
+  scene.sky = UniformSky(Rgb(1.0f));
+  const TestScene t = Finish(b, std::move(scene));
+  ShadingSettings settings;
+  settings.maxPathsPerSample = 256;
+  ShadeCounters counters;
+  const ShadeOutput out = Shader(t.scene, *t.rays, settings).Shade(SampleAt(t.scene, Vec3(0.0f), kUp), 16, &counters);
+  EXPECT_EQ(Luminance(out.irradiance), 0.0f);
+  EXPECT_EQ(counters.paths, 256u);
 }
 
 TEST(ShadingTest, AdaptiveSamplingStopsAtTheTargetErrorOrAtTheCap) {

@@ -68,6 +68,34 @@ TEST(SampleCacheTest, ImprovementsAverageInWeightedByPaths) {
   EXPECT_FALSE(cache.IsShaded(2));
 }
 
+// A sample whose paths all found nothing reads black with no spread; from
+// few paths that does not show there is nothing to find, so its relative
+// error is unknown (infinite: it is improved) until a round finds light or
+// kBlackPaths paths have found nothing.
+// A lit sample with no spread (every path agreed) needs nothing more.
+TEST(SampleCacheTest, ABlackSampleIsNotKnownToBeAccurate) {
+  SampleCache cache;
+  cache.Reserve(4);
+  EXPECT_EQ(cache.RelativeError(0), 0.0f);  // unshaded: nothing to improve
+  const ShadedSample black{0, Rgb(0.0f), Rgb(0.0f), 0.0f, 16, 0};
+  const ShadedSample agreed{1, Rgb(1.0f), Rgb(2.0f), 0.0f, 16, 0};
+  cache.Store(std::span(&black, 1));
+  cache.Store(std::span(&agreed, 1));
+  EXPECT_TRUE(std::isinf(cache.RelativeError(0)));
+  EXPECT_EQ(cache.RelativeError(1), 0.0f);
+
+  // Black from kBlackPaths paths: taken as black (nothing to improve).
+  const ShadedSample hidden{2, Rgb(0.0f), Rgb(0.0f), 0.0f, SampleCache::kBlackPaths, 0};
+  cache.Store(std::span(&hidden, 1));
+  EXPECT_EQ(cache.RelativeError(2), 0.0f);
+
+  // A round of 48 paths finds some light: 16 zeros and 48 paths of mean 0.4.
+  const ShadedSample found{0, Rgb(0.2f), Rgb(0.4f), 0.05f, 48, 1};
+  EXPECT_EQ(cache.Improve(std::span(&found, 1)), std::vector<VertexId>{0});
+  EXPECT_NEAR(Luminance(cache.Irradiance(0)), 0.75f * 0.4f, 1e-6f);
+  EXPECT_NEAR(cache.RelativeError(0), 0.75f * 0.05f / (0.75f * 0.4f), 1e-5f);
+}
+
 TEST(ClientMirrorTest, UpdatesGoOnlyToVerticesTheClientHolds) {
   const Scene s = QuadScene();
   Hierarchy h(s);

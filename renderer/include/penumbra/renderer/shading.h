@@ -33,13 +33,25 @@
 //
 // Buried samples. Real models let surfaces run into each other: a stair
 // riser's corners sit inside the tread slabs, a skirting board's inside the
-// wall. Shaded where it is, such a sample sees only the inside of a solid
-// and reads black, and since all its triangle's corners do, no refinement
-// criterion would ever look inside the triangle. A sample is buried when the
-// way from its triangle's centroid to it enters a solid (meets a front face)
-// and, from the sample, nearly no direction sees a front face (nor, under a
-// sky or sun, the open sky). It is then shaded where its surface emerges:
-// just before that front face, on the line from the centroid.
+// wall, a ceiling's edge inside the cornice. Shaded where it is, such a
+// sample sees only the inside of a solid or of a thin cavity and reads
+// black, and since all its triangle's corners may, no refinement criterion
+// would ever look inside the triangle. Two tests, on the way from the
+// triangle's centroid to the sample:
+//  * inside a solid: the way enters a solid (meets a front face) and, from
+//    the sample, nearly no direction sees a front face (nor, under a sky or
+//    sun, the open sky). The sample is shaded where its surface emerges:
+//    just before that front face, on the line from the centroid.
+//  * enclosed, whatever the facing (real models wind solids any way, and a
+//    wall and the board laid over it leave a cavity whose inside faces are
+//    front faces): at least 15 of 16 probe directions meet a surface within
+//    an eighth of the way to the centroid -- far nearer than the surface the
+//    sample stands for extends. The sample is shaded at the nearest point on
+//    the way to the centroid that sees past that way's length (at least 2 of
+//    16 probes go further): just past a surface the way crosses, or 1/16,
+//    1/8, 1/4, 1/2 or all of the way. If there is none, where it is.
+// A crease (a wall meeting a floor: half the directions open) is neither,
+// and is shaded where it is. Both are counted as buried samples.
 //
 // Path length. Segment 0 leaves the sample; a path has at most
 // `maxBounces` + 1 segments. The lights are sampled from the start of every
@@ -90,8 +102,10 @@ struct ShadingSettings {
   /// of that many paths while the relative standard error of the luminance
   /// of E (stderr / mean) is above targetRelativeError and the total stays
   /// within maxPathsPerSample: dim, indirectly lit samples -- the noisy ones
-  /// -- get more paths, directly lit ones no more. 0 = always exactly the
-  /// path count. The stopping rule looks at the sample's own estimate, which
+  /// -- get more paths, directly lit ones no more. An estimate that is still
+  /// exactly black is not known to be accurate (every path finding nothing
+  /// does not show there is nothing to find) and also gets more rounds, up
+  /// to the cap. 0 = always exactly the path count. The stopping rule looks at the sample's own estimate, which
   /// biases it very slightly toward brighter values; the rounds are small
   /// enough (>= 16 paths) that the bias is far below the noise it removes.
   int maxPathsPerSample = 0;

@@ -134,9 +134,17 @@ class SampleCache {
   /// The earliest scene epoch a sample of this vertex may have been shaded
   /// at to be stored (0 for a vertex never invalidated).
   uint64_t ValidFrom(VertexId v) const;
-  /// Relative standard error of a shaded sample's irradiance luminance (0
-  /// for a sample that reads black with no spread: nothing to improve).
+  /// Relative standard error of a shaded sample's irradiance luminance: 0
+  /// for an unshaded vertex and for a lit sample with no spread (every path
+  /// agreed, e.g. an open uniform sky); infinite for a sample that reads
+  /// black from fewer than kBlackPaths paths (paths that found nothing do
+  /// not show there is nothing to find), 0 once that many have found nothing.
   float RelativeError(VertexId v) const;
+  /// The first estimate's 16 paths and one improvement round of 64: on the
+  /// grey-white room's sofa nearly all of what improving black samples
+  /// gains (docs/refinement.md, third round), without improving every
+  /// hidden vertex to the path cap.
+  static constexpr uint32_t kBlackPaths = 80;
   /// Luminance of the shaded radiance (0 when unshaded).
   float Luminance(VertexId v) const { return penumbra::Luminance(Radiance(v)); }
 
