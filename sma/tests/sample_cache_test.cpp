@@ -308,7 +308,9 @@ TEST(SampleCache, ConcurrentStoresAndInvalidationsLeaveNothingStale) {
   replies.join();
   for (VertexId v = 0; v < kVertices; ++v) {
     const auto s = cache.Read(v);
-    if (s) EXPECT_GE(s->epoch, kEpochs) << v;
+    if (s) {
+      EXPECT_GE(s->epoch, kEpochs) << v;
+    }
     EXPECT_EQ(cache.ValidFrom(v), kEpochs);
   }
 }

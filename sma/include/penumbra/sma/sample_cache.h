@@ -140,11 +140,12 @@ class SampleCache {
   /// black from fewer than kBlackPaths paths (paths that found nothing do
   /// not show there is nothing to find), 0 once that many have found nothing.
   float RelativeError(VertexId v) const;
-  /// The first estimate's 16 paths and one improvement round of 64: on the
-  /// grey-white room's sofa nearly all of what improving black samples
-  /// gains (docs/refinement.md, third round), without improving every
-  /// hidden vertex to the path cap.
-  static constexpr uint32_t kBlackPaths = 80;
+  /// The first estimate's paths (`--first-paths`, 8) and one improvement
+  /// round of 64: on the grey-white room's sofa nearly all of what
+  /// improving black samples gains (docs/refinement.md, third round, measured
+  /// with 16 first paths and 80), without improving every hidden vertex to
+  /// the path cap.
+  static constexpr uint32_t kBlackPaths = 72;
   /// Luminance of the shaded radiance (0 when unshaded).
   float Luminance(VertexId v) const { return penumbra::Luminance(Radiance(v)); }
 
