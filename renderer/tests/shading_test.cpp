@@ -158,20 +158,8 @@ TEST_P(EnclosedCornerTest, IsShadedJustOutsideTheBoxWhateverItsWinding) {
   const uint32_t m = b.AddMaterial(MakeMaterial(Rgb(0.5f)));
   b.AddQuad(Vec3(0.0f), Vec3(0.0f, 0.0f, 1.0f), Vec3(1.0f, 0.0f, 0.0f), m);  // floor, cross(z, x) = +y
   // The cube's six faces, each inward or outward by a bit of the parameter.
-  const Vec3 lo(-0.02f), hi(0.02f), size = hi - lo;
-  for (int face = 0; face < 6; ++face) {
-    const int axis = face / 2, side = face % 2;
-    const bool inward = (GetParam() >> face) & 1;
-    Vec3 front(0.0f);
-    front[axis] = (side == 0) == inward ? 1.0f : -1.0f;
-    Vec3 corner = lo;
-    corner[axis] = side == 0 ? lo[axis] : hi[axis];
-    Vec3 e1(0.0f), e2(0.0f);
-    e1[(axis + 1) % 3] = size[(axis + 1) % 3];
-    e2[(axis + 2) % 3] = size[(axis + 2) % 3];
-    if (glm::dot(glm::cross(e1, e2), front) < 0.0f) std::swap(e1, e2);
-    b.AddQuad(corner, e1, e2, m);
-  }
+  for (int face = 0; face < 6; ++face)
+    testing::AddBoxFace(b, Vec3(-0.02f), Vec3(0.02f), face / 2, face % 2, m, /*inward=*/(GetParam() >> face) & 1);
   Scene scene;
   scene.sky = UniformSky(Rgb(1.0f));
   const TestScene t = Finish(b, std::move(scene));

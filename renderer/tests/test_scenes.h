@@ -22,24 +22,28 @@ inline Material MakeMaterial(Rgb albedo, Rgb emission = Rgb(0.0f)) {
   return m;
 }
 
+/// One face of the axis-aligned box [lo, hi]: the one on `axis` (0..2) at
+/// `side` (0: lo, 1: hi), its front facing into the box (`inward`) or out.
+inline void AddBoxFace(SceneBuilder& b, const Vec3& lo, const Vec3& hi, int axis, int side, uint32_t material,
+                       bool inward) {
+  const Vec3 size = hi - lo;
+  Vec3 front(0.0f);
+  front[axis] = (side == 0) == inward ? 1.0f : -1.0f;
+  Vec3 corner = lo;
+  corner[axis] = side == 0 ? lo[axis] : hi[axis];
+  Vec3 e1(0.0f), e2(0.0f);
+  e1[(axis + 1) % 3] = size[(axis + 1) % 3];
+  e2[(axis + 2) % 3] = size[(axis + 2) % 3];
+  if (glm::dot(glm::cross(e1, e2), front) < 0.0f) std::swap(e1, e2);
+  b.AddQuad(corner, e1, e2, material);
+}
+
 /// An axis-aligned box of six quads with their fronts facing inward (a room)
 /// or outward (a block). `materials` per face: -x, +x, -y, +y, -z, +z.
 inline void AddBox(SceneBuilder& b, const Vec3& lo, const Vec3& hi, const std::array<uint32_t, 6>& materials,
                    bool inward) {
-  const Vec3 size = hi - lo;
-  for (int axis = 0; axis < 3; ++axis) {
-    for (int side = 0; side < 2; ++side) {
-      Vec3 front(0.0f);
-      front[axis] = (side == 0) == inward ? 1.0f : -1.0f;
-      Vec3 corner = lo;
-      corner[axis] = side == 0 ? lo[axis] : hi[axis];
-      Vec3 e1(0.0f), e2(0.0f);
-      e1[(axis + 1) % 3] = size[(axis + 1) % 3];
-      e2[(axis + 2) % 3] = size[(axis + 2) % 3];
-      if (glm::dot(glm::cross(e1, e2), front) < 0.0f) std::swap(e1, e2);
-      b.AddQuad(corner, e1, e2, materials[size_t(2 * axis + side)]);
-    }
-  }
+  for (int axis = 0; axis < 3; ++axis)
+    for (int side = 0; side < 2; ++side) AddBoxFace(b, lo, hi, axis, side, materials[size_t(2 * axis + side)], inward);
 }
 
 inline void AddBox(SceneBuilder& b, const Vec3& lo, const Vec3& hi, uint32_t material, bool inward) {
