@@ -807,12 +807,18 @@ int ClientApp::Finish() {
 
 Status ClientApp::WriteScreenshot(const std::filesystem::path& path) {
   const glm::ivec2 size = targets_.Size();
-  std::vector<float> pixels = IsRadianceFile(path) ? targets_.ReadRadiance() : targets_.ReadDisplay();
-  const int n = options_.supersample;
-  if (n <= 1) return WriteImage(path, size.x, size.y, pixels);
+  // An .exr carries the coverage as alpha (0 where nothing was drawn), so
+  // that a surface shaded black is told from a hole in the mesh.
+  const bool withCoverage = StoresCoverage(path);
+  std::vector<float> coverage;
+  std::vector<float> pixels = IsRadianceFile(path) ? targets_.ReadRadiance(withCoverage ? &coverage : nullptr)
+                                                   : targets_.ReadDisplay();
   // A box of n x n samples per pixel (the display image too: an
   // approximation that resolves edges the way a multisampled display does).
-  return WriteImage(path, size.x / n, size.y / n, BoxFilterRgb(pixels, size.x, size.y, n));
+  const int n = std::max(options_.supersample, 1);
+  pixels = BoxFilter(pixels, size.x, size.y, n);
+  coverage = BoxFilter(coverage, size.x, size.y, n, 1);
+  return WriteImage(path, size.x / n, size.y / n, pixels, coverage);
 }
 
 void ClientApp::SaveInteractiveScreenshot() {

@@ -63,7 +63,7 @@ void FrameTargets::BeginDisplay() {
   glViewport(0, 0, size_.x, size_.y);
 }
 
-std::vector<float> FrameTargets::ReadRadiance() {
+std::vector<float> FrameTargets::ReadRadiance(std::vector<float>* coverage) {
   std::vector<float> rgba(size_t(size_.x) * size_t(size_.y) * 4);
   glBindFramebuffer(GL_READ_FRAMEBUFFER, radianceFbo_.id());
   glPixelStorei(GL_PACK_ALIGNMENT, 4);
@@ -75,6 +75,13 @@ std::vector<float> FrameTargets::ReadRadiance() {
       for (int c = 0; c < 3; ++c)
         rgb[(size_t(y) * size_t(size_.x) + size_t(x)) * 3 + size_t(c)] =
             rgba[(size_t(size_.y - 1 - y) * size_t(size_.x) + size_t(x)) * 4 + size_t(c)];
+  if (coverage) {
+    coverage->resize(size_t(size_.x) * size_t(size_.y));
+    for (int y = 0; y < size_.y; ++y)
+      for (int x = 0; x < size_.x; ++x)
+        (*coverage)[size_t(y) * size_t(size_.x) + size_t(x)] =
+            rgba[(size_t(size_.y - 1 - y) * size_t(size_.x) + size_t(x)) * 4 + 3];
+  }
   return rgb;
 }
 

@@ -30,8 +30,9 @@ class FrameTargets {
   void BeginDisplay();
   GLuint RadianceTexture() const { return radianceColour_.id(); }
 
-  /// Linear radiance as RGB floats, row 0 at the top (for .exr).
-  std::vector<float> ReadRadiance();
+  /// Linear radiance as RGB floats, row 0 at the top (for .exr); with
+  /// `coverage`, also the alpha per pixel there (1 drawn, 0 background).
+  std::vector<float> ReadRadiance(std::vector<float>* coverage = nullptr);
   /// The display image decoded to display-linear RGB floats, row 0 at the
   /// top; WriteImage's sRGB encoding of a .png gives back the same bytes.
   std::vector<float> ReadDisplay();

@@ -50,11 +50,20 @@ void SnapshotSchedule::Written(Clock::time_point now, uint64_t sequence) {
   lastSequence_ = sequence;
 }
 
-bool IsRadianceFile(const std::filesystem::path& path) {
+namespace {
+std::string LowerExtension(const std::filesystem::path& path) {
   std::string ext = path.extension().string();
   std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+  return ext;
+}
+}  // namespace
+
+bool IsRadianceFile(const std::filesystem::path& path) {
+  const std::string ext = LowerExtension(path);
   return ext == ".exr" || ext == ".hdr";
 }
+
+bool StoresCoverage(const std::filesystem::path& path) { return LowerExtension(path) == ".exr"; }
 
 std::string ScreenshotStem(std::string_view sceneName, std::string_view timestamp) {
   constexpr size_t kMaxNameChars = 64;
@@ -69,16 +78,17 @@ std::string ScreenshotStem(std::string_view sceneName, std::string_view timestam
   return fmt::format("penumbra-{}-{}", name, timestamp);
 }
 
-std::vector<float> BoxFilterRgb(std::span<const float> pixels, int width, int height, int n) {
+std::vector<float> BoxFilter(std::span<const float> pixels, int width, int height, int n, int channels) {
   if (n <= 1) return std::vector<float>(pixels.begin(), pixels.end());
   const int w = width / n, h = height / n;
-  std::vector<float> filtered(size_t(w) * size_t(h) * 3, 0.0f);
+  const auto k = size_t(channels);
+  std::vector<float> filtered(size_t(w) * size_t(h) * k, 0.0f);
   const float weight = 1.0f / float(n * n);
   for (int y = 0; y < h * n; ++y)
     for (int x = 0; x < w * n; ++x)
-      for (int c = 0; c < 3; ++c)
-        filtered[(size_t(y / n) * size_t(w) + size_t(x / n)) * 3 + size_t(c)] +=
-            weight * pixels[(size_t(y) * size_t(width) + size_t(x)) * 3 + size_t(c)];
+      for (size_t c = 0; c < k; ++c)
+        filtered[(size_t(y / n) * size_t(w) + size_t(x / n)) * k + c] +=
+            weight * pixels[(size_t(y) * size_t(width) + size_t(x)) * k + c];
   return filtered;
 }
 

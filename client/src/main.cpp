@@ -114,7 +114,7 @@ int main(int argc, char** argv) {
       "Headless: camera path JSON (common/camera.h), or SCENE.json#NAME for a scene file's path; default: the "
       "--camera preset as a still view at --size");
   auto* screenshotOption = app.add_option(
-      "--screenshot", screenshot, "Headless: image written at the end; .png tone-mapped, .exr linear radiance");
+      "--screenshot", screenshot, "Headless: image written at the end; .png tone-mapped, .exr linear radiance with coverage as alpha");
   auto* convergedFlag =
       app.add_flag("--until-converged", untilConverged,
                    "Headless: play the path, then stop once the SMA reports the final view converged (default)");

@@ -133,6 +133,9 @@ TEST(HeadlessRunTest, ScreenshotFormatsAndTheBoxFilter) {
   EXPECT_TRUE(IsRadianceFile("B.HDR"));
   EXPECT_FALSE(IsRadianceFile("shot.png"));
   EXPECT_FALSE(IsRadianceFile("exr"));
+  EXPECT_TRUE(StoresCoverage("a/b.EXR"));
+  EXPECT_FALSE(StoresCoverage("b.hdr"));
+  EXPECT_FALSE(StoresCoverage("shot.png"));
 
   // 4x2 pixels, 2x2 boxes: two pixels, each its box's mean; a fifth column
   // that does not fill a box is dropped.
@@ -140,13 +143,16 @@ TEST(HeadlessRunTest, ScreenshotFormatsAndTheBoxFilter) {
       1, 0, 0, 3, 0, 0, 10, 1, 0, 10, 1, 0, 99, 99, 99,  //
       1, 0, 4, 3, 0, 4, 10, 1, 0, 10, 1, 0, 99, 99, 99,
   };
-  const std::vector<float> filtered = BoxFilterRgb(pixels, 5, 2, 2);
+  const std::vector<float> filtered = BoxFilter(pixels, 5, 2, 2);
   ASSERT_EQ(filtered.size(), 6u);
   EXPECT_FLOAT_EQ(filtered[0], 2.0f);
   EXPECT_FLOAT_EQ(filtered[2], 2.0f);
   EXPECT_FLOAT_EQ(filtered[3], 10.0f);
   EXPECT_FLOAT_EQ(filtered[4], 1.0f);
-  EXPECT_EQ(BoxFilterRgb(pixels, 5, 2, 1), pixels);
+  EXPECT_EQ(BoxFilter(pixels, 5, 2, 1), pixels);
+  // One channel (a coverage mask): a box half drawn is 0.5.
+  const std::vector<float> coverage = {1, 1, 0, 1, 1, 1, 1, 0};
+  EXPECT_EQ(BoxFilter(coverage, 4, 2, 2, 1), (std::vector<float>{1.0f, 0.5f}));
 }
 
 }  // namespace

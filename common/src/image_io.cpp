@@ -28,7 +28,7 @@ bool IsFloatFormat(OIIO::TypeDesc format) {
 // Opens `fileName` (through `proxy` when it is not null) and reads the first
 // subimage as RGB floats.
 Expected<Image> Decode(const std::string& fileName, OIIO::Filesystem::IOProxy* proxy,
-                       const std::string& nameForMessages) {
+                       const std::string& nameForMessages, bool keepAlpha = false) {
   // Colour as stored: without this OIIO premultiplies RGB by alpha.
   OIIO::ImageSpec config;
   config.attribute("oiio:UnassociatedAlpha", 1);
@@ -42,7 +42,8 @@ Expected<Image> Decode(const std::string& fileName, OIIO::Filesystem::IOProxy* p
   if (spec.width < 1 || spec.height < 1 || spec.depth != 1 || spec.nchannels < 1)
     return Fail(fmt::format("{}: unsupported image shape {}x{}x{} with {} channels", nameForMessages,
                             spec.width, spec.height, spec.depth, spec.nchannels));
-  if (auto ok = CheckImageSize(spec.width, spec.height, nameForMessages); !ok) return ok.error();
+  const bool readAlpha = keepAlpha && spec.alpha_channel >= 0 && spec.alpha_channel < spec.nchannels;
+  if (auto ok = CheckImageSize(spec.width, spec.height, nameForMessages, readAlpha ? 4 : 3); !ok) return ok.error();
 
   // Grey (+ alpha) reads one channel, colour (+ alpha) reads three.
   const int channels = spec.nchannels >= 3 ? 3 : 1;
@@ -61,18 +62,25 @@ Expected<Image> Decode(const std::string& fileName, OIIO::Filesystem::IOProxy* p
     image.rgb.resize(pixels * 3);
     for (size_t i = 0; i < pixels; ++i) std::fill_n(&image.rgb[3 * i], 3, stored[i]);
   }
+  if (readAlpha) {
+    image.alpha.resize(pixels);
+    const int a = spec.alpha_channel;
+    if (!input->read_image(0, 0, a, a + 1, OIIO::TypeDesc::FLOAT, image.alpha.data()))
+      return Fail(fmt::format("{}: cannot decode the alpha channel: {}", nameForMessages,
+                              io::OneLine(input->geterror())));
+  }
   return image;
 }
 
 }  // namespace
 
-Status CheckImageSize(int64_t width, int64_t height, const std::string& nameForMessages) {
+Status CheckImageSize(int64_t width, int64_t height, const std::string& nameForMessages, int channels) {
   if (width < 1 || height < 1)
     return Fail(fmt::format("{}: unsupported image shape {}x{}", nameForMessages, width, height));
   if (width > kMaxImageSide || height > kMaxImageSide || width * height > kMaxImagePixels)
     return Fail(fmt::format("{}: image of {}x{} pixels is larger than the supported {} pixels", nameForMessages,
                             width, height, kMaxImagePixels));
-  const int64_t decodedBytes = width * height * 3 * int64_t(sizeof(float));
+  const int64_t decodedBytes = width * height * std::max(channels, 1) * int64_t(sizeof(float));
   if (decodedBytes > kMaxImageBytes)
     return Fail(fmt::format("{}: image of {}x{} pixels would take {} MiB decoded; at most {} MiB are supported",
                             nameForMessages, width, height, decodedBytes >> 20, kMaxImageBytes >> 20));
@@ -80,6 +88,11 @@ Status CheckImageSize(int64_t width, int64_t height, const std::string& nameForM
 }
 
 Status WriteImage(const fs::path& path, int width, int height, std::span<const float> linearRgb) {
+  return WriteImage(path, width, height, linearRgb, {});
+}
+
+Status WriteImage(const fs::path& path, int width, int height, std::span<const float> linearRgb,
+                  std::span<const float> alpha) {
   const std::string name = path.string();
   if (width < 1 || height < 1 || width > kMaxImageSide || height > kMaxImageSide)
     return Fail(fmt::format("{}: cannot write an image of {}x{} pixels", name, width, height));
@@ -91,6 +104,11 @@ Status WriteImage(const fs::path& path, int width, int height, std::span<const f
   const bool srgbFile = ext == ".png" || ext == ".jpg" || ext == ".jpeg";
   if (!floatFile && !srgbFile)
     return Fail(fmt::format("{}: unsupported image extension '{}' (use .exr, .hdr, .png or .jpg)", name, ext));
+  const bool withAlpha = !alpha.empty();
+  if (withAlpha && ext != ".exr")
+    return Fail(fmt::format("{}: an alpha channel is written to .exr files only, not '{}'", name, ext));
+  if (withAlpha && alpha.size() != size_t(width) * size_t(height))
+    return Fail(fmt::format("{}: {} alpha values given for {}x{} pixels", name, alpha.size(), width, height));
 
   std::vector<uint8_t> encoded;
   if (srgbFile) {
@@ -105,8 +123,20 @@ Status WriteImage(const fs::path& path, int width, int height, std::span<const f
   auto output = OIIO::ImageOutput::create(name);
   if (!output) return Fail(fmt::format("{}: cannot write image: {}", name, io::OneLine(OIIO::geterror())));
   const OIIO::TypeDesc format = floatFile ? OIIO::TypeDesc::FLOAT : OIIO::TypeDesc::UINT8;
-  const OIIO::ImageSpec spec(width, height, 3, format);
-  const void* pixels = floatFile ? static_cast<const void*>(linearRgb.data()) : encoded.data();
+  OIIO::ImageSpec spec(width, height, withAlpha ? 4 : 3, format);
+  std::vector<float> rgba;  // interleaved for OIIO; unassociated, as read back
+  if (withAlpha) {
+    spec.alpha_channel = 3;
+    spec.attribute("oiio:UnassociatedAlpha", 1);
+    rgba.resize(alpha.size() * 4);
+    for (size_t i = 0; i < alpha.size(); ++i) {
+      std::copy_n(&linearRgb[3 * i], 3, &rgba[4 * i]);
+      rgba[4 * i + 3] = alpha[i];
+    }
+  }
+  const void* pixels = withAlpha   ? static_cast<const void*>(rgba.data())
+                       : floatFile ? static_cast<const void*>(linearRgb.data())
+                                   : encoded.data();
   if (!output->open(name, spec) || !output->write_image(format, pixels) || !output->close())
     return Fail(fmt::format("{}: cannot write image: {}", name, io::OneLine(output->geterror())));
   return Status::Ok();
@@ -116,6 +146,12 @@ Expected<Image> ReadImage(const fs::path& path) {
   const std::string name = path.string();
   if (auto ok = io::CheckRegularFile(path); !ok) return ok.error();
   return Decode(name, nullptr, name);
+}
+
+Expected<Image> ReadImageWithAlpha(const fs::path& path) {
+  const std::string name = path.string();
+  if (auto ok = io::CheckRegularFile(path); !ok) return ok.error();
+  return Decode(name, nullptr, name, /*keepAlpha=*/true);
 }
 
 Expected<Image> ReadImageFromMemory(std::span<const std::byte> encoded, std::string_view formatExtension,

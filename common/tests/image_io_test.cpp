@@ -67,6 +67,35 @@ TEST(ImageIoTest, ExrKeepsLinearFloatsExactly) {
   EXPECT_EQ(image->rgb, linear);
 }
 
+// Screenshots carry their coverage in alpha: an RGBA .exr keeps colour and
+// alpha exactly and unassociated (a pixel drawn black is not background).
+TEST(ImageIoTest, ExrAlphaRoundTripsUnassociatedAndOnlyWhereAsked) {
+  ScratchDir dir;
+  const std::vector<float> linear = {0.0f, 0.0f, 0.0f, 0.5f, 2.0f, 0.25f, 3.0f, 1.0f, 0.0f};
+  const std::vector<float> alpha = {1.0f, 0.25f, 0.0f};
+  ASSERT_TRUE(WriteImage(dir / "rgba.exr", 3, 1, linear, alpha).ok());
+  auto withAlpha = ReadImageWithAlpha(dir / "rgba.exr");
+  ASSERT_TRUE(withAlpha.ok()) << withAlpha.error().message;
+  EXPECT_EQ(withAlpha->rgb, linear) << "colour not premultiplied by alpha either way";
+  EXPECT_EQ(withAlpha->alpha, alpha);
+  auto plain = ReadImage(dir / "rgba.exr");
+  ASSERT_TRUE(plain.ok()) << plain.error().message;
+  EXPECT_EQ(plain->rgb, linear);
+  EXPECT_TRUE(plain->alpha.empty()) << "ReadImage drops alpha";
+  // An RGB file has no alpha to keep.
+  ASSERT_TRUE(WriteImage(dir / "rgb.exr", 3, 1, linear).ok());
+  auto noAlpha = ReadImageWithAlpha(dir / "rgb.exr");
+  ASSERT_TRUE(noAlpha.ok()) << noAlpha.error().message;
+  EXPECT_TRUE(noAlpha->alpha.empty());
+  // Alpha goes to .exr only, and must have one value a pixel.
+  for (const char* other : {"rgba.png", "rgba.hdr", "rgba.jpg"}) {
+    const auto wrote = WriteImage(dir / other, 3, 1, linear, alpha);
+    ASSERT_FALSE(wrote.ok()) << other;
+    EXPECT_NE(wrote.error().message.find(other), std::string::npos) << wrote.error().message;
+  }
+  EXPECT_FALSE(WriteImage(dir / "short.exr", 3, 1, linear, std::vector<float>{1.0f, 1.0f}).ok());
+}
+
 TEST(ImageIoTest, HdrAndJpegRoundTripApproximately) {
   ScratchDir dir;
   const std::vector<float> linear = {0.5f, 2.0f, 8.0f};

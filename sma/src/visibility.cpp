@@ -164,10 +164,10 @@ Expected<std::unique_ptr<VisibilityTracer>> VisibilityTracer::Build(const Scene&
   // Not robust, unlike the renderer (which must not leak light through
   // shared edges): robust traversal makes Trace ~45% slower on Sponza and
   // raised the 32-client cached view -> first delta p99 (docs/performance.md),
-  // while it removed none of the one-pixel cracks the crack test finds
-  // (ClientTest.DISABLED_RefinedViewsHaveNoCracksAlongSharedEdges: those lie
-  // inside one base triangle). A ray slipping through an edge gives one
-  // pixel to the surface behind.
+  // and the one-pixel "cracks" it was tried against were a surface shaded
+  // black, not holes (ClientTest.RefinedViewsHaveNoCracksAlongSharedEdges
+  // now reads the screenshot's coverage). A ray slipping through an edge
+  // gives one pixel to the surface behind.
   auto embree = EmbreeScene::Build(scene, EmbreeSceneOptions{.logger = "sma.visibility", .robust = false});
   if (!embree) return embree.error();
   auto impl = std::make_unique<Impl>();

@@ -106,6 +106,9 @@ class SnapshotSchedule {
 /// .exr and .hdr screenshots hold linear radiance; others (.png, .jpg) the
 /// tone-mapped display image.
 bool IsRadianceFile(const std::filesystem::path& path);
+/// .exr screenshots also hold the coverage as alpha: the share of the
+/// pixel's samples where a surface (or the sky) was drawn, 0 for background.
+bool StoresCoverage(const std::filesystem::path& path);
 
 /// The file-name stem of an interactive screenshot, "penumbra-SCENE-TIME".
 /// The scene's name comes from the SMA, so it is made safe for a file name:
@@ -115,9 +118,10 @@ bool IsRadianceFile(const std::filesystem::path& path);
 /// the file goes.
 std::string ScreenshotStem(std::string_view sceneName, std::string_view timestamp);
 
-/// --supersample: RGB `pixels` (width x height, rows top first) averaged
-/// over boxes of n x n into (width / n) x (height / n) pixels, the pixel
-/// filter of offline references. n <= 1: the pixels as they are.
-std::vector<float> BoxFilterRgb(std::span<const float> pixels, int width, int height, int n);
+/// --supersample: `pixels` of `channels` floats each (width x height, rows
+/// top first; RGB, or 1 for a coverage mask) averaged over boxes of n x n
+/// into (width / n) x (height / n) pixels, the pixel filter of offline
+/// references. n <= 1: the pixels as they are.
+std::vector<float> BoxFilter(std::span<const float> pixels, int width, int height, int n, int channels = 3);
 
 }  // namespace penumbra::client

@@ -1,5 +1,5 @@
 #pragma once
-// Reading and writing RGB images (screenshots, reference renders, textures).
+// Reading and writing RGB images, with alpha where asked (screenshots, reference renders, textures).
 // OpenImageIO does the file formats; its headers stay inside image_io.cpp so
 // that including this header costs nothing. Every function is thread-safe and
 // reports bad input as an Error that names the file; none throws.
@@ -24,6 +24,10 @@ struct Image {
   /// which are linear by convention; false for 8- and 16-bit integer data,
   /// which is sRGB-encoded by convention.
   bool storedAsFloat = false;
+  /// The file's alpha channel, width * height values (a screenshot's
+  /// coverage: 0 where nothing was drawn). Filled by ReadImageWithAlpha when
+  /// the file has one; empty otherwise.
+  std::vector<float> alpha;
 };
 
 /// Largest image ReadImage accepts, so that a corrupt header cannot make it
@@ -37,9 +41,10 @@ inline constexpr int64_t kMaxImagePixels = int64_t(1) << 26;
 /// texture made of them).
 inline constexpr int64_t kMaxImageBytes = int64_t(256) << 20;
 
-/// OK when an image of `width` x `height` pixels is within the limits above;
-/// otherwise an Error that starts with `nameForMessages`.
-Status CheckImageSize(int64_t width, int64_t height, const std::string& nameForMessages);
+/// OK when an image of `width` x `height` pixels, decoded to `channels`
+/// floats a pixel, is within the limits above; otherwise an Error that starts
+/// with `nameForMessages`.
+Status CheckImageSize(int64_t width, int64_t height, const std::string& nameForMessages, int channels = 3);
 
 /// Writes linear RGB (width * height * 3 floats, row 0 at the top) to `path`,
 /// choosing the format by extension (case-insensitive):
@@ -49,11 +54,19 @@ Status CheckImageSize(int64_t width, int64_t height, const std::string& nameForM
 /// mismatch or an I/O failure is an Error.
 Status WriteImage(const std::filesystem::path& path, int width, int height,
                   std::span<const float> linearRgb);
+/// The same with an alpha channel (width * height values, stored unchanged
+/// beside unassociated RGB): .exr only, since it is meant for coverage that
+/// tools read back exactly; any other extension is an Error.
+Status WriteImage(const std::filesystem::path& path, int width, int height, std::span<const float> linearRgb,
+                  std::span<const float> alpha);
 
 /// Reads an image file as stored: integer formats are scaled to [0,1] without
 /// any colour-space conversion, float formats are returned unchanged. A grey
 /// image is replicated to RGB; channels beyond the third (alpha) are dropped.
 Expected<Image> ReadImage(const std::filesystem::path& path);
+/// Like ReadImage, and keeps the file's alpha channel in Image::alpha when it
+/// has one (counted in the decoded-size limit: 16 bytes a pixel then).
+Expected<Image> ReadImageWithAlpha(const std::filesystem::path& path);
 
 /// Like ReadImage, for an encoded file held in memory (a PNG or JPEG embedded
 /// in a glTF/GLB). `formatExtension` ("png", "jpg", ...) tells the decoder
