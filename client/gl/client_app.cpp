@@ -27,6 +27,13 @@
 #include "penumbra/common/image_io.h"
 #include "penumbra/common/logging.h"
 
+// The GL code sees the client core's domain types (ClientScene, the mesh
+// store, the session's events), never the wire's protobuf messages: this
+// fails the build if an include brings them back.
+#ifdef GOOGLE_PROTOBUF_INCLUDED_penumbra_2fwire_2eproto
+#error "penumbra/wire.pb.h reached the GL code; keep protobuf types inside the client core's .cpp files"
+#endif
+
 namespace penumbra::client::gl {
 
 namespace {

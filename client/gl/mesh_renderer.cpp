@@ -4,6 +4,13 @@
 
 #include <glm/gtc/type_ptr.hpp>
 
+// The GL code sees the client core's domain types (ClientScene, the mesh
+// store, the session's events), never the wire's protobuf messages: this
+// fails the build if an include brings them back.
+#ifdef GOOGLE_PROTOBUF_INCLUDED_penumbra_2fwire_2eproto
+#error "penumbra/wire.pb.h reached the GL code; keep protobuf types inside the client core's .cpp files"
+#endif
+
 namespace penumbra::client::gl {
 
 namespace {

@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include "penumbra/common/logging.h"
+#include "penumbra/wire.pb.h"
 
 namespace penumbra::client {
 
@@ -65,7 +66,7 @@ void ClientModel::ResetMesh() {
 }
 
 void ClientModel::OnDelta(const DeltaReceived& event, SessionRequests& requests) {
-  const wire::Delta& d = event.delta;
+  const wire::Delta& d = *event.delta;
   if (auto ok = mesh_.Apply(d); !ok) return Abandon(ok.error().message, requests);
   if (d.kind() == wire::DELTA_KIND_MOVED) {
     // The scene's objects stay where the SMA says they are now.
@@ -83,18 +84,17 @@ void ClientModel::OnDelta(const DeltaReceived& event, SessionRequests& requests)
 }
 
 void ClientModel::OnTexture(TextureReceived&& event, SessionRequests& requests) {
-  const wire::TextureData& t = event.texture;
-  if (!texturesRequested_.contains(t.texture()) || texturesReceived_.contains(t.texture()))
-    return Abandon(fmt::format("texture {} was not asked for", t.texture()), requests);
-  if (t.width() == 0 || t.height() == 0 || t.width() > kMaxTextureSide || t.height() > kMaxTextureSide ||
-      t.rgb8().size() != size_t(t.width()) * size_t(t.height()) * 3)
-    return Abandon(fmt::format("texture {}: {}x{} texels but {} bytes of rgb8", t.texture(), t.width(), t.height(),
-                               t.rgb8().size()),
+  const TextureReceived& t = event;
+  if (!texturesRequested_.contains(t.texture) || texturesReceived_.contains(t.texture))
+    return Abandon(fmt::format("texture {} was not asked for", t.texture), requests);
+  if (t.width == 0 || t.height == 0 || t.width > kMaxTextureSide || t.height > kMaxTextureSide ||
+      t.rgb8.size() != size_t(t.width) * size_t(t.height) * 3)
+    return Abandon(fmt::format("texture {}: {}x{} texels but {} bytes of rgb8", t.texture, t.width, t.height,
+                               t.rgb8.size()),
                    requests);
-  texturesReceived_.insert(t.texture());
-  log_->debug("texture {} received: {}x{}", t.texture(), t.width(), t.height());
-  texturesToUpload_.push_back(
-      ReceivedTexture{t.texture(), int(t.width()), int(t.height()), std::move(*event.texture.mutable_rgb8())});
+  texturesReceived_.insert(t.texture);
+  log_->debug("texture {} received: {}x{}", t.texture, t.width, t.height);
+  texturesToUpload_.push_back(ReceivedTexture{t.texture, int(t.width), int(t.height), std::move(event.rgb8)});
 }
 
 void ClientModel::OnCounters(const SmaCountersReceived& event) {

@@ -8,6 +8,7 @@
 
 #include "penumbra/common/check.h"
 #include "penumbra/common/math.h"
+#include "penumbra/wire.pb.h"
 
 namespace penumbra::client {
 

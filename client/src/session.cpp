@@ -8,10 +8,12 @@
 
 #include <fmt/format.h>
 
+#include "penumbra/common/connection.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
 #include "penumbra/common/scene.h"
 #include "penumbra/common/wire_convert.h"
+#include "penumbra/wire.pb.h"
 
 namespace penumbra::client {
 
@@ -22,8 +24,8 @@ using boost::system::error_code;
 
 /// Rough size of an event, for the read-pause threshold.
 size_t EventBytes(const SessionEvent& event) {
-  if (const auto* d = std::get_if<DeltaReceived>(&event)) return d->delta.ByteSizeLong();
-  if (const auto* t = std::get_if<TextureReceived>(&event)) return t->texture.rgb8().size();
+  if (const auto* d = std::get_if<DeltaReceived>(&event)) return d->delta->ByteSizeLong();
+  if (const auto* t = std::get_if<TextureReceived>(&event)) return t->rgb8.size();
   return 256;
 }
 
@@ -296,7 +298,10 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
       case wire::Envelope::kDelta:
         return OnDelta(std::move(*envelope.mutable_delta()));
       case wire::Envelope::kTextureData:
-        return Push(TextureReceived{connectionNumber_, std::move(*envelope.mutable_texture_data())});
+      {
+        wire::TextureData& t = *envelope.mutable_texture_data();
+        return Push(TextureReceived{connectionNumber_, t.texture(), t.width(), t.height(), std::move(*t.mutable_rgb8())});
+      }
       case wire::Envelope::kStatsReply: {
         SmaCountersReceived counters{connectionNumber_, {}};
         for (const auto& c : envelope.stats_reply().counters()) counters.counters[c.name()] = c.value();
@@ -398,7 +403,7 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
     // may send one before this connection's first view has reached it
     // (another client's move, an animation), with view id 0.
     const bool viewless = delta.kind() == wire::DELTA_KIND_MOVED && delta.view_id() == 0;
-    if (viewless) return Push(DeltaReceived{connectionNumber_, 0, std::move(delta)});
+    if (viewless) return Push(DeltaReceived{connectionNumber_, 0, std::make_shared<const wire::Delta>(std::move(delta))});
     if (delta.view_id() == 0 || delta.view_id() > lastSentViewId_)
       return Refuse(wire::ERROR_CODE_INVALID_REQUEST,
                     fmt::format("delta {} answers view {}, which was never sent (last {})", delta.sequence(),
@@ -413,7 +418,8 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
     // Counters right after convergence let the render thread check that it
     // holds exactly what the SMA thinks it holds.
     if (forLatest && delta.converged()) SendStatsRequest();
-    Push(DeltaReceived{connectionNumber_, forLatest ? lastSentSerial_ : 0, std::move(delta)});
+    Push(DeltaReceived{connectionNumber_, forLatest ? lastSentSerial_ : 0,
+                       std::make_shared<const wire::Delta>(std::move(delta))});
   }
 
   void SendStatsRequest() {

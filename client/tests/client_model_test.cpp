@@ -38,23 +38,23 @@ DeltaReceived GreyTriangle(uint64_t connection, uint64_t sequence, uint64_t seri
   DeltaBuilder d(sequence, 1);
   d.Vertex(1, Vec3(0), Rgb(1)).Vertex(2, Vec3(1, 0, 0), Rgb(1)).Vertex(3, Vec3(0, 1, 0), Rgb(1));
   d.Triangle(10, {1, 2, 3}, 0).Converged(converged);
-  return DeltaReceived{connection, serial, d.Delta()};
+  return DeltaReceived{connection, serial, d.Shared()};
 }
 
 DeltaReceived TexturedTriangle(uint64_t connection, uint64_t sequence, uint64_t serial) {
   DeltaBuilder d(sequence, 1);
   d.Vertex(4, Vec3(0), Rgb(1)).Vertex(5, Vec3(1, 0, 0), Rgb(1)).Vertex(6, Vec3(0, 1, 0), Rgb(1));
   d.Triangle(20, {4, 5, 6}, 1, std::array<float, 6>{0, 0, 1, 0, 0, 1}).Converged();
-  return DeltaReceived{connection, serial, d.Delta()};
+  return DeltaReceived{connection, serial, d.Shared()};
 }
 
 TextureReceived Texture(uint64_t connection, uint32_t width, uint32_t height, size_t bytes) {
   TextureReceived t;
   t.connection = connection;
-  t.texture.set_texture(0);
-  t.texture.set_width(width);
-  t.texture.set_height(height);
-  t.texture.set_rgb8(std::string(bytes, '\x80'));
+  t.texture = 0;
+  t.width = width;
+  t.height = height;
+  t.rgb8 = std::string(bytes, '\x80');
   return t;
 }
 
@@ -75,7 +75,7 @@ TEST(ClientModelTest, ABadDeltaEmptiesTheMeshAndTheNextConnectionStartsClean) {
   // Adds a good triangle, then one whose vertex was never sent.
   DeltaBuilder bad(2, 1, wire::DELTA_KIND_SHADED);
   bad.Vertex(7, Vec3(0.5f, 0.5f, 0), Rgb(1)).Triangle(11, {1, 2, 7}, 0).Triangle(12, {1, 2, 99}, 0);
-  model.Apply(Events(DeltaReceived{1, 1, bad.Delta()}, GreyTriangle(1, 3, 1)), requests);
+  model.Apply(Events(DeltaReceived{1, 1, bad.Shared()}, GreyTriangle(1, 3, 1)), requests);
   ASSERT_EQ(requests.abandoned.size(), 1u);
   EXPECT_EQ(requests.abandoned[0].first, 1u);
   EXPECT_NE(requests.abandoned[0].second.find("vertex 99"), std::string::npos) << requests.abandoned[0].second;
@@ -117,7 +117,7 @@ TEST(ClientModelTest, ConvergedOnlyForTheLatestViewSerial) {
   EXPECT_FALSE(model.Converged(1)) << "a delta for an older view";
   model.Apply(Events(MakeConnected(2), GreyTriangle(2, 1, 3, /*converged=*/false)), requests);
   EXPECT_FALSE(model.Converged(3));
-  model.Apply(Events(DeltaReceived{2, 3, DeltaBuilder(2, 1, wire::DELTA_KIND_STATUS).Converged().Delta()}), requests);
+  model.Apply(Events(DeltaReceived{2, 3, DeltaBuilder(2, 1, wire::DELTA_KIND_STATUS).Converged().Shared()}), requests);
   EXPECT_TRUE(model.Converged(3));
   EXPECT_FALSE(model.Converged(4));
 }
@@ -183,7 +183,7 @@ TEST(ClientModelTest, MovedDeltasKeepTheScenesObjectsWhereTheSmaHasThem) {
   d.Vertex(1, Vec3(0), Rgb(1)).Vertex(2, Vec3(1, 0, 0), Rgb(1)).Vertex(3, Vec3(0, 1, 0), Rgb(1));
   d.Triangle(10, {1, 2, 3}, 0);
   for (int i = 0; i < 3; ++i) d.Mutable().add_vertex_objects(1);
-  model.Apply(Events(std::move(connected), DeltaReceived{1, 1, d.Delta()}), requests);
+  model.Apply(Events(std::move(connected), DeltaReceived{1, 1, d.Shared()}), requests);
   ASSERT_EQ(model.Mesh().TriangleCount(), 1u);
   EXPECT_EQ(model.Mesh().SceneEpoch(), 2u);
 
@@ -192,7 +192,7 @@ TEST(ClientModelTest, MovedDeltasKeepTheScenesObjectsWhereTheSmaHasThem) {
   move.Mutable().set_scene_epoch(3);
   move.Mutable().add_moved_objects(1);
   for (float v : moved.ToRowMajor()) move.Mutable().add_moved_object_transforms(v);
-  model.Apply(Events(DeltaReceived{1, 1, move.Delta()},
+  model.Apply(Events(DeltaReceived{1, 1, move.Shared()},
                      SmaErrorReceived{1, kMoveRequestBit | 4, true, "SMA x reports INVALID_REQUEST: animated"}),
               requests);
   EXPECT_TRUE(requests.abandoned.empty());
@@ -211,7 +211,7 @@ TEST(ClientModelTest, MovedDeltasKeepTheScenesObjectsWhereTheSmaHasThem) {
   unknown.Mutable().set_scene_epoch(3);
   unknown.Mutable().add_moved_objects(2);
   for (float v : moved.ToRowMajor()) unknown.Mutable().add_moved_object_transforms(v);
-  model.Apply(Events(DeltaReceived{1, 1, unknown.Delta()}), requests);
+  model.Apply(Events(DeltaReceived{1, 1, unknown.Shared()}), requests);
   ASSERT_EQ(requests.abandoned.size(), 1u);
   EXPECT_NE(requests.abandoned[0].second.find("moves object 2"), std::string::npos) << requests.abandoned[0].second;
   EXPECT_EQ(model.Mesh().TriangleCount(), 0u);

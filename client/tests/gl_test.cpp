@@ -174,7 +174,7 @@ class MeshRendererTest : public GlTest {
     const auto ok = renderer_->Sync(model_);
     ASSERT_TRUE(ok.ok()) << ok.error().message;
   }
-  void ApplyDelta(const DeltaBuilder& d) { Apply(DeltaReceived{1, 1, d.Delta()}); }
+  void ApplyDelta(const DeltaBuilder& d) { Apply(DeltaReceived{1, 1, d.Shared()}); }
 
   // The unit square seen from +z fills the middle of the image: pixel
   // (x, y) looks at world (x', y') with x' growing right and y' growing up.
@@ -251,10 +251,10 @@ TEST_F(MeshRendererTest, TexturedTrianglesShowTextureTimesIrradianceOnceItArrive
 
   TextureReceived texture;
   texture.connection = 1;
-  texture.texture.set_texture(0);
-  texture.texture.set_width(1);
-  texture.texture.set_height(1);
-  texture.texture.set_rgb8(std::string("\x80\x40\xff", 3));
+  texture.texture = 0;
+  texture.width = 1;
+  texture.height = 1;
+  texture.rgb8 = std::string("\x80\x40\xff", 3);
   Apply(std::move(texture));
   const Rgb expected(SrgbToLinear(128.0f / 255.0f), SrgbToLinear(64.0f / 255.0f), 1.0f);
   ExpectRgbNear(PixelAt(Draw(), kSize, kLowerRightX, kLowerRightY), expected, 2e-3f, "textured");
@@ -281,7 +281,7 @@ TEST_F(MeshRendererTest, AMovedObjectIsDrawnAtItsNewPlaceWithoutAVertexUpload) {
     d.Vertex(102 + 3 * i, Vec3(x, 0.5f, 0), grey).Triangle(1000 + i, {100 + 3 * i, 101 + 3 * i, 102 + 3 * i});
     for (int c = 0; c < 3; ++c) d.Mutable().add_vertex_objects(1);
   }
-  Apply(DeltaReceived{2, 1, d.Delta()});
+  Apply(DeltaReceived{2, 1, d.Shared()});
   EXPECT_GT(renderer_->LastUploadBytes(), 9000 * sizeof(GpuVertex)) << "the first delta uploads its vertices";
   std::vector<float> image = Draw();
   ExpectRgbNear(PixelAt(image, kSize, kLowerRightX, kLowerRightY), grey, 1e-6f, "the object where it was");
@@ -293,7 +293,7 @@ TEST_F(MeshRendererTest, AMovedObjectIsDrawnAtItsNewPlaceWithoutAVertexUpload) {
   moved.Mutable().set_scene_epoch(1);
   moved.Mutable().add_moved_objects(1);
   for (float v : turned.ToRowMajor()) moved.Mutable().add_moved_object_transforms(v);
-  Apply(DeltaReceived{2, 1, moved.Delta()});
+  Apply(DeltaReceived{2, 1, moved.Shared()});
   EXPECT_EQ(renderer_->LastUploadBytes(), 2 * sizeof(GpuObjectTransform))
       << "the table only (96 bytes), not the object's 9003 vertices (432 kB)";
   image = Draw();

@@ -94,7 +94,7 @@ TEST_F(SessionTest, HandshakesSendsTheViewAndHandsDeltasOver) {
   auto delta = WaitForEvent<DeltaReceived>();
   ASSERT_TRUE(delta.has_value());
   EXPECT_EQ(delta->viewSerial, serial);
-  EXPECT_EQ(delta->delta.sequence(), 1u);
+  EXPECT_EQ(delta->delta->sequence(), 1u);
   const SessionStatus status = session_->Status();
   EXPECT_TRUE(status.viewToFirstDeltaMs.has_value());
   EXPECT_GT(status.bytesReceived, 0u);
@@ -341,7 +341,7 @@ TEST_F(SessionTest, AMovedBeforeTheFirstViewIsHandedOver) {
   auto delta = WaitForEvent<DeltaReceived>();
   ASSERT_TRUE(delta.has_value());
   EXPECT_EQ(delta->viewSerial, 0u);
-  EXPECT_EQ(delta->delta.kind(), wire::DELTA_KIND_MOVED);
+  EXPECT_EQ(delta->delta->kind(), wire::DELTA_KIND_MOVED);
   // Any other delta for view 0 still is one.
   ASSERT_TRUE(sma.Send(DeltaBuilder(2, 0, wire::DELTA_KIND_STATUS).Envelope()));
   bool refused = false;

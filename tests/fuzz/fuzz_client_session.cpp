@@ -79,11 +79,13 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
           drop();
           continue;
         }
-        events.push_back(client::DeltaReceived{connection, viewId, std::move(*envelope.mutable_delta())});
+        events.push_back(client::DeltaReceived{connection, viewId,
+                                                std::make_shared<const wire::Delta>(std::move(*envelope.mutable_delta()))});
         break;
       }
       case wire::Envelope::kTextureData:
-        events.push_back(client::TextureReceived{connection, std::move(*envelope.mutable_texture_data())});
+        wire::TextureData& t = *envelope.mutable_texture_data();
+        events.push_back(client::TextureReceived{connection, t.texture(), t.width(), t.height(), std::move(*t.mutable_rgb8())});
         break;
       case wire::Envelope::kStatsReply: {
         client::SmaCountersReceived counters{connection, {}};

@@ -4,6 +4,7 @@
 
 #include <array>
 #include <cstdint>
+#include <memory>
 #include <optional>
 
 #include "penumbra/common/math.h"
@@ -26,6 +27,8 @@ class DeltaBuilder {
   DeltaBuilder& Converged(bool converged = true);
 
   const wire::Delta& Delta() const { return delta_; }
+  /// A copy, as a client::DeltaReceived holds it.
+  std::shared_ptr<const wire::Delta> Shared() const { return std::make_shared<const wire::Delta>(delta_); }
   /// Direct access, to break a rule the builder otherwise keeps.
   wire::Delta& Mutable() { return delta_; }
   wire::Envelope Envelope() const;

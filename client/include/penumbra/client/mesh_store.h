@@ -34,7 +34,10 @@
 #include "penumbra/common/math.h"
 #include "penumbra/common/rigid_transform.h"
 #include "penumbra/common/tonemap.h"
-#include "penumbra/wire.pb.h"
+
+namespace penumbra::wire {
+class Delta;  // penumbra/wire.pb.h, included by mesh_store.cpp
+}
 
 namespace penumbra::client {
 

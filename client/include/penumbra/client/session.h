@@ -23,11 +23,15 @@
 
 #include "penumbra/common/camera.h"
 #include "penumbra/common/client_scene.h"
-#include "penumbra/common/connection.h"
+#include "penumbra/common/connection_options.h"
 #include "penumbra/common/endpoint.h"
 #include "penumbra/common/refinement_params.h"
 #include "penumbra/common/rigid_transform.h"
-#include "penumbra/wire.pb.h"
+#include "penumbra/common/tls.h"
+
+namespace penumbra::wire {
+class Delta;  // penumbra/wire.pb.h: only the model's mesh store reads a delta's fields
+}
 
 namespace penumbra::client {
 
@@ -53,12 +57,18 @@ struct DeltaReceived {
   /// The SetView() serial of the view this delta answers, or 0 when it
   /// answers an older view than the last one sent.
   uint64_t viewSerial = 0;
-  wire::Delta delta;
+  /// Never null. Shared, so that events stay copyable and the header does
+  /// not need the generated protobuf code (the GL code includes it).
+  std::shared_ptr<const wire::Delta> delta;
 };
 
+/// A TextureData's fields as received; ClientModel validates them.
 struct TextureReceived {
   uint64_t connection = 0;
-  wire::TextureData texture;
+  uint32_t texture = 0;
+  uint32_t width = 0;
+  uint32_t height = 0;
+  std::string rgb8;  // width * height * 3 bytes, sRGB-encoded, rows top first (if valid)
 };
 
 /// The SMA's counters about this client, in stream order with the deltas:

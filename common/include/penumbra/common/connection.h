@@ -23,6 +23,7 @@
 #include <vector>
 
 #include "penumbra/common/asio.h"
+#include "penumbra/common/connection_options.h"
 #include "penumbra/common/endpoint.h"
 #include "penumbra/common/expected.h"
 #include "penumbra/common/framing.h"
@@ -34,20 +35,6 @@ class logger;
 }
 
 namespace penumbra::net {
-
-struct ConnectionOptions {
-  uint32_t maxFrameBytes = kDefaultMaxFrameBytes;  // larger incoming frames close the connection
-  size_t maxQueuedBytes = size_t(64) << 20;        // Send() refuses beyond this
-  std::chrono::milliseconds readTimeout{20000};    // silence longer than this closes
-  std::chrono::milliseconds heartbeatInterval{5000};  // idle sender sends a Heartbeat
-  /// For servers: a peer must complete its handshake (the owner calls
-  /// MarkHandshakeDone) within this time, and until then frames larger than
-  /// maxFrameBytesBeforeHandshake close the connection -- so that idle or
-  /// trickling anonymous peers cost neither descriptors for long nor memory.
-  /// 0: no such limit (connecting sides, whose peer they chose).
-  std::chrono::milliseconds handshakeTimeout{0};
-  uint32_t maxFrameBytesBeforeHandshake = 0;
-};
 
 class Connection : public std::enable_shared_from_this<Connection> {
  public:
