@@ -238,7 +238,8 @@ void RendererPool::CheckTimeouts() {
 
 // --- Requests and dispatch --------------------------------------------------------
 
-size_t RendererPool::Request(std::span<const SampleRequest> samples, Priority priority) {
+size_t RendererPool::Request(std::span<const SampleRequest> samples, Priority priority,
+                             std::vector<InterestTicket>* interest) {
   size_t added = 0;
   {
     std::lock_guard lock(mutex_);
@@ -249,9 +250,9 @@ size_t RendererPool::Request(std::span<const SampleRequest> samples, Priority pr
       unstored.reserve(samples.size());
       for (const SampleRequest& r : samples)
         if (!isStored_(r.vertex)) unstored.push_back(r);
-      added = scheduler_.Request(unstored, priority);
+      added = scheduler_.Request(unstored, priority, interest);
     } else {
-      added = scheduler_.Request(samples, priority);
+      added = scheduler_.Request(samples, priority, interest);
     }
   }
   PostDispatch();
@@ -266,9 +267,9 @@ void RendererPool::PostDispatch() {
   });
 }
 
-void RendererPool::ReleaseInterest(std::span<const VertexId> vertices) {
+void RendererPool::ReleaseInterest(std::span<const InterestTicket> tickets) {
   std::lock_guard lock(mutex_);
-  scheduler_.ReleaseInterest(vertices);
+  scheduler_.ReleaseInterest(tickets);
 }
 
 bool RendererPool::AnyAlive(std::span<const VertexId> vertices) {

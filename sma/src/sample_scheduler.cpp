@@ -13,7 +13,8 @@ SampleScheduler::SampleScheduler(SampleSchedulerOptions options, Now now)
 
 // --- Requests -----------------------------------------------------------------
 
-size_t SampleScheduler::Request(std::span<const SampleRequest> samples, Priority priority) {
+size_t SampleScheduler::Request(std::span<const SampleRequest> samples, Priority priority,
+                                std::vector<InterestTicket>* interest) {
   size_t added = 0;
   const bool visible = priority == Priority::kVisible;
   if (priority == Priority::kImprove) {
@@ -22,6 +23,7 @@ size_t SampleScheduler::Request(std::span<const SampleRequest> samples, Priority
       if (!inserted) continue;  // alive already (being shaded or improved): one request at a time
       Entry& e = it->second;
       e.request = s;
+      e.serial = ++lastRequestSerial_;
       e.improve = true;
       ++queuedTotal_;
       ++queuedImprove_;
@@ -30,16 +32,22 @@ size_t SampleScheduler::Request(std::span<const SampleRequest> samples, Priority
     }
     return added;
   }
+  // One unit of interest for the request of `e`, and its ticket.
+  auto addInterest = [&](VertexId v, Entry& e) {
+    ++e.interest;
+    if (interest) interest->push_back(InterestTicket{v, e.serial});
+  };
   for (const SampleRequest& s : samples) {
     auto [it, inserted] = entries_.try_emplace(s.vertex);
     Entry& e = it->second;
+    if (inserted) e.serial = ++lastRequestSerial_;
     if (e.improve) {
       // A first estimate of a vertex whose improvement is alive: its sample
       // was invalidated by a move since (the pool asks only for vertices
       // the cache lacks). One in flight will be refused by the cache and
       // retried (Retry) with this interest; one still queued becomes the
       // first estimate now (its copy in the improvement queue is skipped).
-      if (visible) ++e.interest;
+      if (visible) addInterest(s.vertex, e);
       if (e.state != EntryState::kQueued) continue;
       e.improve = false;
       e.request = s;
@@ -54,7 +62,7 @@ size_t SampleScheduler::Request(std::span<const SampleRequest> samples, Priority
       }
       continue;
     }
-    if (visible) ++e.interest;
+    if (visible) addInterest(s.vertex, e);
     if (inserted) {
       e.request = s;
       e.predicted = priority == Priority::kPredicted;
@@ -85,10 +93,12 @@ size_t SampleScheduler::Request(std::span<const SampleRequest> samples, Priority
   return added;
 }
 
-void SampleScheduler::ReleaseInterest(std::span<const VertexId> vertices) {
-  for (VertexId v : vertices) {
-    auto it = entries_.find(v);
-    if (it != entries_.end() && it->second.interest > 0) --it->second.interest;
+void SampleScheduler::ReleaseInterest(std::span<const InterestTicket> tickets) {
+  for (const InterestTicket& t : tickets) {
+    auto it = entries_.find(t.vertex);
+    if (it == entries_.end() || it->second.serial != t.request) continue;  // that request has ended
+    PENUMBRA_CHECK(it->second.interest > 0, "a live ticket's request has no interest left");
+    --it->second.interest;
   }
 }
 

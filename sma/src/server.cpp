@@ -529,7 +529,7 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   std::shared_ptr<VisibleSet> visible_;    // latest mapping of hits_
   ClientMirror mirror_;
   std::atomic<size_t> mirrorBytes_{0};     // mirror_.MemoryBytes() as of its last change (memory accounting)
-  std::vector<VertexId> interest_;         // vertices we asked the pool for
+  std::vector<InterestTicket> interest_;   // the interest our views' visible requests gave (released with the next plan)
   std::vector<wire::Envelope> outbox_;     // built under the state lock, sent by Flush after it
   uint64_t sequence_ = 0;
   uint64_t deltasSent_ = 0;
@@ -803,9 +803,10 @@ void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
   std::vector<SampleRequest> requests;
   requests.reserve(plan.missing.size());
   for (VertexId v : plan.missing) requests.push_back(MakeSampleRequest(server.hierarchy_, v));
-  server.pool_->Request(requests, Priority::kVisible);
+  std::vector<InterestTicket> interest;
+  server.pool_->Request(requests, Priority::kVisible, &interest);
   server.pool_->ReleaseInterest(interest_);
-  interest_ = plan.missing;
+  interest_ = std::move(interest);
   if (newView) {  // the prediction hit rate, counted with prediction on or off
     server.viewTrianglesNew_ += plan.addCached.size() + plan.pending.size();
     server.viewTrianglesNewShaded_ += plan.addCached.size();
@@ -1202,10 +1203,11 @@ void SmaServer::Impl::Session::OnMoved(const MoveNotice& notice) {
             !notice.urgent || std::binary_search(notice.urgent->begin(), notice.urgent->end(), v);
         (isUrgent ? urgent : later).push_back(MakeSampleRequest(server_.hierarchy_, v));
       }
-      if (!urgent.empty()) server_.pool_->Request(urgent, Priority::kVisible);
+      // The urgent ones' interest is released with the view's next plan;
+      // background requests take none.
+      if (!urgent.empty()) server_.pool_->Request(urgent, Priority::kVisible, &interest_);
       if (!later.empty()) server_.pool_->Request(later, Priority::kBackground);
     }
-    interest_.insert(interest_.end(), reshade.begin(), reshade.end());  // released with the view's next plan
   }
   state_.OnSceneMoved(reshade);
   if (epoch > epochSent_) {

@@ -134,10 +134,11 @@ TEST(SampleScheduler, VisibleBeforeBackgroundBeforeImprovementOnePriorityPerBatc
 TEST(SampleScheduler, InterestReleasedDemotesAndANewViewPromotes) {
   FakeClock clock;
   SampleScheduler s(Options(), clock.Function());
-  s.Request(Requests(0, 4), Priority::kVisible);    // a view that moves on
+  std::vector<InterestTicket> released;
+  s.Request(Requests(0, 4), Priority::kVisible, &released);  // a view that moves on
+  EXPECT_EQ(released.size(), 4u);
   s.Request(Requests(10, 4), Priority::kBackground);
   s.Request(Requests(10, 2), Priority::kVisible);   // 10, 11 now wanted by a view
-  std::vector<VertexId> released{0, 1, 2, 3};
   s.ReleaseInterest(released);
   s.RendererReady(1, kOneCredit);
   auto first = s.Assemble();
@@ -151,6 +152,43 @@ TEST(SampleScheduler, InterestReleasedDemotesAndANewViewPromotes) {
   EXPECT_EQ(VerticesOf(second), (std::set<VertexId>{0, 1, 2, 3, 12, 13}));
   EXPECT_EQ(second[0].samples.size(), 6u);
   EXPECT_EQ(second[0].pathsPerSample, 100u);
+}
+
+// Interest is taken back from the request it was given to, never from a
+// later request of the same vertex id: once a sample is stored its request
+// ends, the collector may free the vertex and a split reuse the id (issue
+// 15). Before tickets, the first view's release demoted the second view's
+// request of the reused id to background, behind the refinement queued.
+TEST(SampleScheduler, ReleasedInterestNeverReachesALaterRequestOfTheSameVertexId) {
+  FakeClock clock;
+  SampleScheduler s(Options(), clock.Function());
+  std::vector<InterestTicket> firstView, secondView, background;
+  s.Request(Requests(0, 2), Priority::kVisible, &firstView);
+  s.Request(Requests(0, 2), Priority::kBackground, &background);
+  EXPECT_TRUE(background.empty()) << "only visible requests take interest";
+  s.RendererReady(1, kOneCredit);
+  auto batch = s.Assemble();
+  ASSERT_EQ(batch.size(), 1u);
+  s.Complete(s.OnReply(1, Answer(batch[0])).results);  // stored: both requests end
+  EXPECT_EQ(s.Outstanding(), 0u);
+  // Vertex ids 0 and 1 now name new vertices, wanted by another view, with
+  // refinement queued behind them.
+  s.Request(Requests(0, 2), Priority::kVisible, &secondView);
+  s.Request(Requests(50, 4), Priority::kBackground);
+  ASSERT_EQ(secondView.size(), 2u);
+  EXPECT_NE(secondView[0], firstView[0]) << "a new request, a new ticket";
+  s.ReleaseInterest(firstView);  // the first view moves on, late
+  auto next = s.Assemble();
+  ASSERT_EQ(next.size(), 1u);
+  EXPECT_EQ(VerticesOf(next), (std::set<VertexId>{0, 1})) << "still visible: before the refinement";
+  EXPECT_EQ(next[0].pathsPerSample, 16u) << "a visible batch";
+  // Released by their own view, they would have been background work.
+  s.RendererLost(1);
+  s.ReleaseInterest(secondView);
+  s.RendererReady(1, kOneCredit);
+  auto demoted = s.Assemble();
+  ASSERT_EQ(demoted.size(), 1u);
+  EXPECT_EQ(demoted[0].pathsPerSample, 100u) << "background once their view moved on";
 }
 
 // Movement prediction (issue 15): what a predicted view needs goes after
@@ -214,10 +252,10 @@ TEST(SampleScheduler, PredictionPromotesBackgroundAndAViewPromotesAPrediction) {
 TEST(SampleScheduler, AViewThatMovesOnDemotesToPredictedIfPredictedAndRequeueKeepsThePlace) {
   FakeClock clock;
   SampleScheduler s(Options(), clock.Function());
-  s.Request(Requests(0, 2), Priority::kVisible);
+  std::vector<InterestTicket> released;
+  s.Request(Requests(0, 2), Priority::kVisible, &released);
   s.Request(Requests(1, 1), Priority::kPredicted);  // 1: wanted by the view and predicted
   s.Request(Requests(10, 1), Priority::kBackground);
-  std::vector<VertexId> released{0, 1};
   s.ReleaseInterest(released);
   s.RendererReady(1, kOneCredit);
   auto first = s.Assemble();

@@ -122,9 +122,12 @@ class RendererPool : public std::enable_shared_from_this<RendererPool> {
   /// queued now or before. Returns the number newly queued. Batches are
   /// assembled and sent on an I/O thread, not the caller's (which may hold
   /// the state lock).
-  size_t Request(std::span<const SampleRequest> samples, Priority priority);
-  /// Removes one unit of interest from each vertex (a view moved on).
-  void ReleaseInterest(std::span<const VertexId> vertices);
+  /// With `interest`, a visible request appends its tickets
+  /// (SampleScheduler::Request) for ReleaseInterest.
+  size_t Request(std::span<const SampleRequest> samples, Priority priority,
+                 std::vector<InterestTicket>* interest = nullptr);
+  /// Takes back units of interest (a view moved on; SampleScheduler::ReleaseInterest).
+  void ReleaseInterest(std::span<const InterestTicket> tickets);
   /// SampleScheduler::AnyAlive, under the pool's lock.
   bool AnyAlive(std::span<const VertexId> vertices);
   /// The results have been stored: forget these vertices.

@@ -58,6 +58,17 @@ namespace penumbra::sma {
 
 enum class Priority : uint8_t { kVisible, kPredicted, kBackground, kImprove };
 
+/// One unit of interest a visible request gave a vertex's request, as
+/// ReleaseInterest takes it back: the vertex and the serial of the request
+/// it went to. A request ends when its sample is stored (Complete); the
+/// collector may then free the vertex and a split reuse its id for a new
+/// vertex, whose request must not lose interest that was never its own.
+struct InterestTicket {
+  VertexId vertex = kNoVertex;
+  uint64_t request = 0;
+  friend bool operator==(const InterestTicket&, const InterestTicket&) = default;
+};
+
 struct SampleSchedulerOptions {
   uint32_t pathsPerSample = 0;      // background samples (refinement); 0: each renderer's default
   // Visible samples (stage 1); 0: as pathsPerSample. 8 puts a new Sponza view's
@@ -146,11 +157,15 @@ class SampleScheduler {
 
   // --- Requests (any client's work) ---
   /// Queues the samples that are not already alive. Visible requests add one
-  /// unit of interest to every listed vertex, queued now or before. Returns
-  /// the number newly queued.
-  size_t Request(std::span<const SampleRequest> samples, Priority priority);
-  /// Removes one unit of interest from each vertex (a view moved on).
-  void ReleaseInterest(std::span<const VertexId> vertices);
+  /// unit of interest to every listed vertex, queued now or before, and
+  /// append a ticket for each to `interest` when given. Returns the number
+  /// newly queued.
+  size_t Request(std::span<const SampleRequest> samples, Priority priority,
+                 std::vector<InterestTicket>* interest = nullptr);
+  /// Takes back the units of interest of `tickets` (a view moved on). A
+  /// ticket whose request has ended since is ignored, also when its vertex id
+  /// has a new request now.
+  void ReleaseInterest(std::span<const InterestTicket> tickets);
   /// Whether any of `vertices` is alive: queued, in flight or answered and
   /// not yet completed (the collector never frees such a vertex: its reply
   /// would land in a reused slot).
@@ -241,6 +256,7 @@ class SampleScheduler {
   enum class EntryState : uint8_t { kQueued, kInFlight, kAnswered };
   struct Entry {
     SampleRequest request;
+    uint64_t serial = 0;  // this request's, unique over the scheduler's life (InterestTicket)
     uint32_t interest = 0;
     EntryState state = EntryState::kQueued;
     bool inVisibleQueue = false;
@@ -312,6 +328,7 @@ class SampleScheduler {
   uint64_t preparedDropped_ = 0;
   std::map<RendererId, Renderer> renderers_;  // by id: dispatch order is stable
   uint64_t nextBatchId_ = 1;
+  uint64_t lastRequestSerial_ = 0;
   uint64_t queuedVisible_ = 0;
   uint64_t queuedPredicted_ = 0;
   uint64_t queuedImprove_ = 0;
