@@ -83,10 +83,12 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
                                                 std::make_shared<const wire::Delta>(std::move(*envelope.mutable_delta()))});
         break;
       }
-      case wire::Envelope::kTextureData:
+      case wire::Envelope::kTextureData: {
         wire::TextureData& t = *envelope.mutable_texture_data();
-        events.push_back(client::TextureReceived{connection, t.texture(), t.width(), t.height(), std::move(*t.mutable_rgb8())});
+        events.push_back(
+            client::TextureReceived{connection, t.texture(), t.width(), t.height(), std::move(*t.mutable_rgb8())});
         break;
+      }
       case wire::Envelope::kStatsReply: {
         client::SmaCountersReceived counters{connection, {}};
         for (const auto& c : envelope.stats_reply().counters()) counters.counters[c.name()] = c.value();
