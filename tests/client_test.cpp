@@ -329,18 +329,31 @@ TEST_F(ClientTest, SupersampledImagesAreBoxFilteredToTheViewsSize) {
   Service sma = StartSma({"--criterion", "none", "--improve-paths", "0"});
   SetDisplay("");
   std::vector<Image> images;
-  for (const char* samples : {"1", "2"}) {
-    const std::string exr = dir_ + "/front-" + samples + ".exr";
+  // The .exr images are compared below; the .png (display image, no
+  // coverage) only has to come out at the view's size.
+  for (const auto& [samples, file] : {std::pair{"1", "front-1.exr"}, {"2", "front-2.exr"}, {"2", "front-2.png"}}) {
+    const std::string path = dir_ + "/" + file;
     ChildProcess client = StartClient({"--connect", sma.Address(), "--headless", "--camera-path", FrontPathFile(),
-                                       "--supersample", samples, "--until-converged", "--screenshot", exr},
-                                      dir_ + "/client-" + samples + ".log");
+                                       "--supersample", samples, "--until-converged", "--screenshot", path},
+                                      dir_ + "/client-" + file + ".log");
     const auto exit = client.WaitExit(120s);
     ASSERT_TRUE(exit.has_value()) << client.LogTail();
     ASSERT_EQ(*exit, 0) << client.LogTail();
-    auto image = ReadImage(exr);
+    auto image = ReadImageWithAlpha(path);
     ASSERT_TRUE(image.ok()) << image.error().message;
-    ASSERT_EQ(image->width, kWidth);
-    ASSERT_EQ(image->height, kHeight);
+    ASSERT_EQ(image->width, kWidth) << file;
+    ASSERT_EQ(image->height, kHeight) << file;
+    if (!image->storedAsFloat) continue;
+    // Coverage is box-filtered like the colour: whole inside the box, none
+    // outside, a share of the 2 x 2 samples only along the silhouette.
+    ASSERT_EQ(image->alpha.size(), size_t(kWidth) * size_t(kHeight)) << file;
+    size_t partial = 0;
+    for (float a : image->alpha) {
+      EXPECT_TRUE(a == 0.0f || a == 0.25f || a == 0.5f || a == 0.75f || a == 1.0f) << file << ": coverage " << a;
+      partial += a > 0.0f && a < 1.0f ? 1 : 0;
+    }
+    if (std::string(samples) == "1") EXPECT_EQ(partial, 0u) << "one sample a pixel: drawn or not";
+    if (std::string(samples) == "2") EXPECT_GT(partial, 0u) << "the silhouette's pixels are partly covered";
     images.push_back(std::move(*image));
   }
   double one = 0.0, two = 0.0;

@@ -824,7 +824,7 @@ Status ClientApp::WriteScreenshot(const std::filesystem::path& path) {
   // approximation that resolves edges the way a multisampled display does).
   const int n = std::max(options_.supersample, 1);
   pixels = BoxFilter(pixels, size.x, size.y, n);
-  coverage = BoxFilter(coverage, size.x, size.y, n, 1);
+  if (withCoverage) coverage = BoxFilter(coverage, size.x, size.y, n, 1);
   return WriteImage(path, size.x / n, size.y / n, pixels, coverage);
 }
 

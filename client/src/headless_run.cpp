@@ -5,6 +5,8 @@
 
 #include <fmt/format.h>
 
+#include "penumbra/common/check.h"
+
 namespace penumbra::client {
 
 HeadlessRun::HeadlessRun(HeadlessGoal goal, std::string smaAddress, Clock::time_point start)
@@ -82,6 +84,8 @@ std::vector<float> BoxFilter(std::span<const float> pixels, int width, int heigh
   if (n <= 1) return std::vector<float>(pixels.begin(), pixels.end());
   const int w = width / n, h = height / n;
   const auto k = size_t(channels);
+  PENUMBRA_CHECK(pixels.size() == size_t(width) * size_t(height) * k,
+                 fmt::format("BoxFilter: {} values for {}x{} pixels of {} channels", pixels.size(), width, height, k));
   std::vector<float> filtered(size_t(w) * size_t(h) * k, 0.0f);
   const float weight = 1.0f / float(n * n);
   for (int y = 0; y < h * n; ++y)
