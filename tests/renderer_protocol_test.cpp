@@ -679,7 +679,9 @@ class RendererPoseTest : public ::testing::Test {
     ASSERT_NE(floorTriangle_, kNone);
   }
   void TearDown() override {
-    if (client_) ASSERT_TRUE(renderer_.process.Running()) << renderer_.process.LogTail();
+    if (client_) {
+      ASSERT_TRUE(renderer_.process.Running()) << renderer_.process.LogTail();
+    }
   }
 
   static constexpr uint32_t kNone = ~0u;

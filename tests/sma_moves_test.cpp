@@ -358,7 +358,9 @@ TEST_F(SmaMovesTest, ADragEndsWithTheImageOfASingleMoveThere) {
         atEnd |= e->has_delta() && MovesTo(e->delta(), arrived);
       }
     }
-    if (!atEnd) ASSERT_TRUE(WaitMovedTo(c, arrived).ok()) << sma.process.LogTail();
+    if (!atEnd) {
+      ASSERT_TRUE(WaitMovedTo(c, arrived).ok()) << sma.process.LogTail();
+    }
     ASSERT_TRUE(c.WaitConverged(1, 120s).ok()) << sma.process.LogTail();
     EXPECT_GT(*c.Counter("moves"), 1.0);
     for (const char* counter : {"moves", "moves_coalesced", "samples_stale_refused", "samples_invalidated",
