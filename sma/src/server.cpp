@@ -483,6 +483,8 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   /// Asks the connection to call back once the client's queue is under the
   /// soft limit; then one refresh sends what built up.
   void WaitUntilUnblocked();
+  /// The throttled refresh's timer, armed for `due` (the state says kArmed).
+  void ArmRefreshTimer(Clock::time_point due);
   /// Builds removals and additions into as many deltas as the size limit
   /// asks, into the outbox (caller holds the state lock shared; Flush sends
   /// them after it is released). `last`: no other delta for this event
@@ -1257,8 +1259,12 @@ void SmaServer::Impl::Session::ScheduleRefresh() {
       StartJob();
       return;
     case ViewSession::RemapAction::kArmTimer:
-      break;
+      ArmRefreshTimer(due);
+      return;
   }
+}
+
+void SmaServer::Impl::Session::ArmRefreshTimer(Clock::time_point due) {
   refreshTimer_.expires_at(std::max(due, Clock::now() + std::chrono::milliseconds(1)));
   refreshTimer_.async_wait([self = shared_from_this()](const error_code& ec) {
     switch (self->state_.OnRemapTimer(bool(ec))) {
@@ -1287,10 +1293,22 @@ void SmaServer::Impl::Session::WaitUntilUnblocked() {
   connection_->NotifyWhenQueuedAtMost(server_.options_.clientSoftQueueBytes, [weak] {
     auto self = weak.lock();
     if (!self) return;
-    self->state_.OnDrained();
+    Clock::time_point due;
+    const ViewSession::RemapAction action =
+        self->state_.OnDrained(Clock::now(), self->server_.options_.refreshInterval, &due);
     if (!self->connection_->IsOpen()) return;
     self->SendTextures();
-    self->StartJob();
+    // A held-back new view starts now; the refresh keeps its throttle.
+    switch (action) {
+      case ViewSession::RemapAction::kNothing:
+        return;
+      case ViewSession::RemapAction::kStartNow:
+        self->StartJob();
+        return;
+      case ViewSession::RemapAction::kArmTimer:
+        self->ArmRefreshTimer(due);
+        return;
+    }
   });
 }
 

@@ -167,9 +167,12 @@ bool ViewSession::BeginDrainWait() {
   return true;
 }
 
-void ViewSession::OnDrained() {
+ViewSession::RemapAction ViewSession::OnDrained(Clock::time_point now, Clock::duration interval,
+                                                Clock::time_point* due) {
   awaitingDrain_ = false;
   WantRemap();
+  if (NextJob(/*blocked=*/false) == JobStart::kNewView) return RemapAction::kStartNow;
+  return ScheduleRemap(now, interval, due);
 }
 
 void ViewSession::OnSceneMoved(std::span<const VertexId> reshades) {

@@ -221,10 +221,39 @@ TEST(ViewSessionTest, ABlockedClientGetsNoWorkAndOneRefreshOnDrain) {
   EXPECT_TRUE(s.BeginDrainWait());
   EXPECT_FALSE(s.BeginDrainWait());  // one callback at a time
   EXPECT_TRUE(s.AwaitingDrain());
-  s.OnDrained();
+  // The last re-map (the view's job) was long enough ago: the refresh goes now.
+  Clock::time_point due;
+  EXPECT_EQ(s.OnDrained(f.now + 1s, 100ms, &due), ViewSession::RemapAction::kStartNow);
   EXPECT_FALSE(s.AwaitingDrain());
   EXPECT_TRUE(s.RemapWanted());
   EXPECT_EQ(s.NextJob(false), JobStart::kRefresh);
+}
+
+TEST(ViewSessionTest, ADrainKeepsTheRefreshThrottleButNotANewView) {
+  Fixture f;
+  ViewSession s(NoRefinement(), 1000, false);
+  f.ToShading(s);  // its job re-mapped at f.now
+  f.ToStage2(s);
+  const auto interval = 100ms;
+  Clock::time_point due;
+  // A client reading in bursts drains 10 ms after the last re-map: the
+  // refresh waits for the throttle's timer, it does not start at once.
+  ASSERT_TRUE(s.BeginDrainWait());
+  EXPECT_EQ(s.OnDrained(f.now + 10ms, interval, &due), ViewSession::RemapAction::kArmTimer);
+  EXPECT_EQ(due, f.now + interval);
+  EXPECT_EQ(s.RemapState(), ViewSession::Remap::kArmed);
+  // A second drain while the timer is armed adds nothing.
+  ASSERT_TRUE(s.BeginDrainWait());
+  EXPECT_EQ(s.OnDrained(f.now + 20ms, interval, &due), ViewSession::RemapAction::kNothing);
+  EXPECT_EQ(s.OnRemapTimer(false), ViewSession::TimerAction::kStartJob);
+  EXPECT_EQ(s.NextJob(false), JobStart::kRefresh);
+  s.OnJobStarted(JobStart::kRefresh, f.now + interval);
+  ASSERT_EQ(s.OnJobDone(1, false).outcome, ViewSession::JobOutcome::kApply);
+  // A new view held back by the full queue starts on the drain, throttle or not.
+  s.OnNewView(2, f.view, f.now + interval + 1ms);
+  ASSERT_TRUE(s.BeginDrainWait());
+  EXPECT_EQ(s.OnDrained(f.now + interval + 2ms, interval, &due), ViewSession::RemapAction::kStartNow);
+  EXPECT_EQ(s.NextJob(false), JobStart::kNewView);
 }
 
 TEST(ViewSessionTest, RefinementWaitsForStage1AndARunningJob) {

@@ -140,8 +140,11 @@ class ViewSession {
   /// True when the caller should ask the connection for a drain callback
   /// (false: already waiting).
   bool BeginDrainWait();
-  /// The queue drained: one refresh sends what built up.
-  void OnDrained();
+  /// The queue drained at `now`: what built up goes. A new view held back
+  /// starts at once (kStartNow); a refresh keeps its throttle, one per
+  /// `interval` since the last (kStartNow, or kArmTimer for `*due`) -- a
+  /// client that reads in bursts would otherwise get a re-map per burst.
+  RemapAction OnDrained(Clock::time_point now, Clock::duration interval, Clock::time_point* due);
 
   // --- Refinement (stage 2) -------------------------------------------------
   RefinementDriver& Refinement() { return driver_; }
