@@ -352,8 +352,12 @@ TEST_F(ClientTest, SupersampledImagesAreBoxFilteredToTheViewsSize) {
       EXPECT_TRUE(a == 0.0f || a == 0.25f || a == 0.5f || a == 0.75f || a == 1.0f) << file << ": coverage " << a;
       partial += a > 0.0f && a < 1.0f ? 1 : 0;
     }
-    if (std::string(samples) == "1") EXPECT_EQ(partial, 0u) << "one sample a pixel: drawn or not";
-    if (std::string(samples) == "2") EXPECT_GT(partial, 0u) << "the silhouette's pixels are partly covered";
+    if (std::string(samples) == "1") {
+      EXPECT_EQ(partial, 0u) << "one sample a pixel: drawn or not";
+    }
+    if (std::string(samples) == "2") {
+      EXPECT_GT(partial, 0u) << "the silhouette's pixels are partly covered";
+    }
     images.push_back(std::move(*image));
   }
   double one = 0.0, two = 0.0;
