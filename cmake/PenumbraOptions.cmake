@@ -7,6 +7,10 @@ target_compile_options(penumbra_warnings INTERFACE
   -Wall -Wextra -Wpedantic
   $<$<CXX_COMPILER_ID:GNU>:-Wshadow=local> $<$<CXX_COMPILER_ID:Clang>:-Wshadow-uncaptured-local>
   -Wno-unused-parameter)
+# After CMAKE_CXX_FLAGS_RELWITHDEBINFO's -g on the command line, so it wins.
+if(PENUMBRA_DEBUG_INFO STREQUAL "lines")
+  target_compile_options(penumbra_warnings INTERFACE $<$<CONFIG:RelWithDebInfo>:-g1>)
+endif()
 
 add_library(penumbra_sanitizers INTERFACE)
 if(PENUMBRA_ENABLE_ASAN AND PENUMBRA_ENABLE_TSAN)
