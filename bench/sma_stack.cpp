@@ -31,8 +31,10 @@ Expected<SmaStack> StartSmaStack(const SmaStackOptions& o) {
                                 "warn"},
                                "bench-renderer", std::chrono::seconds(120));
   if (!renderer) return Fail("renderer: " + renderer.error().message);
-  std::vector<std::string> smaArgs = {"--scene", o.scene.string(), "--renderer", renderer->Address(), "--log-level",
-                                      "warn"};
+  std::vector<std::string> smaArgs = {"--scene", o.scene.string(), "--renderer", renderer->Address()};
+  // Quiet unless the caller asks for a level (its log is bench-sma.log in the SMA's temporary folder).
+  if (std::find(o.smaArgs.begin(), o.smaArgs.end(), "--log-level") == o.smaArgs.end())
+    smaArgs.insert(smaArgs.end(), {"--log-level", "warn"});
   smaArgs.insert(smaArgs.end(), o.smaArgs.begin(), o.smaArgs.end());
   auto sma = StartService(o.smaExe, smaArgs, "bench-sma", std::chrono::seconds(120));
   if (!sma) return Fail("SMA: " + sma.error().message);

@@ -34,7 +34,7 @@ struct SmaStackOptions {
   int rendererThreads = 2;
   int spp = 64;
   int maxBounces = 64;
-  std::vector<std::string> smaArgs;  // besides --scene, --renderer and --log-level
+  std::vector<std::string> smaArgs;  // besides --scene and --renderer; --log-level warn unless given
 };
 
 /// Starts the renderer, then the SMA pointed at it, and waits until the SMA

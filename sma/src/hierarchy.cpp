@@ -168,9 +168,21 @@ Hierarchy::EdgeKey Hierarchy::PointEdge(NodeId id, int edge) const {
   return KeyOf(PointOf(n.v[(edge + 1) % 3]), PointOf(n.v[(edge + 2) % 3]));
 }
 
+namespace {
+template <class SmallVector>
+size_t HeapBytes(const SmallVector& v) {
+  return v.capacity() > v.static_capacity ? v.capacity() * sizeof(typename SmallVector::value_type) : 0;
+}
+}  // namespace
+
 void Hierarchy::LinkEdges(NodeId id) {
   if (IsRoot(id)) return;
-  for (int k = 0; k < 3; ++k) leavesOfPointEdge_[PointEdge(id, k)].push_back(id);
+  for (int k = 0; k < 3; ++k) {
+    auto& leaves = leavesOfPointEdge_[PointEdge(id, k)];
+    leafListHeapBytes_ -= HeapBytes(leaves);
+    leaves.push_back(id);
+    leafListHeapBytes_ += HeapBytes(leaves);
+  }
 }
 
 void Hierarchy::UnlinkEdges(NodeId id) {
@@ -179,8 +191,10 @@ void Hierarchy::UnlinkEdges(NodeId id) {
     auto it = leavesOfPointEdge_.find(PointEdge(id, k));
     if (it == leavesOfPointEdge_.end()) continue;
     auto& leaves = it->second;
+    leafListHeapBytes_ -= HeapBytes(leaves);
     leaves.erase(std::remove(leaves.begin(), leaves.end(), id), leaves.end());
     if (leaves.empty()) leavesOfPointEdge_.erase(it);
+    else leafListHeapBytes_ += HeapBytes(leaves);
   }
 }
 
@@ -449,12 +463,9 @@ size_t Hierarchy::TableBytes() const {
 }
 
 size_t Hierarchy::MemoryBytes() const {
-  size_t bytes = TableBytes();
   // A list of more than two leaves on one point edge (non-manifold input)
-  // leaves the small_vector's inline storage; rare, and counted here whole.
-  for (const auto& [key, leaves] : leavesOfPointEdge_)
-    if (leaves.capacity() > leaves.static_capacity) bytes += leaves.capacity() * sizeof(NodeId);
-  return bytes;
+  // leaves the small_vector's inline storage; rare, and counted whole.
+  return TableBytes() + leafListHeapBytes_;
 }
 
 float Hierarchy::Area(NodeId id) const {

@@ -351,6 +351,7 @@ class SmaServer::Impl {
   size_t DataInUse();
   std::atomic<uint64_t> samplesRemade_{0};  // made again by splits of collapsed nodes
   std::atomic<uint64_t> remapsAfterCollection_{0};  // mappings found older than a collection
+  std::atomic<uint64_t> viewRemaps_{0};  // refreshes: re-maps of a view's hits from its applied mapping
 
   // The clock: every kTick the hierarchy's tick advances (no lock); every
   // kCollectCheckTicks a collection job is posted if none is running.
@@ -706,10 +707,12 @@ void SmaServer::Impl::Session::StartJob() {
   state_.OnJobStarted(next, Clock::now());
   auto self = shared_from_this();
   std::shared_ptr<HitBuffer> hits = newView ? nullptr : hits_;
+  // A refresh starts from the applied mapping of the same hits.
+  std::shared_ptr<const VisibleSet> previous = newView ? nullptr : visible_;
   const auto posted = Clock::now();
   const double beforePostMs = Ms(posted - state_.ViewReceived());
   JobsFor(view).Post(id_, newView ? JobClass::kNewView : JobClass::kRefresh,
-                     [self, view, id, hits, newView, posted, beforePostMs]() mutable {
+                     [self, view, id, hits, previous, newView, posted, beforePostMs]() mutable {
     Impl& server = self->server_;
     JobTimings t;
     auto t0 = Clock::now();
@@ -722,13 +725,23 @@ void SmaServer::Impl::Session::StartJob() {
       hits = std::make_shared<HitBuffer>();
       server.tracer_->Trace(view, *hits, &server.shuttingDown_, posed.get());
       ++server.viewTraces_;
+      previous.reset();  // mapped from the hits just replaced
     }
     auto t1 = Clock::now();
     auto visible = std::make_shared<VisibleSet>();
     if (server.shuttingDown_) return;  // the result would be dropped anyway
     {
       std::shared_lock lock(server.stateMutex_);
-      MapHitsToNodes(server.hierarchy_, *hits, &ChildrenShaded, &server.cache_, *visible, &server.shuttingDown_);
+      // Between collections ChildrenShaded only turns true (samples are
+      // added; a move's invalidated ones still count), so a refresh looks
+      // at each pixel's node instead of descending from its root.
+      if (previous) {
+        RemapHitsToNodes(server.hierarchy_, *hits, &ChildrenShaded, &server.cache_, *previous, *visible,
+                         &server.shuttingDown_);
+        ++server.viewRemaps_;
+      } else {
+        MapHitsToNodes(server.hierarchy_, *hits, &ChildrenShaded, &server.cache_, *visible, &server.shuttingDown_);
+      }
       for (NodeId node : visible->nodes) server.hierarchy_.Touch(node);  // the collector's ages
     }
     if (server.shuttingDown_) return;
@@ -1506,6 +1519,7 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
   AddCounter(reply, "memory_trimmed_bytes", double(trimmedBytes_.load()));
   AddCounter(reply, "samples_reshaded_after_eviction", double(samplesRemade_.load()));
   AddCounter(reply, "remaps_after_collection", double(remapsAfterCollection_.load()));
+  AddCounter(reply, "view_remaps", double(viewRemaps_.load()));
   if (const auto rss = metrics::ResidentMemoryBytes()) AddCounter(reply, "process_resident_bytes", double(*rss));
   AddCounter(reply, "samples_requested", double(pool.requested));
   AddCounter(reply, "samples_shaded", double(pool.shaded));

@@ -389,12 +389,17 @@ void SortByNode(std::vector<Run>& runs, std::vector<Run>& scratch, size_t nodeCo
 
 }  // namespace
 
-void MapHitsToNodes(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFunction descend, const void* context,
-                    VisibleSet& out, const std::atomic<bool>* cancel) {
+namespace {
+
+// `previous`: null, or a mapping of the same hits at the hierarchy's
+// structure generation (RemapHitsToNodes).
+void MapHits(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFunction descend, const void* context,
+             const VisibleSet* previous, VisibleSet& out, const std::atomic<bool>* cancel) {
   const size_t width = size_t(hits.view.width);
   const int height = hits.view.height;
   PENUMBRA_CHECK(hits.hits.size() == width * size_t(height),
                  fmt::format("{} hits for a {}x{} view", hits.hits.size(), width, height));
+  PENUMBRA_CHECK(previous != &out, "RemapHitsToNodes: `previous` and `out` must be different sets");
   out.pixelNode.resize(hits.hits.size());
   out.structureGeneration = hierarchy.StructureGeneration();
 
@@ -408,6 +413,7 @@ void MapHitsToNodes(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFu
     order.Enter();
     NodeFinder finder(hierarchy, descend, context);
     RunFolder folder;
+    NodeId kept = kNoNode;  // the last previous node found to stay (runs of pixels share it)
     for (int chunk = chunks.begin(); chunk != chunks.end(); ++chunk) {
       if (cancel && cancel->load(std::memory_order_relaxed)) break;
       std::vector<Run>& runs = runsOfChunk[size_t(chunk)];
@@ -415,9 +421,23 @@ void MapHitsToNodes(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFu
       for (int y = chunk * kRowsPerChunk; y < endY; ++y) {
         const PixelHit* rowHits = hits.hits.data() + size_t(y) * width;
         NodeId* rowNodes = out.pixelNode.data() + size_t(y) * width;
+        const NodeId* rowBefore = previous ? previous->pixelNode.data() + size_t(y) * width : nullptr;
         Run run{kNoNode, 0};
         for (size_t x = 0; x < width; ++x) {
-          const NodeId node = rowHits[x].triangle == kNoHit ? kNoNode : finder.Find(rowHits[x]);
+          NodeId node = kNoNode;
+          if (rowHits[x].triangle == kNoHit) {
+            node = kNoNode;
+          } else if (rowBefore && rowBefore[x] != kNoNode &&
+                     (rowBefore[x] == kept || [&] {
+                       const Node& n = hierarchy.GetNode(rowBefore[x]);
+                       return n.IsLeaf() || !descend(n, context);
+                     }())) {
+            // The descent from the root passes through the previous node
+            // (everything above it still descends) and stops there.
+            node = kept = rowBefore[x];
+          } else {
+            node = finder.Find(rowHits[x]);
+          }
           rowNodes[x] = node;
           if (node != run.node) {
             if (run.node != kNoNode) folder.Add(run, runs);
@@ -455,6 +475,21 @@ void MapHitsToNodes(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFu
       out.coverage.push_back(r.pixels);
     }
   }
+}
+
+}  // namespace
+
+void MapHitsToNodes(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFunction descend, const void* context,
+                    VisibleSet& out, const std::atomic<bool>* cancel) {
+  MapHits(hierarchy, hits, descend, context, nullptr, out, cancel);
+}
+
+void RemapHitsToNodes(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFunction descend,
+                      const void* context, const VisibleSet& previous, VisibleSet& out,
+                      const std::atomic<bool>* cancel) {
+  const bool usable = previous.structureGeneration == hierarchy.StructureGeneration() &&
+                      previous.pixelNode.size() == hits.hits.size() && !previous.nodes.empty();
+  MapHits(hierarchy, hits, descend, context, usable ? &previous : nullptr, out, cancel);
 }
 
 }  // namespace penumbra::sma

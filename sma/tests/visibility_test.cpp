@@ -552,5 +552,55 @@ TEST_F(MapHitsToNodesTest, ListsEveryVisibleNodeOnceWithItsPixelCount) {
   for (NodeId node : visible.nodes) EXPECT_LT(node, scene_.triangles.size());
 }
 
+// A refresh re-maps from the applied mapping: after more nodes descend and
+// more leaves split (what arriving samples and refinement do between
+// collections), it equals a mapping from scratch, pixel for pixel.
+TEST_F(MapHitsToNodesTest, ARemapFromThePreviousMappingEqualsOneFromScratch) {
+  const HitBuffer hits = Trace(160, 120);
+  VisibleSet before;
+  MapHitsToNodes(hierarchy_, hits, DescendIfMarked, &marks_, before);
+  // Descending only grows: a quarter of the refused nodes now descend, and
+  // new splits' nodes descend at random.
+  std::mt19937 rng(5);
+  for (uint8_t& m : marks_.descend)
+    if (!m && rng() % 4 == 0) m = 1;
+  for (int step = 0; step < 100; ++step) {
+    std::vector<NodeId> leaves;
+    hierarchy_.ForEachLeaf(kNoNode, [&](NodeId id) { leaves.push_back(id); });
+    hierarchy_.Refine(leaves[rng() % leaves.size()], RefineOptions{});
+  }
+  const size_t old = marks_.descend.size();
+  marks_.descend.resize(hierarchy_.NodeCount());
+  for (size_t i = old; i < marks_.descend.size(); ++i) marks_.descend[i] = rng() % 2;
+  marks_.Index();
+  ASSERT_EQ(before.structureGeneration, hierarchy_.StructureGeneration());  // splits free nothing
+
+  struct CountingMarks {
+    const Marks* marks;
+    mutable std::atomic<size_t> calls{0};
+  };
+  const DescendFunction countingDescend = [](const Node& n, const void* context) {
+    const auto& c = *static_cast<const CountingMarks*>(context);
+    c.calls.fetch_add(1, std::memory_order_relaxed);
+    return DescendIfMarked(n, c.marks);
+  };
+  CountingMarks fromScratchCalls{&marks_}, remapCalls{&marks_};
+  VisibleSet fromScratch, remapped;
+  MapHitsToNodes(hierarchy_, hits, countingDescend, &fromScratchCalls, fromScratch);
+  RemapHitsToNodes(hierarchy_, hits, countingDescend, &remapCalls, before, remapped);
+  ASSERT_EQ(remapped.pixelNode, fromScratch.pixelNode);
+  EXPECT_EQ(remapped.nodes, fromScratch.nodes);
+  EXPECT_EQ(remapped.coverage, fromScratch.coverage);
+  EXPECT_NE(fromScratch.pixelNode, before.pixelNode);  // the test changed the mapping
+  EXPECT_LT(remapCalls.calls.load(), fromScratchCalls.calls.load());  // and the re-map looked at less
+
+  // A mapping made at another structure generation is not used: a full map.
+  VisibleSet stale = before;
+  stale.structureGeneration += 1;
+  VisibleSet again;
+  RemapHitsToNodes(hierarchy_, hits, DescendIfMarked, &marks_, stale, again);
+  EXPECT_EQ(again.pixelNode, fromScratch.pixelNode);
+}
+
 }  // namespace
 }  // namespace penumbra::sma

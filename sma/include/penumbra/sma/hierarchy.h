@@ -280,7 +280,7 @@ class Hierarchy {
   size_t LiveVertexCount() const { return VertexCount() - freeVertices_.size(); }
   /// What the live nodes and vertices and the maps take: MemoryBytes() less
   /// the freed slots waiting for reuse and the tables' unused chunk tails,
-  /// from counts (O(1), unlike MemoryBytes): what the collector steers by.
+  /// from counts (O(1), like MemoryBytes): what the collector steers by.
   size_t LiveBytes() const;
 
   /// A split node whose children are all leaves: what can collapse.
@@ -408,6 +408,10 @@ class Hierarchy {
   std::unordered_map<EdgeKey, uint32_t> midpointOfPointEdge_;   // point edge -> midpoint point
   // Leaves by point edge, for leaves that are not roots.
   std::unordered_map<EdgeKey, boost::container::small_vector<NodeId, 2>> leavesOfPointEdge_;
+  // Bytes of the lists above that left their inline storage (more than two
+  // leaves on a point edge: non-manifold input), kept as they change so that
+  // MemoryBytes (asked by every stats request) does not walk the table.
+  size_t leafListHeapBytes_ = 0;
   // Roots' edges by point edge (issue 15: a base triangle costs no hash map
   // entries until it is split), made once, front roots only (a back root's
   // edges are its front's, points shifted by frontPointCount_): the edges

@@ -127,4 +127,20 @@ using DescendFunction = bool (*)(const Node& node, const void* context);
 void MapHitsToNodes(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFunction descend,
                     const void* context, VisibleSet& out, const std::atomic<bool>* cancel = nullptr);
 
+/// MapHitsToNodes again, for the same `hits`, starting from `previous` (a
+/// complete mapping of these hits, not `out`): a pixel keeps its previous
+/// node when that node is a leaf or `descend` refuses it, and only the other
+/// pixels are located from their root. The result equals a mapping from
+/// scratch provided `descend` only ever turned from false to true for the
+/// nodes above the previous ones since `previous` was made, and no node was
+/// freed: the SMA's ChildrenShaded between collections (samples are only
+/// added, a move's invalidated ones still count as awaiting re-shading) --
+/// a refresh, which re-maps a view every time new samples may complete a
+/// node's children, then costs a look at each pixel's node instead of a
+/// descent from its root. When `previous` was made at another
+/// StructureGeneration() or for another view size, this is MapHitsToNodes.
+void RemapHitsToNodes(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFunction descend,
+                      const void* context, const VisibleSet& previous, VisibleSet& out,
+                      const std::atomic<bool>* cancel = nullptr);
+
 }  // namespace penumbra::sma
