@@ -4,6 +4,7 @@
 
 #include <google/protobuf/io/coded_stream.h>
 
+#include "penumbra/common/check.h"
 #include "penumbra/common/framing.h"
 #include "penumbra/sma/memory_usage.h"
 
@@ -96,9 +97,13 @@ void ClientMirror::Clear() {
 
 ViewPlan PlanView(const VisibleSet& visible, const ClientMirror& mirror, const Hierarchy& hierarchy,
                   const SampleCache& cache) {
+  // Every client's refresh plans on its strand (an I/O thread), up to ten
+  // times a second while anyone refines: sorted vectors and binary searches,
+  // no hash sets of the ~10^4 visible and held nodes built per call.
+  PENUMBRA_CHECK(std::is_sorted(visible.nodes.begin(), visible.nodes.end()),
+                 "PlanView: the visible set's nodes must be in increasing order");
   ViewPlan plan;
   uint64_t hits = 0, misses = 0;
-  std::unordered_set<VertexId> missing;
   for (NodeId id : visible.nodes) {
     const Node& node = hierarchy.GetNode(id);
     bool shaded = true;
@@ -108,34 +113,38 @@ ViewPlan PlanView(const VisibleSet& visible, const ClientMirror& mirror, const H
       } else {
         ++misses;
         shaded = false;
-        missing.insert(v);
+        plan.missing.push_back(v);
       }
     }
     if (mirror.Holds(id)) continue;
-    (shaded ? plan.addCached : plan.pending).push_back(id);
+    (shaded ? plan.addCached : plan.pending).push_back(id);  // both in increasing order
   }
   cache.CountLookups(hits, misses);
-  plan.missing.assign(missing.begin(), missing.end());
   std::sort(plan.missing.begin(), plan.missing.end());
+  plan.missing.erase(std::unique(plan.missing.begin(), plan.missing.end()), plan.missing.end());
 
   // Held but no longer visible. Such a node is "replaced" when an addition
   // covers part of it (its refined children, or a coarser ancestor): the
   // client then swaps them in one delta and never shows a hole.
-  const std::unordered_set<NodeId> added(plan.addCached.begin(), plan.addCached.end());
-  std::unordered_set<NodeId> visibleSet(visible.nodes.begin(), visible.nodes.end());
-  std::unordered_set<NodeId> gone;
+  const auto in = [](const std::vector<NodeId>& sorted, NodeId id) {
+    return std::binary_search(sorted.begin(), sorted.end(), id);
+  };
+  std::vector<NodeId> gone;
   for (NodeId id : mirror.Held())
-    if (!visibleSet.contains(id)) gone.insert(id);
-  std::unordered_set<NodeId> replaced;
+    if (!in(visible.nodes, id)) gone.push_back(id);
+  std::sort(gone.begin(), gone.end());
+  std::vector<NodeId> replaced;  // gone ancestors of an addition
   for (NodeId a : plan.addCached)
     for (NodeId p = hierarchy.GetNode(a).parent; p != kNoNode; p = hierarchy.GetNode(p).parent)
-      if (gone.contains(p)) replaced.insert(p);
-  for (NodeId g : gone)
-    for (NodeId p = hierarchy.GetNode(g).parent; p != kNoNode && !replaced.contains(g); p = hierarchy.GetNode(p).parent)
-      if (added.contains(p)) replaced.insert(g);
-  for (NodeId g : gone) (replaced.contains(g) ? plan.removeReplaced : plan.removeGone).push_back(g);
-  std::sort(plan.removeReplaced.begin(), plan.removeReplaced.end());
-  std::sort(plan.removeGone.begin(), plan.removeGone.end());
+      if (in(gone, p)) replaced.push_back(p);
+  std::sort(replaced.begin(), replaced.end());
+  replaced.erase(std::unique(replaced.begin(), replaced.end()), replaced.end());
+  for (NodeId g : gone) {
+    bool isReplaced = in(replaced, g);
+    for (NodeId p = hierarchy.GetNode(g).parent; p != kNoNode && !isReplaced; p = hierarchy.GetNode(p).parent)
+      isReplaced = in(plan.addCached, p);  // a coarser addition covers it
+    (isReplaced ? plan.removeReplaced : plan.removeGone).push_back(g);  // in increasing order
+  }
   return plan;
 }
 
