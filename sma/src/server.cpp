@@ -352,6 +352,7 @@ class SmaServer::Impl {
   std::atomic<uint64_t> samplesRemade_{0};  // made again by splits of collapsed nodes
   std::atomic<uint64_t> remapsAfterCollection_{0};  // mappings found older than a collection
   std::atomic<uint64_t> viewRemaps_{0};  // refreshes: re-maps of a view's hits from its applied mapping
+  std::atomic<uint64_t> viewRemapsUnchanged_{0};  // ... that found every pixel on its node: nothing planned
 
   // The clock: every kTick the hierarchy's tick advances (no lock); every
   // kCollectCheckTicks a collection job is posted if none is running.
@@ -530,6 +531,10 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
 
   std::shared_ptr<HitBuffer> hits_;        // base hits of the applied view
   std::shared_ptr<VisibleSet> visible_;    // latest mapping of hits_
+  // visible_ was planned and its changes queued for the client (not held
+  // back by a full queue, not found older than a collection): a refresh
+  // whose mapping is the same has nothing to plan.
+  bool visibleApplied_ = false;
   ClientMirror mirror_;
   std::atomic<size_t> mirrorBytes_{0};     // mirror_.MemoryBytes() as of its last change (memory accounting)
   std::vector<InterestTicket> interest_;   // the interest our views' visible requests gave (released with the next plan)
@@ -678,6 +683,7 @@ void SmaServer::Impl::Session::OnView(const wire::View& v) {
   // refinement and improvement wait for the new view's stage 1).
   hits_.reset();
   visible_.reset();
+  visibleApplied_ = false;
   // A prediction made from the old view is abandoned: a real view is here.
   if (predictionCancel_) *predictionCancel_ = true;
   predictor_.Observe(view, Clock::now());
@@ -810,6 +816,23 @@ void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
     ++server.remapsAfterCollection_;
     return;
   }
+  // A refresh that found every pixel on the node it had: what the client was
+  // sent already matches it, and arrivals since have been sent as they
+  // completed nodes (OnSamplesArrived). Only what was held back is owed.
+  // Most refreshes with many clients are this: each re-maps whenever any
+  // client's splits arrive, and PlanView was the I/O thread's largest cost.
+  if (!newView && visible_->sameAsPrevious && visibleApplied_) {
+    ++server.viewRemapsUnchanged_;
+    lock.unlock();
+    if (Blocked()) {
+      WaitUntilUnblocked();
+      return;
+    }
+    Flush();
+    SendUpdates();
+    return;
+  }
+  visibleApplied_ = false;
   ViewPlan plan = PlanView(*visible_, mirror_, server.hierarchy_, server.cache_);
 
   // Ask for what is missing before letting go of the old interest, so a
@@ -848,6 +871,7 @@ void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
     removals.insert(removals.end(), plan.removeGone.begin(), plan.removeGone.end());
     QueueChanges(wire::DELTA_KIND_REFINED, removals, plan.addCached, /*alwaysSend=*/false, /*last=*/true);
   }
+  visibleApplied_ = true;
   lock.unlock();
   // Reshades of vertices the client no longer holds are not awaited.
   state_.PruneReshades([this](VertexId v) { return mirror_.HoldsVertex(v); });
@@ -1520,6 +1544,7 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
   AddCounter(reply, "samples_reshaded_after_eviction", double(samplesRemade_.load()));
   AddCounter(reply, "remaps_after_collection", double(remapsAfterCollection_.load()));
   AddCounter(reply, "view_remaps", double(viewRemaps_.load()));
+  AddCounter(reply, "view_remaps_unchanged", double(viewRemapsUnchanged_.load()));
   if (const auto rss = metrics::ResidentMemoryBytes()) AddCounter(reply, "process_resident_bytes", double(*rss));
   AddCounter(reply, "samples_requested", double(pool.requested));
   AddCounter(reply, "samples_shaded", double(pool.shaded));

@@ -407,6 +407,7 @@ void MapHits(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFunction 
   std::vector<std::vector<Run>> runsOfChunk(static_cast<size_t>(chunkCount));
   // The tasks read the hierarchy and, through `descend`, whatever the caller
   // guards with its lock: TBB's hand-offs must be visible to ThreadSanitizer.
+  std::atomic<bool> anyChanged{false};  // a pixel's node differs from previous's
   ForkJoinAnnotation order;
   order.Fork();
   tbb::parallel_for(tbb::blocked_range<int>(0, chunkCount), [&](const tbb::blocked_range<int>& chunks) {
@@ -414,6 +415,7 @@ void MapHits(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFunction 
     NodeFinder finder(hierarchy, descend, context);
     RunFolder folder;
     NodeId kept = kNoNode;  // the last previous node found to stay (runs of pixels share it)
+    bool changed = false;
     for (int chunk = chunks.begin(); chunk != chunks.end(); ++chunk) {
       if (cancel && cancel->load(std::memory_order_relaxed)) break;
       std::vector<Run>& runs = runsOfChunk[size_t(chunk)];
@@ -437,6 +439,7 @@ void MapHits(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFunction 
             node = kept = rowBefore[x];
           } else {
             node = finder.Find(rowHits[x]);
+            changed = changed || !rowBefore || node != rowBefore[x];
           }
           rowNodes[x] = node;
           if (node != run.node) {
@@ -449,12 +452,20 @@ void MapHits(const Hierarchy& hierarchy, const HitBuffer& hits, DescendFunction 
       }
       folder.Flush(runs);
     }
+    if (changed) anyChanged.store(true, std::memory_order_relaxed);
     order.Leave();
   });
   order.Join();
+  out.sameAsPrevious = false;
   if (cancel && cancel->load()) {
     out.nodes.clear();
     out.coverage.clear();
+    return;
+  }
+  if (previous && !anyChanged.load(std::memory_order_relaxed)) {
+    out.nodes = previous->nodes;
+    out.coverage = previous->coverage;
+    out.sameAsPrevious = true;
     return;
   }
 

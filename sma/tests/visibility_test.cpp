@@ -559,6 +559,15 @@ TEST_F(MapHitsToNodesTest, ARemapFromThePreviousMappingEqualsOneFromScratch) {
   const HitBuffer hits = Trace(160, 120);
   VisibleSet before;
   MapHitsToNodes(hierarchy_, hits, DescendIfMarked, &marks_, before);
+  EXPECT_FALSE(before.sameAsPrevious);
+  {  // Nothing changed: the same mapping, and it says so.
+    VisibleSet same;
+    RemapHitsToNodes(hierarchy_, hits, DescendIfMarked, &marks_, before, same);
+    EXPECT_TRUE(same.sameAsPrevious);
+    EXPECT_EQ(same.pixelNode, before.pixelNode);
+    EXPECT_EQ(same.nodes, before.nodes);
+    EXPECT_EQ(same.coverage, before.coverage);
+  }
   // Descending only grows: a quarter of the refused nodes now descend, and
   // new splits' nodes descend at random.
   std::mt19937 rng(5);
@@ -589,6 +598,7 @@ TEST_F(MapHitsToNodesTest, ARemapFromThePreviousMappingEqualsOneFromScratch) {
   MapHitsToNodes(hierarchy_, hits, countingDescend, &fromScratchCalls, fromScratch);
   RemapHitsToNodes(hierarchy_, hits, countingDescend, &remapCalls, before, remapped);
   ASSERT_EQ(remapped.pixelNode, fromScratch.pixelNode);
+  EXPECT_FALSE(remapped.sameAsPrevious);
   EXPECT_EQ(remapped.nodes, fromScratch.nodes);
   EXPECT_EQ(remapped.coverage, fromScratch.coverage);
   EXPECT_NE(fromScratch.pixelNode, before.pixelNode);  // the test changed the mapping
@@ -600,6 +610,7 @@ TEST_F(MapHitsToNodesTest, ARemapFromThePreviousMappingEqualsOneFromScratch) {
   VisibleSet again;
   RemapHitsToNodes(hierarchy_, hits, DescendIfMarked, &marks_, stale, again);
   EXPECT_EQ(again.pixelNode, fromScratch.pixelNode);
+  EXPECT_FALSE(again.sameAsPrevious);
 }
 
 }  // namespace

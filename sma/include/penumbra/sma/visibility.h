@@ -111,6 +111,9 @@ struct VisibleSet {
   /// Hierarchy::StructureGeneration() when mapped: node ids are valid while
   /// it is the hierarchy's (a collection since may have freed them).
   uint64_t structureGeneration = 0;
+  /// Set by RemapHitsToNodes: every pixel kept its node from `previous` (so
+  /// `nodes` and `coverage` are previous's too). False from MapHitsToNodes.
+  bool sameAsPrevious = false;
 };
 
 /// Maps every hit to the deepest node reachable from the root of the side of
