@@ -327,17 +327,24 @@ TEST_F(SecurityTest, TlsWithTheWrongCaOrNameIsRefused) {
   }
   Service sma = StartSma(renderer.Address(),
                          {"--renderer-tls-ca", pki_->ca, "--tls-cert", pki_->cert, "--tls-key", pki_->key}, "ca");
+  // A refused certificate is final for a client: it stops at the first
+  // attempt, well before its connect timeout, and says why.
   std::string log;
-  auto code = RunClient(sma.Address(), {"--tls-ca", pki_->otherCa, "--connect-timeout", "6"}, "tls-wrong-ca", &log);
+  auto started = Clock::now();
+  auto code = RunClient(sma.Address(), {"--tls-ca", pki_->otherCa, "--connect-timeout", "60"}, "tls-wrong-ca", &log);
   ASSERT_EQ(code, std::optional<int>(1)) << log;
+  EXPECT_LT(Clock::now() - started, 30s) << "a refused certificate is final: no retrying until the connect timeout";
   EXPECT_TRUE(Contains(log, "certificate verify failed")) << log;
+  EXPECT_TRUE(Contains(log, "not retrying")) << log;
 
   Service misnamed = StartSma(renderer.Address(),
                               {"--renderer-tls-ca", pki_->ca, "--tls-cert", pki_->wrongNameCert, "--tls-key",
                                pki_->wrongNameKey},
                               "misnamed");
-  code = RunClient(misnamed.Address(), {"--tls-ca", pki_->ca, "--connect-timeout", "6"}, "tls-wrong-name", &log);
+  started = Clock::now();
+  code = RunClient(misnamed.Address(), {"--tls-ca", pki_->ca, "--connect-timeout", "60"}, "tls-wrong-name", &log);
   ASSERT_EQ(code, std::optional<int>(1)) << log;
+  EXPECT_LT(Clock::now() - started, 30s) << "a certificate for another name is final too";
   EXPECT_TRUE(Contains(log, "hostname mismatch")) << "host name verification against 127.0.0.1:\n" << log;
   EXPECT_TRUE(renderer.process.Running());
 }

@@ -163,25 +163,32 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
                             [self = shared_from_this()](const error_code& ec, tcp::resolver::results_type results) {
                               if (self->stopping_) return;
                               if (ec || results.empty())
-                                return self->AttemptFailed(fmt::format("cannot resolve: {}", ec.message()));
+                                return self->AttemptFailed(Fail(fmt::format("cannot resolve: {}", ec.message())));
                               std::vector<tcp::endpoint> endpoints;
                               for (const auto& r : results) endpoints.push_back(r.endpoint());
-                              self->TryEndpoint(std::move(endpoints), 0, "");
+                              self->TryEndpoint(std::move(endpoints), 0, Error{});
                             });
   }
 
-  // Tries the addresses a name resolves to in turn; the first that accepts wins.
-  void TryEndpoint(std::vector<tcp::endpoint> endpoints, size_t index, std::string lastError) {
+  // Tries the addresses a name resolves to in turn; the first that accepts
+  // wins. A refused certificate at any of them is what the user is told
+  // (and it ends the session): it is a configuration error, not a network one.
+  void TryEndpoint(std::vector<tcp::endpoint> endpoints, size_t index, Error failure) {
     if (stopping_) return;
-    if (index >= endpoints.size()) return AttemptFailed(lastError);
+    if (index >= endpoints.size()) return AttemptFailed(std::move(failure));
     const tcp::endpoint endpoint = endpoints[index];
     net::AsyncConnectStream(
         io_, endpoint, net::TlsClientTarget{options_.tls, options_.sma.host}, options_.connectTimeout,
-        [self = shared_from_this(), endpoints = std::move(endpoints), index](Expected<net::Stream> stream) mutable {
+        [self = shared_from_this(), endpoints = std::move(endpoints), index,
+         failure = std::move(failure)](Expected<net::Stream> stream) mutable {
           // AsyncConnectStream's handler runs on the socket's strand; hop to the session.
-          asio::post(self->io_, [self, stream = std::move(stream), endpoints = std::move(endpoints), index]() mutable {
+          asio::post(self->io_, [self, stream = std::move(stream), endpoints = std::move(endpoints), index,
+                                 failure = std::move(failure)]() mutable {
             if (self->stopping_) return;
-            if (!stream) return self->TryEndpoint(std::move(endpoints), index + 1, stream.error().message);
+            if (!stream) {
+              if (!failure.permanent) failure = stream.error();
+              return self->TryEndpoint(std::move(endpoints), index + 1, std::move(failure));
+            }
             self->OnSocket(std::move(*stream));
           });
         });
@@ -217,9 +224,17 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
     connection->Send(MakeHello(wire::ROLE_CLIENT, options_.clientName, 0, options_.authToken));
   }
 
-  void AttemptFailed(const std::string& reason) {
-    RecordError(reason);
-    log_->info("cannot connect to SMA {}: {}; retrying in {} ms", address_, reason, ScheduleRetry().count());
+  void AttemptFailed(Error failure) {
+    RecordError(failure.message);
+    if (failure.permanent) {
+      permanentError_ = fmt::format("{} (check --tls-ca and the SMA's --tls-cert)", failure.message);
+      log_->error("cannot connect to SMA {}: {}; not retrying", address_, permanentError_);
+      std::lock_guard lock(mutex_);
+      status_.state = ConnectionState::kStopped;
+      status_.permanentError = permanentError_;
+      return;
+    }
+    log_->info("cannot connect to SMA {}: {}; retrying in {} ms", address_, failure.message, ScheduleRetry().count());
   }
 
   /// Arms the reconnection timer and returns its delay; the delay doubles

@@ -588,8 +588,9 @@ void AsyncConnectStream(asio::io_context& io, const tcp::endpoint& endpoint, con
       if (handshakeEc) {
         // A refused certificate explains itself; anything else is most often a server without TLS.
         const bool certificateRefused = SSL_get_verify_result(state->stream->native_handle()) != X509_V_OK;
-        return state->handler(Fail(fmt::format("TLS handshake failed: {}{}", DescribeTlsFailure(handshakeEc, *state->stream),
-                                               certificateRefused ? "" : " (does the server listen with TLS, --tls-cert?)")));
+        return state->handler(Error{fmt::format("TLS handshake failed: {}{}", DescribeTlsFailure(handshakeEc, *state->stream),
+                                                certificateRefused ? "" : " (does the server listen with TLS, --tls-cert?)"),
+                                    certificateRefused});
       }
       state->handler(Stream(std::move(state->stream)));
     });

@@ -229,7 +229,10 @@ void AsyncConnect(asio::io_context& io, const tcp::endpoint& endpoint, std::chro
 /// `tls.hostName` -- connection and handshake together within `timeout`.
 /// The handler runs on an io_context thread (the stream's strand) with the
 /// stream or a message saying what failed (refused, timed out, which TLS
-/// check failed).
+/// check failed). A server certificate refused by the CA or the host name
+/// check is a `permanent` Error: the same server answers the same way
+/// again (the client stops; the SMA's renderer links keep retrying, since
+/// an operator may replace the renderer's certificate).
 void AsyncConnectStream(asio::io_context& io, const tcp::endpoint& endpoint, const TlsClientTarget& tls,
                         std::chrono::milliseconds timeout, std::function<void(Expected<Stream>)> handler);
 

@@ -14,6 +14,10 @@ namespace penumbra {
 /// the problem, e.g. "scenes/x.obj: line 12: face index 40 out of range".
 struct Error {
   std::string message;
+  /// Trying the same thing again gives the same answer (e.g. a server
+  /// certificate our CA refuses): an interactive caller stops and says so,
+  /// where a transient failure (refused, timed out) is worth a retry.
+  bool permanent = false;
 };
 
 /// Builds an Error; lets callers write `return Fail("...")` in any Expected.
