@@ -300,7 +300,7 @@ TEST(SmaRefinementLimitsTest, FuzzedSessionOptionsAreRefusedAndRefinementIsCappe
     rssMax = std::max(rssMax, ResidentMegabytes(sma.process.Pid()));
   }
   auto samples = c->Counter("client_refinement_samples");
-  ASSERT_TRUE(samples.ok());
+  ASSERT_TRUE(samples.ok()) << samples.error().message;
   std::printf("20 s of refinement at the client limits over %llu views: %.0f samples created, SMA RSS %.0f -> "
               "%.0f MiB (peak %.0f MiB, +%.0f MiB)\n",
               (unsigned long long)views, *samples, rssStart, ResidentMegabytes(sma.process.Pid()), rssMax,

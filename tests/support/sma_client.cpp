@@ -8,6 +8,7 @@
 #include <fmt/format.h>
 
 #include "penumbra/common/messages.h"
+#include "support/sanitizer_time.h"
 
 namespace penumbra::testing {
 
@@ -61,6 +62,7 @@ Status SmaTestClient::Apply(const wire::Envelope& e) {
 }
 
 Status SmaTestClient::WaitConverged(uint64_t viewId, std::chrono::milliseconds timeout) {
+  timeout = ScaledTimeout(timeout);
   const auto deadline = Clock::now() + timeout;
   while (!(mesh_.LastViewId() == viewId && mesh_.Converged())) {
     const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
@@ -84,16 +86,19 @@ Status SmaTestClient::WaitConverged(uint64_t viewId, std::chrono::milliseconds t
   return Status::Ok();
 }
 
-Expected<double> SmaTestClient::Counter(const std::string& name) {
+Expected<double> SmaTestClient::Counter(const std::string& name, std::chrono::milliseconds timeout) {
   const uint64_t id = nextStatsId_++;
   wire::Envelope request;
   request.mutable_stats_request()->set_request_id(id);
   if (!wire_.Send(request)) return Fail("send failed");
   lastSent_ = Clock::now();
-  const auto deadline = Clock::now() + std::chrono::seconds(10);
+  const auto deadline = Clock::now() + ScaledTimeout(timeout);
   while (Clock::now() < deadline) {
     auto e = wire_.Receive(std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now()));
-    if (!e) return e.error();
+    if (!e) {
+      if (Clock::now() >= deadline) break;  // the wait ran out, not the connection
+      return e.error();
+    }
     if (e->has_stats_reply() && e->stats_reply().request_id() == id) {
       for (const auto& c : e->stats_reply().counters())
         if (c.name() == name) return c.value();
@@ -101,7 +106,7 @@ Expected<double> SmaTestClient::Counter(const std::string& name) {
     }
     if (auto ok = Apply(*e); !ok) return ok.error();
   }
-  return Fail("timeout waiting for stats");
+  return Fail(fmt::format("no stats reply within {} ms", ScaledTimeout(timeout).count()));
 }
 
 Expected<std::string> RendererCounterPrefix(const ChildProcess& sma, const std::string& address,

@@ -31,14 +31,17 @@ class SmaTestClient {
   /// Sends a view; ids must increase per connection.
   bool SendView(const CameraView& view, uint64_t viewId);
 
-  /// Receives and applies deltas until one for `viewId` reports convergence.
+  /// Receives and applies deltas until one for `viewId` reports convergence,
+  /// within `timeout` (times SanitizerTimeScale() in a sanitizer build).
   /// Sends a Heartbeat whenever it has sent nothing for 5 s, as the protocol
   /// asks of a waiting client, so that waits longer than the SMA's read
   /// timeout keep the connection.
   Status WaitConverged(uint64_t viewId, std::chrono::milliseconds timeout = std::chrono::seconds(60));
 
-  /// Asks the SMA for a counter, applying deltas that arrive meanwhile.
-  Expected<double> Counter(const std::string& name);
+  /// Asks the SMA for a counter, applying deltas that arrive meanwhile
+  /// (the reply comes after whatever the SMA queued for this client before
+  /// it) within `timeout`.
+  Expected<double> Counter(const std::string& name, std::chrono::milliseconds timeout = std::chrono::seconds(10));
 
   /// Applies one received envelope: deltas go to the mesh, an error reply
   /// fails, anything else is ignored.
