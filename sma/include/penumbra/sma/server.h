@@ -57,10 +57,11 @@ struct SmaOptions {
   /// TCP. The handshake must complete within clientConnection.handshakeTimeout.
   std::shared_ptr<net::ssl::context> tls;
   /// Threads running the sessions' strands (and the pool's links). Two cut
-  /// the 32-client cached-view p99 from ~105 to ~80 ms, but with two
-  /// SmaRefinementLimitsTest.FuzzedSessionOptions... lost a client's stats
-  /// request in about 4 runs of 10 (docs/performance.md, "Two I/O threads"):
-  /// one until that is found.
+  /// the 32-client cached-view p99 from ~105 to ~80 ms, but with two a
+  /// client's strand can fall behind its improvement notices (each runs a
+  /// full MaybeImprove scan) until its connection starves
+  /// (SmaRefinementLimitsTest.FuzzedSessionOptions..., about 4 runs in 10;
+  /// docs/performance.md, "Two I/O threads"): one until the scans coalesce.
   int ioThreads = 1;
   int viewThreads = 2;                 // visibility jobs in parallel (each also uses TBB inside)
   size_t clientSoftQueueBytes = size_t(4) << 20;  // beyond this, a client's deltas are coalesced
