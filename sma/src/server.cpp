@@ -535,6 +535,7 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   // back by a full queue, not found older than a collection): a refresh
   // whose mapping is the same has nothing to plan.
   bool visibleApplied_ = false;
+  bool improveScanQueued_ = false;  // a MaybeImprove is posted to the strand (OnSamplesImproved coalesces)
   ClientMirror mirror_;
   std::atomic<size_t> mirrorBytes_{0};     // mirror_.MemoryBytes() as of its last change (memory accounting)
   std::vector<InterestTicket> interest_;   // the interest our views' visible requests gave (released with the next plan)
@@ -1013,7 +1014,16 @@ void SmaServer::Impl::Session::OnSamplesImproved(const std::vector<VertexId>& an
   for (VertexId v : improved)
     if (mirror_.HoldsVertex(v) && !reshadesOwed_.contains(v)) updatesOwed_.insert(v);
   SendUpdates();
-  MaybeImprove();
+  // One improvement scan (a walk of the whole visible set) for all the
+  // notices queued now, not one per notice: with two I/O threads the pool's
+  // links posted them faster than this strand ran a scan each, and the
+  // connection's own handlers starved behind them (docs/performance.md).
+  if (improveScanQueued_) return;
+  improveScanQueued_ = true;
+  asio::post(connection_->Strand(), [self = shared_from_this()] {
+    self->improveScanQueued_ = false;
+    self->MaybeImprove();
+  });
 }
 
 void SmaServer::Impl::Session::SendUpdates() {
