@@ -228,13 +228,18 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
     RecordError(failure.message);
     if (failure.permanent) {
       permanentError_ = fmt::format("{} (check --tls-ca and the SMA's --tls-cert)", failure.message);
-      log_->error("cannot connect to SMA {}: {}; not retrying", address_, permanentError_);
-      std::lock_guard lock(mutex_);
-      status_.state = ConnectionState::kStopped;
-      status_.permanentError = permanentError_;
-      return;
+      return GiveUp();
     }
     log_->info("cannot connect to SMA {}: {}; retrying in {} ms", address_, failure.message, ScheduleRetry().count());
+  }
+
+  // Retrying cannot help (permanentError_ says why): stop, and let the
+  // application say why.
+  void GiveUp() {
+    log_->error("giving up on SMA {}: {}; not retrying", address_, permanentError_);
+    std::lock_guard lock(mutex_);
+    status_.state = ConnectionState::kStopped;
+    status_.permanentError = permanentError_;
   }
 
   /// Arms the reconnection timer and returns its delay; the delay doubles
@@ -267,14 +272,7 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
     const bool wasReady = std::exchange(ready_, false);
     if (wasReady) Push(Disconnected{connectionNumber_, why});
     if (stopping_) return;
-    if (!permanentError_.empty()) {
-      // Retrying cannot help: stop, and let the application say why.
-      log_->error("giving up on SMA {}: {}", address_, permanentError_);
-      std::lock_guard lock(mutex_);
-      status_.state = ConnectionState::kStopped;
-      status_.permanentError = permanentError_;
-      return;
-    }
+    if (!permanentError_.empty()) return GiveUp();
     const auto delay = ScheduleRetry();
     if (wasReady)
       log_->warn("lost connection {} to SMA {}: {}; reconnecting in {} ms", connectionNumber_, address_, why,
