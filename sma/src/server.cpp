@@ -510,6 +510,8 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   void MaybePredict();
   // Improvement of the view's samples (SmaOptions::improveTargetError).
   void MaybeImprove();
+  void QueueImproveLook();  // a MaybeImprove posted to the strand, at most one queued
+  static constexpr size_t kImproveNodesPerLook = 4096;
   void SendUpdates();
   void MaybeRefine();
   void OnRefineStepDone(RefinementStep step);
@@ -979,14 +981,23 @@ void SmaServer::Impl::Session::MaybeImprove() {
     case ViewSession::ImproveStart::kLook:
       break;
   }
+  // A look goes on from where the last stopped and walks at most
+  // kImproveNodesPerLook nodes, so the strand's other handlers (the
+  // connection's reads, writes and heartbeat) never wait behind a walk of
+  // the whole visible set.
+  const std::vector<NodeId>& nodes = visible_->nodes;
+  const size_t begin = std::min(state_.ImproveScanPosition(), nodes.size());
+  const size_t stop = std::min(nodes.size(), begin + kImproveNodesPerLook);
+  size_t end = begin;
   std::vector<SampleRequest> requests;
   {
     std::shared_lock lock(server_.stateMutex_);
     const Hierarchy& hierarchy = server_.hierarchy_;
     const SampleCache& cache = server_.cache_;
     std::unordered_set<VertexId> seen;
-    for (NodeId id : visible_->nodes) {
+    for (; end < stop; ++end) {
       if (requests.size() + state_.ImprovementsPending() >= o.improveBatch) break;
+      const NodeId id = nodes[end];
       if (!mirror_.Holds(id)) continue;  // only what the client shows
       for (VertexId v : hierarchy.GetNode(id).v) {
         if (!seen.insert(v).second || state_.ImprovementPending(v) || !cache.IsShaded(v)) continue;
@@ -1004,7 +1015,22 @@ void SmaServer::Impl::Session::MaybeImprove() {
   asked.reserve(requests.size());
   for (const SampleRequest& r : requests) asked.push_back(r.vertex);
   improvementsAsked_ += requests.size();
-  if (state_.OnImprovementsAsked(asked)) SyncStatus();
+  if (state_.OnImprovementsAsked(asked, end, nodes.size())) {
+    SyncStatus();
+    return;
+  }
+  // Stopped by the walk's bound with room in the batch: go on after
+  // whatever else waits on the strand.
+  if (end == stop && end < nodes.size()) QueueImproveLook();
+}
+
+void SmaServer::Impl::Session::QueueImproveLook() {
+  if (improveScanQueued_) return;
+  improveScanQueued_ = true;
+  asio::post(connection_->Strand(), [self = shared_from_this()] {
+    self->improveScanQueued_ = false;
+    self->MaybeImprove();
+  });
 }
 
 void SmaServer::Impl::Session::OnSamplesImproved(const std::vector<VertexId>& answered,
@@ -1014,16 +1040,11 @@ void SmaServer::Impl::Session::OnSamplesImproved(const std::vector<VertexId>& an
   for (VertexId v : improved)
     if (mirror_.HoldsVertex(v) && !reshadesOwed_.contains(v)) updatesOwed_.insert(v);
   SendUpdates();
-  // One improvement scan (a walk of the whole visible set) for all the
-  // notices queued now, not one per notice: with two I/O threads the pool's
-  // links posted them faster than this strand ran a scan each, and the
-  // connection's own handlers starved behind them (docs/performance.md).
-  if (improveScanQueued_) return;
-  improveScanQueued_ = true;
-  asio::post(connection_->Strand(), [self = shared_from_this()] {
-    self->improveScanQueued_ = false;
-    self->MaybeImprove();
-  });
+  // One improvement look for all the notices queued now, not one per
+  // notice: with two I/O threads the pool's links posted them faster than
+  // this strand ran a look each, and the connection's own handlers starved
+  // behind them (docs/performance.md).
+  QueueImproveLook();
 }
 
 void SmaServer::Impl::Session::SendUpdates() {

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 
+#include "penumbra/common/check.h"
+
 namespace penumbra::sma {
 
 namespace {
@@ -37,7 +39,7 @@ void ViewSession::OnNewView(uint64_t viewId, const CameraView& view, Clock::time
 void ViewSession::RestartRefinement(bool sameView) {
   if (sameView) driver_.RestartSameView();
   else driver_.Restart();
-  improvementDone_ = false;
+  RestartImprovementScan();
   improvePending_.clear();
 }
 
@@ -80,7 +82,7 @@ ViewSession::JobDone ViewSession::OnJobDone(uint64_t viewId, bool newView) {
 
 std::vector<NodeId> ViewSession::BeginShading(std::span<const NodeId> pending, const Hierarchy& hierarchy,
                                               const SampleCache& cache, bool newView) {
-  improvementDone_ = false;  // what is displayed changed: look again
+  RestartImprovementScan();  // what is displayed changed: look again
   pending_.clear();
   waiting_.clear();
   std::vector<NodeId> complete;
@@ -215,11 +217,19 @@ ViewSession::ImproveStart ViewSession::NextImprovement(bool blocked, size_t batc
   return ImproveStart::kLook;
 }
 
-bool ViewSession::OnImprovementsAsked(std::span<const VertexId> asked) {
+bool ViewSession::OnImprovementsAsked(std::span<const VertexId> asked, size_t end, size_t count) {
+  PENUMBRA_CHECK(end <= count, "an improvement look walked past the visible nodes");
   improvePending_.insert(asked.begin(), asked.end());
-  if (!asked.empty() || !improvePending_.empty()) return false;
-  improvementDone_ = true;
-  return true;
+  improveLapAsked_ += asked.size();
+  improveScanPosition_ = end;
+  if (end < count) return false;  // the lap goes on
+  // The lap is over. Done only when all of it asked nothing and nothing is
+  // out: an answer still pending may come back noisy and be asked again.
+  const bool done = improveLapAsked_ == 0 && improvePending_.empty();
+  improveScanPosition_ = 0;
+  improveLapAsked_ = 0;
+  if (done) improvementDone_ = true;
+  return done;
 }
 
 void ViewSession::OnImprovementsAnswered(std::span<const VertexId> answered) {

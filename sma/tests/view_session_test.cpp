@@ -313,15 +313,16 @@ TEST(ViewSessionTest, ImprovementKeepsABatchInFlightAndEnds) {
   EXPECT_EQ(s.CurrentPhase(), Phase::kRefining);  // improving
   ASSERT_EQ(s.NextImprovement(false, 4), ViewSession::ImproveStart::kLook);
   const std::vector<VertexId> asked = {0, 1, 2};
-  EXPECT_FALSE(s.OnImprovementsAsked(asked));
+  EXPECT_FALSE(s.OnImprovementsAsked(asked, 10, 10));  // a whole lap of 10 visible nodes
   EXPECT_EQ(s.NextImprovement(false, 4), ViewSession::ImproveStart::kNothing);  // 3 > 4 / 2 in flight
   s.OnImprovementsAnswered(std::vector<VertexId>{0, 1});
   ASSERT_EQ(s.NextImprovement(false, 4), ViewSession::ImproveStart::kLook);
-  EXPECT_FALSE(s.OnImprovementsAsked({}));  // vertex 2 still out
+  EXPECT_EQ(s.ImproveScanPosition(), 0u);  // a new lap
+  EXPECT_FALSE(s.OnImprovementsAsked({}, 10, 10));  // vertex 2 still out
   s.OnImprovementsAnswered(std::vector<VertexId>{2});
   EXPECT_FALSE(s.ImprovementDone());
   ASSERT_EQ(s.NextImprovement(false, 4), ViewSession::ImproveStart::kLook);
-  EXPECT_TRUE(s.OnImprovementsAsked({}));  // nothing needs more
+  EXPECT_TRUE(s.OnImprovementsAsked({}, 10, 10));  // nothing needs more
   EXPECT_TRUE(s.ImprovementDone());
   EXPECT_EQ(s.CurrentPhase(), Phase::kConverged);
   s.DisplayChanged();
@@ -370,6 +371,33 @@ TEST(ViewSessionTest, AMoveHoldsConvergenceUntilTheReshadesArrive) {
   s.PruneReshades([](VertexId v) { return v != 2; });  // the client let vertex 2 go
   EXPECT_EQ(s.ReshadesAwaited(), 0u);
   EXPECT_TRUE(s.Converged());
+}
+
+TEST(ViewSessionTest, ImprovementLooksWalkTheVisibleNodesInLaps) {
+  Fixture f;
+  ViewSession s(NoRefinement(), 1000, /*improvementOn=*/true);
+  f.ToShading(s);
+  f.ToStage2(s);
+  // A lap over 10 000 nodes in three looks: each goes on where the last stopped.
+  EXPECT_EQ(s.ImproveScanPosition(), 0u);
+  EXPECT_FALSE(s.OnImprovementsAsked({}, 4096, 10000));
+  EXPECT_EQ(s.ImproveScanPosition(), 4096u);
+  EXPECT_FALSE(s.OnImprovementsAsked(std::vector<VertexId>{7}, 8192, 10000));
+  EXPECT_EQ(s.ImproveScanPosition(), 8192u);
+  // The lap ends having asked vertex 7 (answered since): not done, another lap.
+  s.OnImprovementsAnswered(std::vector<VertexId>{7});
+  EXPECT_FALSE(s.OnImprovementsAsked({}, 10000, 10000));
+  EXPECT_FALSE(s.ImprovementDone());
+  EXPECT_EQ(s.ImproveScanPosition(), 0u);
+  // A lap that asks nothing part-way is not done until its end.
+  EXPECT_FALSE(s.OnImprovementsAsked({}, 5000, 10000));
+  EXPECT_FALSE(s.ImprovementDone());
+  // What is displayed changed: the lap starts over (the list is another).
+  s.DisplayChanged();
+  EXPECT_EQ(s.ImproveScanPosition(), 0u);
+  EXPECT_FALSE(s.OnImprovementsAsked({}, 4096, 10000));
+  EXPECT_TRUE(s.OnImprovementsAsked({}, 10000, 10000));
+  EXPECT_TRUE(s.ImprovementDone());
 }
 
 }  // namespace

@@ -57,14 +57,11 @@ struct SmaOptions {
   /// TCP. The handshake must complete within clientConnection.handshakeTimeout.
   std::shared_ptr<net::ssl::context> tls;
   /// Threads running the sessions' strands (and the pool's links). Two cut
-  /// the 32-client cached-view p99 from ~105 to ~80 ms, but with two a
-  /// client's strand can fall behind its improvement notices (each runs a
-  /// full MaybeImprove scan) until its connection starves
-  /// (SmaRefinementLimitsTest.FuzzedSessionOptions..., about 4 runs in 10;
-  /// docs/performance.md, "Two I/O threads"). The scans coalesce now (7 of
-  /// 7 runs of that test passed with two); one stays the default until the
-  /// whole suite and CI have run with two.
-  int ioThreads = 1;
+  /// the 32-client cached-view p99 from ~105 to ~80 ms (docs/performance.md,
+  /// "Two I/O threads"). With two, a client's strand had fallen behind its
+  /// improvement notices until its connection starved; the notices now
+  /// coalesce and each improvement look walks a bounded part of the view.
+  int ioThreads = 2;
   int viewThreads = 2;                 // visibility jobs in parallel (each also uses TBB inside)
   size_t clientSoftQueueBytes = size_t(4) << 20;  // beyond this, a client's deltas are coalesced
   uint32_t maxTrianglesPerDelta = 16384;          // larger changes go in several deltas

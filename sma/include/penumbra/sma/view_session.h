@@ -166,12 +166,20 @@ class ViewSession {
   ImproveStart NextImprovement(bool blocked, size_t batch) const;
   bool ImprovementPending(VertexId v) const { return improvePending_.contains(v); }
   size_t ImprovementsPending() const { return improvePending_.size(); }
-  /// The look found `asked` to improve. True when improvement of this view
-  /// is now done (nothing asked, nothing pending): the status changed.
-  bool OnImprovementsAsked(std::span<const VertexId> asked);
+  /// Where the next look starts in the view's visible-node list. Looks
+  /// walk the list in laps, each going on from where the last stopped, so
+  /// the looks that follow improved batches share one walk of the list
+  /// instead of making one each (a whole walk per batch had starved a
+  /// client's strand with two I/O threads: docs/performance.md).
+  size_t ImproveScanPosition() const { return improveScanPosition_; }
+  /// The look asked `asked`, having walked the visible nodes up to `end` of
+  /// `count` (`end == count`: the lap is over, the next look starts at the
+  /// first node). True when improvement of this view is now done -- a whole
+  /// lap asked nothing and nothing is pending: the status changed.
+  bool OnImprovementsAsked(std::span<const VertexId> asked, size_t end, size_t count);
   void OnImprovementsAnswered(std::span<const VertexId> answered);
-  /// What is displayed changed: look for improvements again.
-  void DisplayChanged() { improvementDone_ = false; }
+  /// What is displayed changed: look for improvements again, from the first node.
+  void DisplayChanged() { RestartImprovementScan(); }
 
   // --- Moves (issue 14) -----------------------------------------------------
   /// The scene moved: `reshades` -- vertices the client holds whose samples
@@ -238,6 +246,13 @@ class ViewSession {
   bool improvementOn_;
   bool improvementDone_ = false;
   std::unordered_set<VertexId> improvePending_;  // asked for, not answered
+  size_t improveScanPosition_ = 0;  // in the visible-node list
+  size_t improveLapAsked_ = 0;      // asked since the lap began
+  void RestartImprovementScan() {
+    improvementDone_ = false;
+    improveScanPosition_ = 0;
+    improveLapAsked_ = 0;
+  }
   std::unordered_set<VertexId> reshadesAwaited_;  // held, invalidated by a move, asked again
 
   bool sentConverged_ = false;  // as the last delta sent said
