@@ -7,6 +7,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include "penumbra/common/fork_join_annotation.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/scene.h"
 #include "penumbra/common/server_main.h"
@@ -232,6 +233,7 @@ int main(int argc, char** argv) {
   options.pool.quarantine = std::chrono::seconds(quarantineSeconds);
 
   if (auto failed = serverMain.StartHttp()) return *failed;
+  [[maybe_unused]] TbbSingleThreadedUnderTsan tbbUnderTsan;  // the process's life (fork_join_annotation.h)
   auto scene = LoadScene(scenePath);
   if (!scene) return serverMain.Fail(1, scene.error().message);
   Logger("sma")->info("building the visibility BVH and the triangle hierarchy");

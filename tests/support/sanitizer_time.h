@@ -21,6 +21,8 @@ constexpr int SanitizerTimeScale() {
 #endif
 }
 
+constexpr bool ThreadSanitizerBuild() { return SanitizerTimeScale() == 6; }
+
 /// `timeout` as this build may need it.
 constexpr std::chrono::milliseconds ScaledTimeout(std::chrono::milliseconds timeout) {
   return timeout * SanitizerTimeScale();

@@ -22,6 +22,7 @@
 
 #if defined(__SANITIZE_THREAD__)
 #include <sanitizer/tsan_interface.h>
+#include <tbb/global_control.h>
 #define PENUMBRA_TSAN_ANNOTATIONS 1
 #endif
 
@@ -43,6 +44,27 @@ class ForkJoinAnnotation {
   void Enter() {}
   void Leave() {}
   void Join() {}
+#endif
+};
+
+/// The annotations above cannot reach TBB's own last words: after a loop's
+/// body, the worker's inlined (so instrumented) TBB code writes the loop's
+/// wait context and `task_group_context` on the caller's stack, and the
+/// caller's wait for it is in libtbb. So the caller's next loop, building
+/// its own context in the same stack slot, is reported as a race with the
+/// worker -- with the SMA's view threads looping back to back, a report
+/// every few runs of SmaNonReadingClientTest (three forms: in TBB's
+/// `_task.h`, `parallel_for.h`, `_intrusive_list_node.h`, and once with our
+/// own `MapHits` frame on top). Debian's TBB is not built with TSan, which
+/// would fix it. Instead a process that holds one of these, in a TSan build,
+/// runs every TBB loop on its calling thread alone: races between its own
+/// threads (I/O, view jobs, renderer links) stay checked; what is lost is
+/// TSan's check of a loop body against itself on two TBB workers (those
+/// bodies write disjoint slots; AddressSanitizer and the unit tests still
+/// run them on every core). Outside TSan builds it is nothing.
+class TbbSingleThreadedUnderTsan {
+#if defined(PENUMBRA_TSAN_ANNOTATIONS)
+  tbb::global_control limit_{tbb::global_control::max_allowed_parallelism, 1};
 #endif
 };
 
