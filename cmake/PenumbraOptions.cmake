@@ -85,6 +85,9 @@ function(penumbra_add_gtest name)
   if(PENUMBRA_ENABLE_TSAN)
     set(environment "TSAN_OPTIONS=suppressions=${PROJECT_SOURCE_DIR}/cmake/tsan.supp halt_on_error=1")
   endif()
+  if(PENUMBRA_ENABLE_ASAN)
+    set(environment "LSAN_OPTIONS=suppressions=${PROJECT_SOURCE_DIR}/cmake/lsan.supp")
+  endif()
   gtest_discover_tests(${name}
     PROPERTIES LABELS ${ARG_LABEL} TIMEOUT ${ARG_TIMEOUT} RUN_SERIAL ${serial} ENVIRONMENT "${environment}"
     DISCOVERY_TIMEOUT 60)
