@@ -156,7 +156,10 @@ void RendererLink::Remove(const std::string& reason) {
   {
     std::lock_guard lock(mutex_);
     state_ = State::kRemoved;
-    connection = connection_;
+    // Let go of the connection now: its callbacks hold this link, so if the
+    // I/O threads stop before its close completes (SIGTERM), the two would
+    // keep each other alive past the end (LeakSanitizer saw it).
+    connection = std::move(connection_);
   }
   asio::post(io_, [self = shared_from_this()] {
     std::lock_guard lock(self->mutex_);
