@@ -22,6 +22,7 @@ constexpr int SanitizerTimeScale() {
 }
 
 constexpr bool ThreadSanitizerBuild() { return SanitizerTimeScale() == 6; }
+constexpr bool AddressSanitizerBuild() { return SanitizerTimeScale() == 2; }  // with UBSan (cmake/PenumbraOptions.cmake)
 
 /// `timeout` as this build may need it.
 constexpr std::chrono::milliseconds ScaledTimeout(std::chrono::milliseconds timeout) {
