@@ -170,6 +170,17 @@ TEST(SmaVisibilityBudgetTest, AViewOverTheBudgetIsRefusedAndASmallViewIsNotHeldU
 
   // The first client leaves: its pixels are free, and the second's retry fits.
   big1 = Fail("closed");
+  // Its close and big2's retry arrive on different connections, which two
+  // I/O threads handle in either order: retry once the SMA has let the
+  // pixels go (the retry raced the close and was refused in one CI run).
+  const auto releasedBy = Clock::now() + ScaledTimeout(10s);
+  while (true) {
+    auto held = small->Counter("visibility_pixels_reserved");
+    ASSERT_TRUE(held.ok());
+    if (*held < 2048.0 * 2048.0) break;
+    ASSERT_LT(Clock::now(), releasedBy) << "the closed client's pixels were never released";
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
   ASSERT_TRUE(big2->SendView(bigView, 2));
   ASSERT_TRUE(big2->WaitConverged(2, 120s).ok()) << sma.process.LogTail();
   EXPECT_TRUE(sma.process.Running());
