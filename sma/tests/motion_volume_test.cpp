@@ -220,11 +220,12 @@ TEST(MoveInvalidatorTest, TheSkyThroughTheBox) {
   InvalidationParams params = TestParams();
   params.indirectRadiance = 0.0f;
   const MoveInvalidator inv(scene, MotionVolumes(kBoxUnderLight, kBoxUnderLight), params);
-  // Under the box: it hides a cone of the sky of half-angle ~30 degrees
-  // (projected solid angle ~0.9): far above tau.
+  // Under the box: it hides the sky behind its bottom face, a 1 m square
+  // 1.5 m up (projected solid angle 0.387 = pi times its form factor): far
+  // above tau.
   const InvalidationVerdict under = inv.Judge(OnFloor(0.0f, 0.0f, kPi, 0.01f));
   EXPECT_TRUE(under.invalidate);
-  EXPECT_GT(under.changeBound, 0.5f);
+  EXPECT_NEAR(under.changeBound, 0.387f, 0.01f);
   // Far away the box is a speck of sky: kept.
   EXPECT_FALSE(inv.MayChange(OnFloor(4.9f, 4.9f, kPi, 0.01f)));
   // Facing away from it: nothing of the sky through the box reaches it.
@@ -386,6 +387,26 @@ bool RayHitsBox(const Vec3& o, const Vec3& d, const Bounds3& b) {
   return t0 <= t1;
 }
 
+// The box's projected solid angle from p (normal frame.n) estimated by
+// `count` cosine-weighted directions: pi times the fraction that hit it,
+// and the estimate's standard error.
+struct ProjectedEstimate {
+  float value = 0.0f;
+  float sigma = 0.0f;
+};
+ProjectedEstimate EstimateProjectedSolidAngle(const Vec3& p, const Frame& frame, const Bounds3& box, int count,
+                                              std::mt19937& rng) {
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  int hit = 0;
+  for (int k = 0; k < count; ++k) {
+    const float r = std::sqrt(u(rng)), phi = 2.0f * kPi * u(rng);
+    const Vec3 d = frame.ToWorld(Vec3(r * std::cos(phi), r * std::sin(phi), std::sqrt(std::max(0.0f, 1.0f - r * r))));
+    hit += RayHitsBox(p, d, box);
+  }
+  const float fraction = float(hit) / float(count);
+  return {kPi * fraction, kPi * std::sqrt(fraction * (1.0f - fraction) / float(count))};
+}
+
 TEST(MoveInvalidatorTest, AnyDirectionOfTheSunsConeThroughTheBoxPutsTheVertexInTheCone) {
   // Conservativeness of the cone test, with a large sun (10 degrees) so that
   // the cone's width matters: directions drawn in the cone, and whenever one
@@ -447,17 +468,53 @@ TEST(MoveInvalidatorTest, TheSolidAngleBoundIsAboveTheBoxsProjectedSolidAngle) {
     const Bounds3 box = Box(lo, lo + Vec3(0.1f + 1.5f * u(rng), 0.05f + 1.0f * u(rng), 0.1f + 1.5f * u(rng)));
     const MoveInvalidator inv(scene, MotionVolumes(box, box), params);
     const Vec3 p(6.0f * u(rng) - 3.0f, 0.0f, 6.0f * u(rng) - 3.0f);
-    const int n = 20000;
-    int hit = 0;
-    for (int k = 0; k < n; ++k) {
-      const float r = std::sqrt(u(rng)), phi = 2.0f * kPi * u(rng);
-      const Vec3 d = frame.ToWorld(Vec3(r * std::cos(phi), r * std::sin(phi), std::sqrt(std::max(0.0f, 1.0f - r * r))));
-      hit += RayHitsBox(p, d, box);
-    }
-    const float projected = kPi * float(hit) / float(n);
-    const float sigma = kPi * std::sqrt(float(hit)) / float(n);
+    const ProjectedEstimate projected = EstimateProjectedSolidAngle(p, frame, box, 20000, rng);
     const InvalidationVerdict v = inv.Judge(OnFloor(p.x, p.z, 1.0f, 0.0f));
-    EXPECT_GE(v.changeBound + 4.0f * sigma + 1e-4f, projected) << "trial " << trial;
+    EXPECT_GE(v.changeBound + 4.0f * projected.sigma + 1e-4f, projected.value) << "trial " << trial;
+  }
+}
+
+TEST(BoxProjectedSolidAngleTest, AFaceOnSquareMatchesTheClosedForm) {
+  // A flat box (a 2a x 2a square) centred h above p, parallel to p's
+  // surface: four corner rectangles a x a, each with the form factor
+  // F = 1/(2 pi) [X/sqrt(1+X^2) atan(X/sqrt(1+X^2)) * 2] for X = a / h, and
+  // the projected solid angle is pi times their sum.
+  for (const float a : {0.1f, 0.5f, 1.0f, 3.0f}) {
+    const float h = 1.0f;
+    const float x = a / h;
+    const float s = x / std::sqrt(1.0f + x * x);
+    const float formFactor = 4.0f * (2.0f * s * std::atan(s)) / (2.0f * kPi);
+    const float got = BoxProjectedSolidAngle(Vec3(0.0f), kUp, Vec3(0.0f, h, 0.0f), Vec3(a, 0.0f, a));
+    EXPECT_NEAR(got, kPi * formFactor, 1e-5f * kPi) << "a = " << a;
+  }
+  // The whole sky of a point just under a huge square: pi. Inside the box: pi.
+  EXPECT_NEAR(BoxProjectedSolidAngle(Vec3(0.0f), kUp, Vec3(0.0f, 0.01f, 0.0f), Vec3(1e3f, 0.0f, 1e3f)), kPi, 1e-3f);
+  EXPECT_EQ(BoxProjectedSolidAngle(Vec3(0.0f), kUp, Vec3(0.0f), Vec3(1.0f)), kPi);
+  // Wholly below the tangent plane: nothing; half below: half of the
+  // symmetric whole, seen edge-on from a normal along x.
+  EXPECT_EQ(BoxProjectedSolidAngle(Vec3(0.0f), kUp, Vec3(0.0f, -3.0f, 0.0f), Vec3(1.0f)), 0.0f);
+  const float whole = BoxProjectedSolidAngle(Vec3(0.0f), Vec3(1.0f, 0.0f, 0.0f), Vec3(3.0f, 0.0f, 0.0f), Vec3(1.0f));
+  const float half = BoxProjectedSolidAngle(Vec3(0.0f), kUp, Vec3(3.0f, 0.0f, 0.0f), Vec3(1.0f));
+  EXPECT_GT(whole, 0.0f);
+  EXPECT_GT(half, 0.0f);
+  EXPECT_LT(half, whole);
+}
+
+TEST(BoxProjectedSolidAngleTest, EqualsTheCosineWeightedFractionOfDirectionsThatHitTheBox) {
+  // Random boxes and tilted normals, including boxes that straddle the
+  // tangent plane: the exact value within 4 sigma of a cosine-weighted
+  // estimate, both ways (it is the true value, not only a bound).
+  std::mt19937 rng(21);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  for (int trial = 0; trial < 60; ++trial) {
+    const Vec3 lo(6.0f * u(rng) - 3.0f, 4.0f * u(rng) - 1.5f, 6.0f * u(rng) - 3.0f);
+    const Bounds3 box = Box(lo, lo + Vec3(0.1f + 1.5f * u(rng), 0.05f + 1.0f * u(rng), 0.1f + 1.5f * u(rng)));
+    const Vec3 p(6.0f * u(rng) - 3.0f, 0.0f, 6.0f * u(rng) - 3.0f);
+    if (glm::all(glm::greaterThanEqual(p, box.min)) && glm::all(glm::lessThanEqual(p, box.max))) continue;
+    const Vec3 n = glm::normalize(Vec3(u(rng) - 0.5f, 1.0f, u(rng) - 0.5f));
+    const ProjectedEstimate estimate = EstimateProjectedSolidAngle(p, Frame::FromNormal(n), box, 40000, rng);
+    const float exact = BoxProjectedSolidAngle(p, n, box.Center(), 0.5f * box.Diagonal());
+    EXPECT_NEAR(exact, estimate.value, 4.0f * estimate.sigma + 1e-4f) << "trial " << trial;
   }
 }
 

@@ -200,12 +200,26 @@ TEST(SceneMoves, PlanInvalidationJudgesEachSampleAgainstThePoseItWasShadedAt) {
   };
   // Judged against the pose before the move only: the far move changes nothing here.
   EXPECT_EQ(floorInvalidated(PlanInvalidation(hierarchy, cache, *p1, p2)), 0u);
-  // Judged against the pose they were shaded at (epoch 0, the box overhead).
+  // Judged against the pose they were shaded at (epoch 0, the 1 m square 1 m
+  // overhead): the floor's middle and its edges' midpoints see it under a
+  // projected solid angle of 0.044 sr or more, above tau / L = 0.02 / 1
+  // (1 % of E = 2; L = twice the cached radiance 0.5), and are invalidated;
+  // its corners, 2.1 m out on both axes, see it under 0.013 sr and keep
+  // theirs.
   PoseHistory history;
   history.Record(p0);
   history.Record(p1);
-  EXPECT_EQ(floorInvalidated(PlanInvalidation(hierarchy, cache, *p1, p2, InvalidationRule::kTest, &history)),
-            floor.size());
+  const Invalidation judged = PlanInvalidation(hierarchy, cache, *p1, p2, InvalidationRule::kTest, &history);
+  size_t near = 0;
+  for (const ShadedSample& f : floor) {
+    const Vec3 place = hierarchy.GetVertex(f.vertex).position;
+    const bool isNear = std::abs(place.x) < 1.9f || std::abs(place.z) < 1.9f;
+    near += isNear;
+    EXPECT_EQ(std::binary_search(judged.vertices.begin(), judged.vertices.end(), f.vertex), isNear)
+        << "floor vertex at (" << place.x << ", " << place.z << ")";
+  }
+  EXPECT_GE(near, 3u);
+  EXPECT_LT(near, floor.size());
   // A history too small to keep epoch 0: the floor's samples cannot be
   // judged, so they go, whatever the move.
   PoseHistory shortHistory(PoseHistory::BytesOf(*p1));

@@ -24,8 +24,9 @@
 //    its largest radiance times the volume's solid angle.
 //  * Indirect light, a conservative bound: the volume can block or reflect
 //    towards p at most `indirectRadiance` (a bound on the radiance of any
-//    non-emissive surface) over the solid angle it subtends, weighted by the
-//    largest cosine over its bounding sphere's cap. This is the first-order
+//    non-emissive surface) over its projected solid angle (the box's exact
+//    cosine-weighted solid angle; its bounding sphere's as a cheap first
+//    bound). This is the first-order
 //    change (light arriving through the volume); light reflected at other
 //    surfaces after they changed (the new shadow on the floor lighting the
 //    ceiling a little less) is a higher-order change, down by one more
@@ -95,6 +96,15 @@ struct MotionVolume {
 /// gives count 0.
 MotionVolume MotionVolumes(const Bounds3& oldWorld, const Bounds3& newWorld,
                            float mergeRatio = kDefaultMergeRatio);
+
+/// The projected (cosine-weighted) solid angle of the axis-aligned box
+/// `center` +- `half` seen from `p` on a surface with unit normal `n`, over
+/// p's upper hemisphere: the integral of max(0, cos theta) over the
+/// directions from p that meet the box -- the irradiance at p from the box
+/// were it a uniform emitter of radiance 1. Exact (each face p sees, clipped
+/// to the tangent plane, by Lambert's polygon formula); pi when p is inside
+/// the box.
+float BoxProjectedSolidAngle(const Vec3& p, const Vec3& n, const Vec3& center, const Vec3& half);
 
 /// How strict the invalidation is (see the file comment). Irradiance units
 /// throughout: Luminance(E), the quantity the renderer reports a standard
