@@ -36,6 +36,7 @@
 #include <vector>
 
 #include <CLI/CLI.hpp>
+#include <fmt/format.h>
 
 #include "penumbra/common/logging.h"
 #include "penumbra/common/scene.h"
@@ -65,6 +66,8 @@ struct Options {
   float relativeFloor = 0.01f;
   float margin = 2.0f;
   int oracleSpp = 0;
+  int pairedPaths = 0;
+  float pairedZ = 3.0f;
 };
 
 struct CachePoint {
@@ -280,6 +283,7 @@ int Run(const Options& o) {
               positions.size(), 1e9 * bestSerial / double(positions.size()), 1e3 * bestSerial,
               1e9 * bestBulk / double(positions.size()), 1e3 * bestBulk, serialCount, bulkCount);
 
+  std::vector<bool> surelyChanged;  // by the oracle, when it ran
   if (o.oracleSpp > 0) {
     auto now = WithBlock(*loaded, after);
     if (!now) {
@@ -307,6 +311,7 @@ int Run(const Options& o) {
       const bool needA = std::abs(change[0][i]) > v.tolerance, needB = std::abs(change[1][i]) > v.tolerance;
       surely += needA && needB;
       maybe += needA || needB;
+      surelyChanged.push_back(needA && needB);
       surelyDirect += needA && needB && v.invalidate && v.DirectlyInvalidated();
       invalidatedNotMaybe += v.invalidate && !(needA || needB);
       if (needA && needB && !v.invalidate && ++keptButSurely <= 10)
@@ -322,6 +327,62 @@ int Run(const Options& o) {
                 o.oracleSpp, Seconds(t0), surely, 100.0 * double(surely) / n, maybe, 100.0 * double(maybe) / n,
                 n / double(std::max<size_t>(maybe, 1)), n / double(std::max<size_t>(surely, 1)),
                 n / double(std::max<size_t>(invalidated, 1)), surelyDirect, keptButSurely, invalidatedNotMaybe);
+  }
+
+  if (o.pairedPaths > 0) {
+    // The design docs/moving-objects.md proposes for the indirect-only
+    // class, tried on these points: instead of re-shading a candidate, test
+    // it -- a few paths at both places with common random numbers, in 4
+    // independent groups (their spread gives the change's standard error)
+    // -- and keep it when |change| + z * standard error <= tau.
+    auto now = WithBlock(*loaded, after);
+    if (!now) {
+      std::fprintf(stderr, "motion_volume_bench: %s\n", now.error().message.c_str());
+      return 1;
+    }
+    std::vector<size_t> tested;
+    std::vector<CachePoint> subset;
+    std::vector<float> tolerance;
+    for (size_t i = 0; i < points.size(); ++i) {
+      const sma::InvalidationVerdict v =
+          invalidator.Judge({points[i].position, points[i].normal, cached.irradiance[i], cached.stdErr[i]});
+      if (!v.invalidate || v.DirectlyInvalidated()) continue;
+      tested.push_back(i);
+      subset.push_back(points[i]);
+      tolerance.push_back(v.tolerance);
+    }
+    constexpr int kGroups = 4;
+    const int perGroup = std::max(1, o.pairedPaths / kGroups);
+    std::vector<std::array<float, kGroups>> change(subset.size());
+    t0 = Clock::now();
+    for (int g = 0; g < kGroups; ++g) {
+      const uint64_t seed = uint64_t(6 + g) << 30;
+      const Shaded atOld = Shade(*old, subset, perGroup, seed);
+      const Shaded moved = Shade(*now, subset, perGroup, seed);
+      for (size_t j = 0; j < subset.size(); ++j) change[j][g] = moved.irradiance[j] - atOld.irradiance[j];
+    }
+    size_t kept = 0, keptButSurely = 0;
+    for (size_t j = 0; j < subset.size(); ++j) {
+      float mean = 0.0f;
+      for (float d : change[j]) mean += d / float(kGroups);
+      float squares = 0.0f;
+      for (float d : change[j]) squares += (d - mean) * (d - mean);
+      const float standardError = std::sqrt(squares / float(kGroups - 1) / float(kGroups));
+      if (std::abs(mean) + o.pairedZ * standardError > tolerance[j]) continue;
+      ++kept;
+      keptButSurely += !surelyChanged.empty() && surelyChanged[tested[j]];
+    }
+    const size_t reshaded = invalidated - kept;
+    const double testPaths = double(subset.size()) * 2.0 * kGroups * perGroup;
+    std::printf("paired test (%d paths at each place in %d groups, z %.1f, %.1f s): of %zu indirect-only candidates "
+                "%zu kept, so %zu re-shaded (%.2f %%, %.1fx fewer than all); the tests cost %.0f paths, %.1f %% of "
+                "re-shading every point at %d paths%s\n",
+                kGroups * perGroup, kGroups, double(o.pairedZ), Seconds(t0), subset.size(), kept, reshaded,
+                100.0 * double(reshaded) / n, n / double(std::max<size_t>(reshaded, 1)), testPaths,
+                100.0 * testPaths / (n * double(o.spp)), o.spp,
+                surelyChanged.empty()
+                    ? ""
+                    : fmt::format("; of the oracle's sure changes {} were kept", keptButSurely).c_str());
   }
 
   if (o.verify) {
@@ -379,6 +440,11 @@ int main(int argc, char** argv) {
   app.add_option("--oracle-spp", o.oracleSpp,
                  "also shade both places at this many paths with common random numbers: an ideal invalidation")
       ->check(CLI::Range(0, 1 << 20));
+  app.add_option("--paired-test-paths", o.pairedPaths,
+                 "test the indirect-only candidates with this many paired paths each instead of re-shading them")
+      ->check(CLI::Range(0, 1 << 16));
+  app.add_option("--paired-z", o.pairedZ, "paired test: standard errors of the change allowed under tau")
+      ->check(CLI::NonNegativeNumber);
   CLI11_PARSE(app, argc, argv);
   return penumbra::Run(o);
 }
