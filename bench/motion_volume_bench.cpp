@@ -31,6 +31,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <optional>
 #include <random>
 #include <string>
 #include <vector>
@@ -283,13 +284,20 @@ int Run(const Options& o) {
               positions.size(), 1e9 * bestSerial / double(positions.size()), 1e3 * bestSerial,
               1e9 * bestBulk / double(positions.size()), 1e3 * bestBulk, serialCount, bulkCount);
 
-  std::vector<bool> surelyChanged;  // by the oracle, when it ran
-  if (o.oracleSpp > 0) {
-    auto now = WithBlock(*loaded, after);
-    if (!now) {
-      std::fprintf(stderr, "motion_volume_bench: %s\n", now.error().message.c_str());
+  // The scene with the box at its new place, for the oracle, the paired
+  // test and the verification (built once).
+  std::optional<Scene> now;
+  if (o.oracleSpp > 0 || o.pairedPaths > 0 || o.verify) {
+    auto moved = WithBlock(*loaded, after);
+    if (!moved) {
+      std::fprintf(stderr, "motion_volume_bench: %s\n", moved.error().message.c_str());
       return 1;
     }
+    now = std::move(*moved);
+  }
+
+  std::vector<bool> surelyChanged;  // by the oracle, when it ran
+  if (o.oracleSpp > 0) {
     t0 = Clock::now();
     // Two independent pairs, each pair with common random numbers.
     std::array<std::vector<float>, 2> change;
@@ -335,11 +343,6 @@ int Run(const Options& o) {
     // it -- a few paths at both places with common random numbers, in 4
     // independent groups (their spread gives the change's standard error)
     // -- and keep it when |change| + z * standard error <= tau.
-    auto now = WithBlock(*loaded, after);
-    if (!now) {
-      std::fprintf(stderr, "motion_volume_bench: %s\n", now.error().message.c_str());
-      return 1;
-    }
     std::vector<size_t> tested;
     std::vector<CachePoint> subset;
     std::vector<float> tolerance;
@@ -386,11 +389,6 @@ int Run(const Options& o) {
   }
 
   if (o.verify) {
-    auto now = WithBlock(*loaded, after);
-    if (!now) {
-      std::fprintf(stderr, "motion_volume_bench: %s\n", now.error().message.c_str());
-      return 1;
-    }
     t0 = Clock::now();
     const Shaded fresh = Shade(*now, points, o.spp, 1u << 30);
     size_t changed = 0, missed = 0, changedNotDirect = 0;
