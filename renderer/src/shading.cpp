@@ -115,10 +115,24 @@ Status ValidateShadeInput(const Scene& scene, const ScenePose& pose, const Shade
 struct Shader::Impl {
   Impl(const Scene& s, const RayScene& r, ShadingSettings ss);
 
+  // Where a sample's paths leave from (ray origin, frames), and on which
+  // side of its triangle it is: the header's "Geometry" and "Buried samples".
+  PathVertex SampleStart(const PosedRayScene& at, const ShadeInput& in, Pcg32& rng, ShadeCounters& counters,
+                         bool* frontSide) const;
+  // Radiance arriving at `origin` from `direction`, one path: the sky in
+  // full, a light's emission not at all (the caller samples the lights
+  // from `origin` itself, unweighted), then the hit's reflected light by
+  // TracePath.
+  Rgb ReflectedAndSkyRadiance(const PosedRayScene& at, const Vec3& origin, const Vec3& direction, Pcg32& rng,
+                              ShadeCounters& counters) const;
   // Irradiance estimate of one path from `start`.
   Rgb TracePath(const PosedRayScene& at, const PathVertex& start, Pcg32& rng, ShadeCounters& counters) const;
   // Next-event estimates at `v` (throughput not applied), one shadow ray each.
-  Rgb SampleAreaLight(const PosedRayScene& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const;
+  // With `misWeighted` false the light sample is weighted 1: for an
+  // estimator that never lets a direction it samples count a light's
+  // emission (EstimateChangeThrough).
+  Rgb SampleAreaLight(const PosedRayScene& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters,
+                      bool misWeighted = true) const;
   Rgb SampleSun(const PosedRayScene& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const;
   // Where to shade a sample leaving from `start` (header: "Buried samples");
   // `inside` is a point off the same side of the sample's triangle, well inside it.
@@ -243,7 +257,7 @@ Rgb Shader::Impl::TracePath(const PosedRayScene& at, const PathVertex& start, Pc
 }
 
 Rgb Shader::Impl::SampleAreaLight(const PosedRayScene& at, const PathVertex& v, Pcg32& rng,
-                                  ShadeCounters& counters) const {
+                                  ShadeCounters& counters, bool misWeighted) const {
   const float u1 = rng.NextFloat(), u2 = rng.NextFloat();
   const Light& light = lights[lightSelection.Sample(u1, u2)];
   const Vec2 b = sampling::UniformTriangle(rng.NextFloat(), rng.NextFloat());
@@ -263,7 +277,8 @@ Rgb Shader::Impl::SampleAreaLight(const PosedRayScene& at, const PathVertex& v, 
   // Stop short of the light so that its own surface does not occlude it.
   if (at.Occluded(v.origin, direction, 0.0f, distance - v.offset)) return Rgb(0.0f);
   const float pdfLight = light.pdfArea * distance2 / cosAtLight;
-  const float weight = sampling::PowerHeuristic(pdfLight, sampling::CosineHemispherePdf(cosAtVertex));
+  const float weight =
+      misWeighted ? sampling::PowerHeuristic(pdfLight, sampling::CosineHemispherePdf(cosAtVertex)) : 1.0f;
   return light.emission * (weight * cosAtVertex / pdfLight);
 }
 
@@ -354,6 +369,177 @@ Rgb Shader::Impl::SampleSun(const PosedRayScene& at, const PathVertex& v, Pcg32&
   return scene.sun->radiance * (cosAtVertex * sunSolidAngle);
 }
 
+PathVertex Shader::Impl::SampleStart(const PosedRayScene& at, const ShadeInput& in, Pcg32& rng,
+                                      ShadeCounters& counters, bool* frontSide) const {
+  const float sampleOffset = OffsetAt(in.position);
+  const Vec3 normal = glm::normalize(in.normal);
+  // The sample's triangle where the pose puts it (a movable object's
+  // vertices are stored in its own space).
+  const Vec3 faceNormal = WorldGeometricNormal(scene, at.Pose(), in.triangle);
+  *frontSide = glm::dot(normal, faceNormal) >= 0.0f;
+
+  PathVertex start;
+  start.frame = Frame::FromNormal(normal);
+  start.geometricNormal = *frontSide ? faceNormal : -faceNormal;
+  start.offset = sampleOffset;
+  // Off the surface along the normal, and into the triangle toward its
+  // centroid (no further than halfway), so that a neighbour meeting this
+  // vertex or edge at an angle -- a wall at the edge of a floor -- lies
+  // clearly on one side of the origin.
+  const Vec3 centroid = WorldPointAt(scene, at.Pose(), in.triangle, 1.0f / 3.0f, 1.0f / 3.0f);
+  const Vec3 toCentroid = centroid - in.position;
+  const float toCentroidLength = glm::length(toCentroid);
+  start.origin = in.position + sampleOffset * start.geometricNormal;
+  if (toCentroidLength > 0.0f)
+    start.origin += toCentroid * (std::min(sampleOffset, 0.5f * toCentroidLength) / toCentroidLength);
+  start.origin = UnburiedOrigin(at, start, centroid + sampleOffset * start.geometricNormal, rng, counters);
+  return start;
+}
+
+Rgb Shader::Impl::ReflectedAndSkyRadiance(const PosedRayScene& at, const Vec3& origin, const Vec3& direction,
+                                          Pcg32& rng, ShadeCounters& counters) const {
+  ++counters.rays;
+  const std::optional<RayHit> hit = at.Intersect(origin, direction, 0.0f, kInfinity);
+  if (!hit) return scene.sky ? scene.sky->Radiance(direction) : Rgb(0.0f);
+  const Vec3 hitNormal = glm::normalize(hit->normal);
+  const Material& material = scene.materials[materialOf[hit->triangle]];
+  const float cosAtHit = glm::dot(hitNormal, direction);
+  const Rgb albedo =
+      material.albedoTexture < 0 ? material.albedo : scene.AlbedoAt(hit->triangle, hit->b1, hit->b2);
+  if (MaxComponent(albedo) <= 0.0f) return Rgb(0.0f);
+  PathVertex v;
+  v.geometricNormal = cosAtHit < 0.0f ? hitNormal : -hitNormal;
+  v.frame = Frame::FromNormal(v.geometricNormal);
+  const Vec3 hitPoint = origin + hit->t * direction;
+  v.offset = OffsetAt(hitPoint);
+  v.origin = hitPoint + v.offset * v.geometricNormal;
+  return albedo * kInvPi * TracePath(at, v, rng, counters);
+}
+
+namespace {
+
+// Whether origin + t*direction, t > 0, meets the box (slab test).
+bool RayMeetsBox(const Vec3& origin, const Vec3& direction, const Bounds3& box) {
+  float tNear = 0.0f, tFar = kInfinity;
+  for (int axis = 0; axis < 3; ++axis) {
+    const float inverse = 1.0f / direction[axis];  // +-inf for 0: the slab test still holds
+    float t0 = (box.min[axis] - origin[axis]) * inverse, t1 = (box.max[axis] - origin[axis]) * inverse;
+    if (t0 > t1) std::swap(t0, t1);
+    if (std::isnan(t0) || std::isnan(t1)) {  // parallel to the slab and on its boundary plane
+      if (origin[axis] < box.min[axis] || origin[axis] > box.max[axis]) return false;
+      continue;
+    }
+    tNear = std::max(tNear, t0);
+    tFar = std::min(tFar, t1);
+    if (tNear > tFar) return false;
+  }
+  return true;
+}
+
+// The cone of directions from a point toward a bounding sphere.
+struct RegionCone {
+  Frame frame;           // z toward the sphere's centre
+  float cosMax = -1.0f;  // -1: the point is inside, every direction
+  float solidAngle = 4.0f * kPi;
+};
+
+}  // namespace
+
+ChangeEstimate Shader::EstimateChangeThrough(const PosedRayScene& before, const PosedRayScene& after,
+                                             const ShadeInput& in, std::span<const Bounds3> region, int paths,
+                                             ShadeCounters* counters) const {
+  const Impl& s = *impl_;
+  ChangeEstimate out;
+  if (paths <= 0 || region.empty()) return out;
+  Pcg32 rng = Pcg32::ForSample(s.settings.seed, in.sampleId);
+  ShadeCounters work;
+  bool frontSide = true;
+  const PathVertex start = s.SampleStart(before, in, rng, work, &frontSide);
+
+  std::vector<RegionCone> cones;
+  double totalSolidAngle = 0.0;
+  for (const Bounds3& box : region) {
+    if (box.Empty()) continue;
+    const Vec3 toCentre = box.Center() - start.origin;
+    const float distance = glm::length(toCentre);
+    const float radius = 0.5f * glm::length(box.Diagonal());
+    RegionCone cone;
+    if (distance > radius * 1.0001f) {
+      const float sinMax = radius / distance;
+      cone.frame = Frame::FromNormal(toCentre / distance);
+      cone.cosMax = std::sqrt(std::max(0.0f, 1.0f - sinMax * sinMax));
+      cone.solidAngle = 2.0f * kPi * (1.0f - cone.cosMax);
+    } else {
+      cone.frame = Frame::FromNormal(start.frame.n);
+    }
+    if (!(cone.solidAngle > 0.0f)) continue;  // too far to subtend anything in float
+    cones.push_back(cone);
+    totalSolidAngle += cone.solidAngle;
+  }
+  if (cones.empty()) return out;
+  out.regionSolidAngle = float(totalSolidAngle);
+
+  double sum = 0.0, sumSquares = 0.0;
+  for (int i = 0; i < paths; ++i) {
+    // One cone in proportion to its solid angle, a direction uniform in it;
+    // where cones overlap the density adds up (one-sample mixture).
+    const float pick = rng.NextFloat() * float(totalSolidAngle);
+    size_t chosen = 0;
+    for (float below = cones[0].solidAngle; chosen + 1 < cones.size() && pick >= below;)
+      below += cones[++chosen].solidAngle;
+    const RegionCone& cone = cones[chosen];
+    const Vec3 direction = cone.frame.ToWorld(sampling::UniformCone(rng.NextFloat(), rng.NextFloat(), cone.cosMax));
+    // Each path's continuation gets a stream of its own, copied for the
+    // second pose: common random numbers.
+    const uint64_t pathSeed = (uint64_t(rng.NextU32()) << 32) | rng.NextU32();
+    const uint64_t lightSeed = (uint64_t(rng.NextU32()) << 32) | rng.NextU32();
+    double d = 0.0;
+    // The lights' direct light, sampled on the lights from the sample at
+    // both poses with the same points: it changes only where the object
+    // blocks a shadow ray at one pose and not at the other.
+    if (!s.lights.empty() || s.scene.sun) {
+      Pcg32 atBefore(lightSeed, in.sampleId), atAfter = atBefore;
+      Rgb lightBefore(0.0f), lightAfter(0.0f);
+      if (!s.lights.empty()) {
+        lightBefore += s.SampleAreaLight(before, start, atBefore, work, /*misWeighted=*/false);
+        lightAfter += s.SampleAreaLight(after, start, atAfter, work, /*misWeighted=*/false);
+      }
+      if (s.scene.sun) {
+        lightBefore += s.SampleSun(before, start, atBefore, work);
+        lightAfter += s.SampleSun(after, start, atAfter, work);
+      }
+      d += double(Luminance(lightAfter) - Luminance(lightBefore));
+    }
+    const float cosTheta = glm::dot(direction, start.frame.n);
+    if (cosTheta <= 0.0f || glm::dot(direction, start.geometricNormal) <= 0.0f) {  // no light from there
+      sum += d;
+      sumSquares += d * d;
+      continue;
+    }
+    bool throughRegion = false;
+    for (const Bounds3& box : region) throughRegion = throughRegion || RayMeetsBox(start.origin, direction, box);
+    out.pathsThroughRegion += throughRegion;
+    int containing = 0;
+    for (const RegionCone& c : cones) containing += glm::dot(direction, c.frame.n) >= c.cosMax;
+    const double pdf = double(std::max(containing, 1)) / totalSolidAngle;
+    Pcg32 atBefore(pathSeed, in.sampleId), atAfter = atBefore;
+    const Rgb lBefore = s.ReflectedAndSkyRadiance(before, start.origin, direction, atBefore, work);
+    const Rgb lAfter = s.ReflectedAndSkyRadiance(after, start.origin, direction, atAfter, work);
+    d += double(Luminance(lAfter) - Luminance(lBefore)) * double(cosTheta) / pdf;
+    sum += d;
+    sumSquares += d * d;
+  }
+  const double n = double(paths);
+  const double mean = sum / n;
+  out.irradianceChange = float(mean);
+  out.standardError =
+      paths > 1 ? float(std::sqrt(std::max(0.0, (sumSquares / n - mean * mean) * n / (n - 1.0)) / n)) : 0.0f;
+  out.paths = uint32_t(paths);
+  work.paths += 2 * uint64_t(paths);
+  if (counters) *counters += work;
+  return out;
+}
+
 // --- Shader -----------------------------------------------------------------
 
 Shader::Shader(const Scene& scene, const RayScene& rays, ShadingSettings settings)
@@ -374,32 +560,11 @@ ShadeOutput Shader::Shade(const PosedRayScene& posed, const ShadeInput& in, int 
                           const std::atomic<bool>* cancel) const {
   const Impl& s = *impl_;
   const PosedRayScene& at = posed;
-  const float offset = s.OffsetAt(in.position);
   const int pathCount = paths > 0 ? paths : s.settings.pathsPerSample;
-  const Vec3 normal = glm::normalize(in.normal);
-  // The sample's triangle where the pose puts it (a movable object's
-  // vertices are stored in its own space).
-  const Vec3 faceNormal = WorldGeometricNormal(s.scene, posed.Pose(), in.triangle);
-  const bool frontSide = glm::dot(normal, faceNormal) >= 0.0f;
-
-  PathVertex start;
-  start.frame = Frame::FromNormal(normal);
-  start.geometricNormal = frontSide ? faceNormal : -faceNormal;
-  start.offset = offset;
-  // Off the surface along the normal, and into the triangle toward its
-  // centroid (no further than halfway), so that a neighbour meeting this
-  // vertex or edge at an angle -- a wall at the edge of a floor -- lies
-  // clearly on one side of the origin.
-  const Vec3 centroid = WorldPointAt(s.scene, posed.Pose(), in.triangle, 1.0f / 3.0f, 1.0f / 3.0f);
-  const Vec3 toCentroid = centroid - in.position;
-  const float toCentroidLength = glm::length(toCentroid);
-  start.origin = in.position + offset * start.geometricNormal;
-  if (toCentroidLength > 0.0f)
-    start.origin += toCentroid * (std::min(offset, 0.5f * toCentroidLength) / toCentroidLength);
-
   Pcg32 rng = Pcg32::ForSample(s.settings.seed, in.sampleId);
   ShadeCounters work;
-  start.origin = s.UnburiedOrigin(at, start, centroid + offset * start.geometricNormal, rng, work);
+  bool frontSide = true;
+  const PathVertex start = s.SampleStart(at, in, rng, work, &frontSide);
   Rgb sum(0.0f);
   double luminanceSquares = 0.0;
   int traced = 0;

@@ -81,6 +81,7 @@
 #include <atomic>
 #include <cstdint>
 #include <memory>
+#include <span>
 
 #include "penumbra/common/expected.h"
 #include "penumbra/common/math.h"
@@ -129,6 +130,26 @@ struct ShadeOutput {
   /// alone (0 when every path agrees, e.g. an unoccluded uniform sky).
   float irradianceStdErr = 0.0f;
   uint32_t paths = 0;  // paths averaged (adaptive sampling may trace more than asked)
+};
+
+/// How much a move changes a sample's irradiance through the region the
+/// move swept (Shader::EstimateChangeThrough). Luminance, like the SMA's
+/// tolerances.
+struct ChangeEstimate {
+  float irradianceChange = 0.0f;  // Luminance(E after - E before), first order (see EstimateChangeThrough)
+  /// Standard error of irradianceChange, from the spread of the paths' paired
+  /// differences (0 when every path saw the same at both poses).
+  float standardError = 0.0f;
+  uint32_t paths = 0;
+  /// Paths whose first segment passed through a box of the region: only
+  /// these can differ at first order. 0 of n says that at most ~3/n of the
+  /// region's cones meet the boxes (the rule of three), not that nothing changed.
+  uint32_t pathsThroughRegion = 0;
+  /// The solid angle the region's directions were drawn from (the cones of
+  /// its boxes' bounding spheres, added up): no path's share of the change
+  /// exceeds the largest radiance change times this, which is what bounds
+  /// a change no path saw (3/n of it, by the rule of three).
+  float regionSolidAngle = 0.0f;
 };
 
 /// Work done, for statistics and benchmarks.
@@ -181,6 +202,32 @@ class Shader {
   /// The same at the scene's initial pose.
   ShadeOutput Shade(const ShadeInput& input, int paths, ShadeCounters* counters,
                     const std::atomic<bool>* cancel = nullptr) const;
+
+  /// Estimates the change of a static sample's irradiance from pose `before`
+  /// to pose `after` (both from this shader's RayScene) that a move sweeping
+  /// `region` -- its boxes, world space (the SMA's motion volume) -- causes
+  /// at first order, without shading the sample again (issue 14,
+  /// docs/moving-objects.md "A test instead of a bound"):
+  ///     dE = dE_lights + integral over directions w through the region's
+  ///          bounding spheres of (L_after(x, w) - L_before(x, w)) cos dw,
+  /// where dE_lights is the change of the direct light of the area lights
+  /// and the sun, and L counts the sky and reflected light but not a
+  /// light's emission (dE_lights has it: the two parts split E exactly).
+  /// Each of `paths` paired samples takes one light sample on the lights
+  /// and one direction w uniform in the cones the spheres subtend
+  /// (concentrating every path where the change can be, instead of the few
+  /// a hemisphere's paths would send there), each traced at both poses from
+  /// the same random state (common random numbers): what meets nothing that
+  /// moved is identical at both and contributes exactly 0, and a small light
+  /// is found by its own sample, not as a rare direction. Not counted:
+  /// reflected light whose first segment leaves outside the region and meets
+  /// the object's effect later (a shadow the object casts elsewhere lighting
+  /// the sample less -- second order). The sample is shaded from where
+  /// `before` puts it (a static sample: the same at both). Thread-safe;
+  /// deterministic in (seed, sampleId).
+  ChangeEstimate EstimateChangeThrough(const PosedRayScene& before, const PosedRayScene& after,
+                                       const ShadeInput& input, std::span<const Bounds3> region, int paths,
+                                       ShadeCounters* counters) const;
 
   const ShadingSettings& Settings() const;
   const Scene& GetScene() const;
