@@ -33,6 +33,71 @@ inline Vec3 UniformCone(float u1, float u2, float cosMax) {
   return Vec3(sinTheta * std::cos(phi), sinTheta * std::sin(phi), cosTheta);
 }
 
+/// Solid angle of the spherical triangle with unit vertices a, b, c (Van
+/// Oosterom & Strackee 1983): stable for small triangles, where the angle
+/// excess alpha + beta + gamma - pi cancels catastrophically.
+inline double SphericalTriangleArea(const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c) {
+  return 2.0 * std::atan2(std::abs(glm::dot(a, glm::cross(b, c))),
+                          1.0 + glm::dot(a, b) + glm::dot(b, c) + glm::dot(c, a));
+}
+
+/// Direction uniform in solid angle over the spherical triangle with unit
+/// vertices a, b, c and solid angle `area` (SphericalTriangleArea), so with
+/// density 1 / area (Arvo 1995, "Stratified sampling of spherical
+/// triangles"): u1 picks the sub-triangle a-b-c' of area u1 * area, u2 the
+/// point on the arc from b to c'. Doubles: the construction loses digits for
+/// small triangles. Callers sample a triangle too small for that (below
+/// ~1e-7 sr) uniformly by area on its plane instead, where the two agree.
+inline glm::dvec3 SphericalTriangle(const glm::dvec3& a, const glm::dvec3& b, const glm::dvec3& c, double area,
+                                    double u1, double u2) {
+  // The unit tangent at `at` of the great arc toward p.
+  const auto tangent = [](const glm::dvec3& at, const glm::dvec3& p) {
+    const glm::dvec3 t = p - glm::dot(at, p) * at;
+    const double length = glm::length(t);
+    return length > 0.0 ? t / length : glm::dvec3(0.0);
+  };
+  const double cosAlpha = std::clamp(glm::dot(tangent(a, b), tangent(a, c)), -1.0, 1.0);
+  const double sinAlpha = std::sqrt(std::max(0.0, 1.0 - cosAlpha * cosAlpha));
+  const double alpha = std::acos(cosAlpha);
+  const double areaHat = u1 * area;
+  const double s = std::sin(areaHat - alpha), t = std::cos(areaHat - alpha);
+  const double u = t - cosAlpha;
+  const double v = s + sinAlpha * glm::dot(a, b);
+  const double denominator = (v * s + u * t) * sinAlpha;
+  const double q = denominator != 0.0 ? std::clamp(((v * t - u * s) * cosAlpha - v) / denominator, -1.0, 1.0) : 1.0;
+  const glm::dvec3 cHat = q * a + std::sqrt(std::max(0.0, 1.0 - q * q)) * tangent(a, c);
+  const double z = std::clamp(1.0 - u2 * (1.0 - glm::dot(cHat, b)), -1.0, 1.0);
+  return z * b + std::sqrt(std::max(0.0, 1.0 - z * z)) * tangent(b, cHat);
+}
+
+/// `n` values in [0, 1), one uniform in each of the strata [i/n, (i+1)/n),
+/// in random order: for an estimator that draws all its samples at once, so
+/// that no stretch of the domain is left out by chance.
+template <typename Rng>
+std::vector<float> Stratified1D(int n, Rng& rng) {
+  std::vector<float> values(size_t(std::max(n, 0)));
+  for (size_t i = 0; i < values.size(); ++i)
+    values[i] = std::min((float(i) + rng.NextFloat()) / float(n), 0x1.fffffep-1f);
+  for (size_t i = values.size(); i > 1; --i) std::swap(values[i - 1], values[rng.NextBelow(uint32_t(i))]);
+  return values;
+}
+
+/// `n` points of the unit square: one uniform in each cell of the largest
+/// g x g grid with g^2 <= n, the rest uniform anywhere, in random order.
+template <typename Rng>
+std::vector<Vec2> Stratified2D(int n, Rng& rng) {
+  std::vector<Vec2> points(size_t(std::max(n, 0)));
+  const int g = int(std::sqrt(double(std::max(n, 0))));
+  for (size_t i = 0; i < points.size(); ++i) {
+    const float u = rng.NextFloat(), v = rng.NextFloat();
+    points[i] = int(i) < g * g ? Vec2(std::min((float(int(i) % g) + u) / float(g), 0x1.fffffep-1f),
+                                      std::min((float(int(i) / g) + v) / float(g), 0x1.fffffep-1f))
+                               : Vec2(u, v);
+  }
+  for (size_t i = points.size(); i > 1; --i) std::swap(points[i - 1], points[rng.NextBelow(uint32_t(i))]);
+  return points;
+}
+
 /// Barycentrics (b1, b2) of a point uniform in area on a triangle.
 inline Vec2 UniformTriangle(float u1, float u2) {
   const float s = std::sqrt(u1);

@@ -131,9 +131,19 @@ struct Shader::Impl {
   // With `misWeighted` false the light sample is weighted 1: for an
   // estimator that never lets a direction it samples count a light's
   // emission (EstimateChangeThrough).
-  Rgb SampleAreaLight(const PosedRayScene& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters,
-                      bool misWeighted = true) const;
-  Rgb SampleSun(const PosedRayScene& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const;
+  Rgb SampleAreaLight(const PosedRayScene& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const {
+    const float u0 = rng.NextFloat(), u1 = rng.NextFloat(), u2 = rng.NextFloat(), u3 = rng.NextFloat();
+    return SampleAreaLight(at, v, {u0, u1, u2, u3}, counters, /*misWeighted=*/true);
+  }
+  Rgb SampleSun(const PosedRayScene& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const {
+    const float u0 = rng.NextFloat(), u1 = rng.NextFloat();
+    return SampleSun(at, v, Vec2(u0, u1), counters);
+  }
+  // The same from given uniform numbers: u[0], u[1] choose the light, u[2],
+  // u[3] the point on it (the sun: the direction in its cone).
+  Rgb SampleAreaLight(const PosedRayScene& at, const PathVertex& v, const std::array<float, 4>& u,
+                      ShadeCounters& counters, bool misWeighted) const;
+  Rgb SampleSun(const PosedRayScene& at, const PathVertex& v, const Vec2& u, ShadeCounters& counters) const;
   // Where to shade a sample leaving from `start` (header: "Buried samples");
   // `inside` is a point off the same side of the sample's triangle, well inside it.
   Vec3 UnburiedOrigin(const PosedRayScene& at, const PathVertex& start, const Vec3& inside, Pcg32& rng,
@@ -256,11 +266,10 @@ Rgb Shader::Impl::TracePath(const PosedRayScene& at, const PathVertex& start, Pc
   return irradiance;
 }
 
-Rgb Shader::Impl::SampleAreaLight(const PosedRayScene& at, const PathVertex& v, Pcg32& rng,
+Rgb Shader::Impl::SampleAreaLight(const PosedRayScene& at, const PathVertex& v, const std::array<float, 4>& u,
                                   ShadeCounters& counters, bool misWeighted) const {
-  const float u1 = rng.NextFloat(), u2 = rng.NextFloat();
-  const Light& light = lights[lightSelection.Sample(u1, u2)];
-  const Vec2 b = sampling::UniformTriangle(rng.NextFloat(), rng.NextFloat());
+  const Light& light = lights[lightSelection.Sample(u[0], u[1])];
+  const Vec2 b = sampling::UniformTriangle(u[2], u[3]);
   const Vec3 onLight = light.p0 + b.x * light.edge1 + b.y * light.edge2;
 
   const Vec3 toLight = onLight - v.origin;
@@ -357,9 +366,9 @@ bool Shader::Impl::Enclosed(const PosedRayScene& at, const PathVertex& start, co
   return true;
 }
 
-Rgb Shader::Impl::SampleSun(const PosedRayScene& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const {
-  const Vec3 direction =
-      sunFrame.ToWorld(sampling::UniformCone(rng.NextFloat(), rng.NextFloat(), sunCosHalfAngle));
+Rgb Shader::Impl::SampleSun(const PosedRayScene& at, const PathVertex& v, const Vec2& u,
+                            ShadeCounters& counters) const {
+  const Vec3 direction = sunFrame.ToWorld(sampling::UniformCone(u.x, u.y, sunCosHalfAngle));
   const float cosAtVertex = glm::dot(direction, v.frame.n);
   if (cosAtVertex <= 0.0f || glm::dot(direction, v.geometricNormal) <= 0.0f) return Rgb(0.0f);
   ++counters.rays;
@@ -436,11 +445,82 @@ bool RayMeetsBox(const Vec3& origin, const Vec3& direction, const Bounds3& box) 
   return true;
 }
 
-// The cone of directions from a point toward a bounding sphere.
-struct RegionCone {
-  Frame frame;           // z toward the sphere's centre
-  float cosMax = -1.0f;  // -1: the point is inside, every direction
-  float solidAngle = 4.0f * kPi;
+// The directions from a point through a box: its silhouette -- the faces the
+// point sees, as spherical triangles -- sampled uniformly in solid angle; or,
+// from inside the box, the point's whole hemisphere.
+class BoxSilhouette {
+ public:
+  BoxSilhouette(const Bounds3& box, const Vec3& point, const Frame& frame) : box_(box), frame_(frame) {
+    const glm::dvec3 p(point);
+    inside_ = true;
+    for (int axis = 0; axis < 3; ++axis) inside_ = inside_ && point[axis] >= box.min[axis] && point[axis] <= box.max[axis];
+    if (inside_) {
+      solidAngle_ = 2.0 * double(kPi);
+      return;
+    }
+    for (int axis = 0; axis < 3; ++axis) {
+      const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+      for (int side = 0; side < 2; ++side) {
+        // A face is seen from outside its plane; a flat box's one face once.
+        const float plane = side == 0 ? box.min[axis] : box.max[axis];
+        if (side == 0 ? !(point[axis] < plane) : !(point[axis] > plane)) continue;
+        std::array<glm::dvec3, 4> corner;
+        for (int k = 0; k < 4; ++k) {
+          corner[k][axis] = plane;
+          corner[k][u] = (k == 1 || k == 2) ? box.max[u] : box.min[u];
+          corner[k][v] = (k >= 2) ? box.max[v] : box.min[v];
+        }
+        for (const auto& [i, j, k] : {std::array<int, 3>{0, 1, 2}, std::array<int, 3>{0, 2, 3}}) {
+          Triangle& t = triangles_[count_++];
+          t.corners = {corner[i], corner[j], corner[k]};
+          for (int c = 0; c < 3; ++c) t.directions[c] = glm::normalize(t.corners[c] - p);
+          t.solidAngle = sampling::SphericalTriangleArea(t.directions[0], t.directions[1], t.directions[2]);
+          if (!std::isfinite(t.solidAngle)) t.solidAngle = 0.0;
+          solidAngle_ += t.solidAngle;
+        }
+      }
+    }
+  }
+
+  double SolidAngle() const { return solidAngle_; }
+
+  // A direction of the silhouette (the hemisphere from inside), uniform in
+  // solid angle: density 1 / SolidAngle() (triangles under ~1e-7 sr are
+  // sampled by area on their plane, where the two agree).
+  Vec3 Sample(const Vec3& point, float u0, float u1, float u2) const {
+    if (inside_) {
+      const float z = u1, r = std::sqrt(std::max(0.0f, 1.0f - z * z)), phi = 2.0f * kPi * u2;
+      return frame_.ToWorld(Vec3(r * std::cos(phi), r * std::sin(phi), z));
+    }
+    double pick = double(u0) * solidAngle_;
+    size_t chosen = 0;
+    while (chosen + 1 < count_ && pick >= triangles_[chosen].solidAngle) pick -= triangles_[chosen++].solidAngle;
+    const Triangle& t = triangles_[chosen];
+    if (t.solidAngle < 1e-7) {
+      const Vec2 b = sampling::UniformTriangle(u1, u2);
+      const glm::dvec3 q = (1.0 - b.x - b.y) * t.corners[0] + double(b.x) * t.corners[1] + double(b.y) * t.corners[2];
+      return Vec3(glm::normalize(q - glm::dvec3(point)));
+    }
+    return Vec3(sampling::SphericalTriangle(t.directions[0], t.directions[1], t.directions[2], t.solidAngle, u1, u2));
+  }
+
+  // Whether Sample() can return `direction`.
+  bool Contains(const Vec3& origin, const Vec3& direction) const {
+    return inside_ ? glm::dot(direction, frame_.n) > 0.0f : RayMeetsBox(origin, direction, box_);
+  }
+
+ private:
+  struct Triangle {
+    std::array<glm::dvec3, 3> corners;     // world space
+    std::array<glm::dvec3, 3> directions;  // unit, from the point
+    double solidAngle = 0.0;
+  };
+  Bounds3 box_;
+  Frame frame_;
+  bool inside_ = false;
+  std::array<Triangle, 6> triangles_{};  // at most three faces seen, two triangles each
+  size_t count_ = 0;
+  double solidAngle_ = 0.0;
 };
 
 }  // namespace
@@ -456,71 +536,67 @@ ChangeEstimate Shader::EstimateChangeThrough(const PosedRayScene& before, const 
   bool frontSide = true;
   const PathVertex start = s.SampleStart(before, in, rng, work, &frontSide);
 
-  std::vector<RegionCone> cones;
+  std::vector<BoxSilhouette> silhouettes;
   double totalSolidAngle = 0.0;
   for (const Bounds3& box : region) {
     if (box.Empty()) continue;
-    const Vec3 toCentre = box.Center() - start.origin;
-    const float distance = glm::length(toCentre);
-    const float radius = 0.5f * glm::length(box.Diagonal());
-    RegionCone cone;
-    if (distance > radius * 1.0001f) {
-      const float sinMax = radius / distance;
-      cone.frame = Frame::FromNormal(toCentre / distance);
-      cone.cosMax = std::sqrt(std::max(0.0f, 1.0f - sinMax * sinMax));
-      cone.solidAngle = 2.0f * kPi * (1.0f - cone.cosMax);
-    } else {
-      cone.frame = Frame::FromNormal(start.frame.n);
-    }
-    if (!(cone.solidAngle > 0.0f)) continue;  // too far to subtend anything in float
-    cones.push_back(cone);
-    totalSolidAngle += cone.solidAngle;
+    BoxSilhouette silhouette(box, start.origin, start.frame);
+    if (!(silhouette.SolidAngle() > 0.0)) continue;  // too far to subtend anything
+    totalSolidAngle += silhouette.SolidAngle();
+    silhouettes.push_back(std::move(silhouette));
   }
-  if (cones.empty()) return out;
+  if (silhouettes.empty()) return out;
   out.regionSolidAngle = float(totalSolidAngle);
 
   double sum = 0.0, sumSquares = 0.0;
+  // Stratified numbers for what every paired sample draws first -- the
+  // light, the point on it, the sun's direction, the silhouette and the
+  // direction in it --, so that no part of a light or a silhouette goes
+  // unsampled by chance (a penumbra's changed sliver of the light is what
+  // independent samples miss). The spread of stratified samples overstates
+  // their standard error: on the safe side for a test.
+  const std::vector<float> lightChoice = sampling::Stratified1D(paths, rng);
+  const std::vector<Vec2> onLight = sampling::Stratified2D(paths, rng);
+  const std::vector<Vec2> inSunCone = sampling::Stratified2D(paths, rng);
+  const std::vector<float> silhouetteChoice = sampling::Stratified1D(paths, rng);
+  const std::vector<Vec2> inSilhouette = sampling::Stratified2D(paths, rng);
   for (int i = 0; i < paths; ++i) {
-    // One cone in proportion to its solid angle, a direction uniform in it;
-    // where cones overlap the density adds up (one-sample mixture).
-    const float pick = rng.NextFloat() * float(totalSolidAngle);
-    size_t chosen = 0;
-    for (float below = cones[0].solidAngle; chosen + 1 < cones.size() && pick >= below;)
-      below += cones[++chosen].solidAngle;
-    const RegionCone& cone = cones[chosen];
-    const Vec3 direction = cone.frame.ToWorld(sampling::UniformCone(rng.NextFloat(), rng.NextFloat(), cone.cosMax));
-    // Each path's continuation gets a stream of its own, copied for the
-    // second pose: common random numbers.
-    const uint64_t pathSeed = (uint64_t(rng.NextU32()) << 32) | rng.NextU32();
-    const uint64_t lightSeed = (uint64_t(rng.NextU32()) << 32) | rng.NextU32();
+    const size_t k = size_t(i);
     double d = 0.0;
     // The lights' direct light, sampled on the lights from the sample at
     // both poses with the same points: it changes only where the object
     // blocks a shadow ray at one pose and not at the other.
-    if (!s.lights.empty() || s.scene.sun) {
-      Pcg32 atBefore(lightSeed, in.sampleId), atAfter = atBefore;
-      Rgb lightBefore(0.0f), lightAfter(0.0f);
-      if (!s.lights.empty()) {
-        lightBefore += s.SampleAreaLight(before, start, atBefore, work, /*misWeighted=*/false);
-        lightAfter += s.SampleAreaLight(after, start, atAfter, work, /*misWeighted=*/false);
-      }
-      if (s.scene.sun) {
-        lightBefore += s.SampleSun(before, start, atBefore, work);
-        lightAfter += s.SampleSun(after, start, atAfter, work);
-      }
-      d += double(Luminance(lightAfter) - Luminance(lightBefore));
+    if (!s.lights.empty()) {
+      const std::array<float, 4> u{lightChoice[k], rng.NextFloat(), onLight[k].x, onLight[k].y};
+      d += double(Luminance(s.SampleAreaLight(after, start, u, work, /*misWeighted=*/false)) -
+                  Luminance(s.SampleAreaLight(before, start, u, work, /*misWeighted=*/false)));
     }
+    if (s.scene.sun)
+      d += double(Luminance(s.SampleSun(after, start, inSunCone[k], work)) -
+                  Luminance(s.SampleSun(before, start, inSunCone[k], work)));
+
+    // One box in proportion to its silhouette's solid angle, a direction
+    // uniform in that; where silhouettes overlap the densities add up (a
+    // one-sample mixture). What is left of the choosing number, rescaled,
+    // chooses the silhouette's triangle.
+    double pick = double(silhouetteChoice[k]) * totalSolidAngle;
+    size_t chosen = 0;
+    while (chosen + 1 < silhouettes.size() && pick >= silhouettes[chosen].SolidAngle())
+      pick -= silhouettes[chosen++].SolidAngle();
+    const float within = float(std::clamp(pick / silhouettes[chosen].SolidAngle(), 0.0, double(0x1.fffffep-1f)));
+    const Vec3 direction = silhouettes[chosen].Sample(start.origin, within, inSilhouette[k].x, inSilhouette[k].y);
+    // The path's continuation gets a stream of its own, copied for the
+    // second pose: common random numbers.
+    const uint64_t pathSeed = (uint64_t(rng.NextU32()) << 32) | rng.NextU32();
     const float cosTheta = glm::dot(direction, start.frame.n);
     if (cosTheta <= 0.0f || glm::dot(direction, start.geometricNormal) <= 0.0f) {  // no light from there
       sum += d;
       sumSquares += d * d;
       continue;
     }
-    bool throughRegion = false;
-    for (const Bounds3& box : region) throughRegion = throughRegion || RayMeetsBox(start.origin, direction, box);
-    out.pathsThroughRegion += throughRegion;
     int containing = 0;
-    for (const RegionCone& c : cones) containing += glm::dot(direction, c.frame.n) >= c.cosMax;
+    for (const BoxSilhouette& silhouette : silhouettes) containing += silhouette.Contains(start.origin, direction);
+    out.pathsThroughRegion += containing > 0;
     const double pdf = double(std::max(containing, 1)) / totalSolidAngle;
     Pcg32 atBefore(pathSeed, in.sampleId), atAfter = atBefore;
     const Rgb lBefore = s.ReflectedAndSkyRadiance(before, start.origin, direction, atBefore, work);

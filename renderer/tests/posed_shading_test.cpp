@@ -262,13 +262,13 @@ TEST(ChangeThroughTest, AnOccluderMovedUnderASkyChangesTheSkyItCoversAndUncovers
   const ChangeEstimate c = shader.EstimateChangeThrough(*t.rays->Initial(), *posed, atOrigin, region, 4096, nullptr);
   EXPECT_TRUE(Agrees(AsEstimate(c), Rgb(float(exact)), 0.05f, 4.0f));
   // Independent full shadings at each pose with as many paths measure the
-  // same change with over twice its noise (2.3x): the hemisphere's paths
-  // mostly miss the region (cones of 0.6 sr of the hemisphere's 2 pi; the
-  // smaller the region's cones, the larger the gain).
+  // same change with over three times its noise (3.3x): the hemisphere's
+  // paths mostly miss the region (the squares' 0.3 sr of the hemisphere's
+  // 2 pi; the smaller the region, the larger the gain).
   const Estimate full0 = EstimateAt(shader, *t.rays->Initial(), atOrigin, 16, 256);
   const Estimate full1 = EstimateAt(shader, *posed, atOrigin, 16, 256);
   const float fullChangeError = std::hypot(full0.standardError.r, full1.standardError.r);
-  EXPECT_GT(fullChangeError, 1.8f * c.standardError);
+  EXPECT_GT(fullChangeError, 2.5f * c.standardError);
 }
 
 // Common random numbers: at the same pose every path is traced identically

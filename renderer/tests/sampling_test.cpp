@@ -6,6 +6,9 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <array>
+#include <numbers>
 #include <vector>
 
 #include "penumbra/common/rng.h"
@@ -60,6 +63,75 @@ TEST(SamplingTest, UniformTriangleStaysInsideWithCentroidMean) {
 }
 
 // Each index's frequency is binomial: within 5 standard deviations of N p.
+// The octant triangle (x, y, z axes) has solid angle pi / 2, and the half
+// of it above 60 degrees from each axis -- the cap x > 1/2 (or y, or z) --
+// holds half its solid angle: uniform samples put half there, whichever
+// vertex the construction treats first.
+TEST(SamplingTest, SphericalTriangleIsUniformOverTheOctant) {
+  const glm::dvec3 x(1, 0, 0), y(0, 1, 0), z(0, 0, 1);
+  const double area = sampling::SphericalTriangleArea(x, y, z);
+  EXPECT_NEAR(area, std::numbers::pi / 2.0, 1e-12);
+  Pcg32 rng(3, 5);
+  constexpr int kSamples = 200000;
+  std::array<int, 3> nearAxis{};
+  for (int i = 0; i < kSamples; ++i) {
+    const glm::dvec3 w = sampling::SphericalTriangle(x, y, z, area, rng.NextFloat(), rng.NextFloat());
+    ASSERT_NEAR(glm::length(w), 1.0, 1e-9);
+    ASSERT_GE(std::min({w.x, w.y, w.z}), -1e-9) << "outside the triangle";
+    for (int axis = 0; axis < 3; ++axis) nearAxis[axis] += w[axis] > 0.5;
+  }
+  const double sigma = std::sqrt(0.25 / kSamples);
+  for (int axis = 0; axis < 3; ++axis) EXPECT_NEAR(double(nearAxis[axis]) / kSamples, 0.5, 4.0 * sigma) << axis;
+}
+
+// A small, thin, oblique triangle: its solid angle agrees with the planar
+// estimate (area * cos / d^2), and its samples' mean direction with the
+// direction to its centroid.
+TEST(SamplingTest, SphericalTriangleHandlesSmallObliqueTriangles) {
+  const glm::dvec3 p0(10.0, 0.0, 0.0), p1(10.0, 0.01, 0.0), p2(10.02, 0.0, 0.003);
+  const glm::dvec3 a = glm::normalize(p0), b = glm::normalize(p1), c = glm::normalize(p2);
+  const double area = sampling::SphericalTriangleArea(a, b, c);
+  const glm::dvec3 centroid = (p0 + p1 + p2) / 3.0;
+  const glm::dvec3 normal = glm::cross(p1 - p0, p2 - p0);
+  const double planar =
+      0.5 * std::abs(glm::dot(normal, glm::normalize(centroid))) / glm::dot(centroid, centroid);
+  EXPECT_NEAR(area, planar, 1e-3 * planar);
+  Pcg32 rng(7, 1);
+  glm::dvec3 mean(0.0);
+  for (int i = 0; i < 4096; ++i) mean += sampling::SphericalTriangle(a, b, c, area, rng.NextFloat(), rng.NextFloat());
+  EXPECT_NEAR(glm::dot(glm::normalize(mean), glm::normalize(centroid)), 1.0, 1e-9);
+}
+
+// One value in each stratum, one point in each cell of the grid (the rest
+// anywhere), and not in stratum order.
+TEST(SamplingTest, StratifiedSamplesFillEveryStratumOnce) {
+  Pcg32 rng(9, 2);
+  const std::vector<float> values = Stratified1D(37, rng);
+  ASSERT_EQ(values.size(), 37u);
+  std::vector<int> perStratum(37);
+  for (float v : values) {
+    ASSERT_GE(v, 0.0f);
+    ASSERT_LT(v, 1.0f);
+    ++perStratum[size_t(v * 37.0f)];
+  }
+  for (int count : perStratum) EXPECT_EQ(count, 1);
+  EXPECT_FALSE(std::is_sorted(values.begin(), values.end()));
+
+  const std::vector<Vec2> points = Stratified2D(40, rng);  // a 6 x 6 grid and 4 more
+  ASSERT_EQ(points.size(), 40u);
+  std::vector<int> perCell(36);
+  for (const Vec2& p : points) {
+    ASSERT_TRUE(p.x >= 0.0f && p.x < 1.0f && p.y >= 0.0f && p.y < 1.0f);
+    ++perCell[size_t(p.y * 6.0f) * 6 + size_t(p.x * 6.0f)];
+  }
+  int extra = 0;
+  for (int count : perCell) {
+    EXPECT_GE(count, 1);
+    extra += count - 1;
+  }
+  EXPECT_EQ(extra, 4);
+}
+
 TEST(SamplingTest, AliasTableDrawsInProportionToWeights) {
   const std::vector<double> weights = {1.0, 0.0, 3.0, 0.5, 10.0, 2.5, 0.0, 7.0};
   double sum = 0.0;

@@ -141,14 +141,14 @@ struct ChangeEstimate {
   /// differences (0 when every path saw the same at both poses).
   float standardError = 0.0f;
   uint32_t paths = 0;
-  /// Paths whose first segment passed through a box of the region: only
-  /// these can differ at first order. 0 of n says that at most ~3/n of the
-  /// region's cones meet the boxes (the rule of three), not that nothing changed.
+  /// Paths whose direction through the region left the sample's side of its
+  /// surface (the others bring no light and count 0).
   uint32_t pathsThroughRegion = 0;
-  /// The solid angle the region's directions were drawn from (the cones of
-  /// its boxes' bounding spheres, added up): no path's share of the change
-  /// exceeds the largest radiance change times this, which is what bounds
-  /// a change no path saw (3/n of it, by the rule of three).
+  /// The solid angle the region's directions are drawn from (its boxes'
+  /// silhouettes, added up; 0: none is in view): no path's share of the
+  /// change exceeds the largest radiance change times this, which is what
+  /// bounds a change no path saw (at most 3/n of it at 95 %, by the rule of
+  /// three).
   float regionSolidAngle = 0.0f;
 };
 
@@ -205,18 +205,21 @@ class Shader {
 
   /// Estimates the change of a static sample's irradiance from pose `before`
   /// to pose `after` (both from this shader's RayScene) that a move sweeping
-  /// `region` -- its boxes, world space (the SMA's motion volume) -- causes
+  /// `region` -- boxes, world space, that hold the moving object at both
+  /// poses (its bounds at each, or the SMA's motion volume) -- causes
   /// at first order, without shading the sample again (issue 14,
   /// docs/moving-objects.md "A test instead of a bound"):
   ///     dE = dE_lights + integral over directions w through the region's
-  ///          bounding spheres of (L_after(x, w) - L_before(x, w)) cos dw,
+  ///          boxes of (L_after(x, w) - L_before(x, w)) cos dw,
   /// where dE_lights is the change of the direct light of the area lights
   /// and the sun, and L counts the sky and reflected light but not a
   /// light's emission (dE_lights has it: the two parts split E exactly).
   /// Each of `paths` paired samples takes one light sample on the lights
-  /// and one direction w uniform in the cones the spheres subtend
-  /// (concentrating every path where the change can be, instead of the few
-  /// a hemisphere's paths would send there), each traced at both poses from
+  /// and one direction w uniform in solid angle over the silhouettes of the
+  /// region's boxes (the faces the sample sees, as spherical triangles; from
+  /// inside a box, the hemisphere) -- every path where the change can be,
+  /// instead of the few a hemisphere's paths would send there -- each
+  /// traced at both poses from
   /// the same random state (common random numbers): what meets nothing that
   /// moved is identical at both and contributes exactly 0, and a small light
   /// is found by its own sample, not as a rare direction. Not counted:
