@@ -119,21 +119,24 @@ struct Shader::Impl {
   // side of its triangle it is: the header's "Geometry" and "Buried samples".
   PathVertex SampleStart(const PosedRayScene& at, const ShadeInput& in, Pcg32& rng, ShadeCounters& counters,
                          bool* frontSide) const;
-  // Radiance arriving at `origin` from `direction`, one path: the sky in
-  // full, a light's emission not at all (the caller samples the lights
-  // from `origin` itself, unweighted), then the hit's reflected light by
-  // TracePath.
-  Rgb ReflectedAndSkyRadiance(const PosedRayScene& at, const Vec3& origin, const Vec3& direction, Pcg32& rng,
-                              ShadeCounters& counters) const;
+  // Radiance arriving at `origin` from `direction`, one path: a light's
+  // emission (with the density light sampling from `origin` would have
+  // chosen that point with, for the caller's MIS weight), and the sky and
+  // the hit's reflected light (TracePath).
+  struct Incident {
+    Rgb emitted{0.0f};
+    float lightPdf = 0.0f;  // solid angle; 0: not an emitter's front
+    Rgb skyAndReflected{0.0f};
+  };
+  Incident IncidentRadiance(const PosedRayScene& at, const Vec3& origin, const Vec3& direction, Pcg32& rng,
+                            ShadeCounters& counters) const;
   // Irradiance estimate of one path from `start`.
   Rgb TracePath(const PosedRayScene& at, const PathVertex& start, Pcg32& rng, ShadeCounters& counters) const;
-  // Next-event estimates at `v` (throughput not applied), one shadow ray each.
-  // With `misWeighted` false the light sample is weighted 1: for an
-  // estimator that never lets a direction it samples count a light's
-  // emission (EstimateChangeThrough).
+  // Next-event estimates at `v` (throughput not applied), one shadow ray
+  // each; the area light's MIS-weighted against cosine sampling.
   Rgb SampleAreaLight(const PosedRayScene& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const {
     const float u0 = rng.NextFloat(), u1 = rng.NextFloat(), u2 = rng.NextFloat(), u3 = rng.NextFloat();
-    return SampleAreaLight(at, v, {u0, u1, u2, u3}, counters, /*misWeighted=*/true);
+    return SampleAreaLight(at, v, {u0, u1, u2, u3}, counters);
   }
   Rgb SampleSun(const PosedRayScene& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const {
     const float u0 = rng.NextFloat(), u1 = rng.NextFloat();
@@ -142,7 +145,18 @@ struct Shader::Impl {
   // The same from given uniform numbers: u[0], u[1] choose the light, u[2],
   // u[3] the point on it (the sun: the direction in its cone).
   Rgb SampleAreaLight(const PosedRayScene& at, const PathVertex& v, const std::array<float, 4>& u,
-                      ShadeCounters& counters, bool misWeighted) const;
+                      ShadeCounters& counters) const;
+  // A point on the area lights seen from `v` (no shadow ray): its direction
+  // and distance, its emission, and the solid-angle density of choosing it
+  // (pdf 0: it faces away or lies below v's surface -- it brings nothing).
+  struct LightPoint {
+    Vec3 direction{0.0f};
+    float distance = 0.0f;
+    float cosAtVertex = 0.0f;
+    Rgb emission{0.0f};
+    float pdf = 0.0f;
+  };
+  LightPoint SampleLightPoint(const PathVertex& v, const std::array<float, 4>& u) const;
   Rgb SampleSun(const PosedRayScene& at, const PathVertex& v, const Vec2& u, ShadeCounters& counters) const;
   // Where to shade a sample leaving from `start` (header: "Buried samples");
   // `inside` is a point off the same side of the sample's triangle, well inside it.
@@ -266,29 +280,35 @@ Rgb Shader::Impl::TracePath(const PosedRayScene& at, const PathVertex& start, Pc
   return irradiance;
 }
 
-Rgb Shader::Impl::SampleAreaLight(const PosedRayScene& at, const PathVertex& v, const std::array<float, 4>& u,
-                                  ShadeCounters& counters, bool misWeighted) const {
+Shader::Impl::LightPoint Shader::Impl::SampleLightPoint(const PathVertex& v, const std::array<float, 4>& u) const {
   const Light& light = lights[lightSelection.Sample(u[0], u[1])];
   const Vec2 b = sampling::UniformTriangle(u[2], u[3]);
   const Vec3 onLight = light.p0 + b.x * light.edge1 + b.y * light.edge2;
 
+  LightPoint out;
   const Vec3 toLight = onLight - v.origin;
   const float distance2 = glm::dot(toLight, toLight);
-  const float distance = std::sqrt(distance2);
-  const Vec3 direction = toLight / distance;
-  const float cosAtVertex = glm::dot(direction, v.frame.n);
-  const float cosAtLight = -glm::dot(direction, light.normal);  // emitters emit from the front only
-  if (cosAtVertex <= 0.0f || cosAtLight <= 0.0f || glm::dot(direction, v.geometricNormal) <= 0.0f)
-    return Rgb(0.0f);
+  out.distance = std::sqrt(distance2);
+  out.direction = toLight / out.distance;
+  out.cosAtVertex = glm::dot(out.direction, v.frame.n);
+  const float cosAtLight = -glm::dot(out.direction, light.normal);  // emitters emit from the front only
+  if (out.cosAtVertex <= 0.0f || cosAtLight <= 0.0f || glm::dot(out.direction, v.geometricNormal) <= 0.0f)
+    return out;
+  out.emission = light.emission;
+  out.pdf = light.pdfArea * distance2 / cosAtLight;
+  return out;
+}
 
+Rgb Shader::Impl::SampleAreaLight(const PosedRayScene& at, const PathVertex& v, const std::array<float, 4>& u,
+                                  ShadeCounters& counters) const {
+  const LightPoint light = SampleLightPoint(v, u);
+  if (!(light.pdf > 0.0f)) return Rgb(0.0f);
   ++counters.rays;
   ++counters.shadowRays;
   // Stop short of the light so that its own surface does not occlude it.
-  if (at.Occluded(v.origin, direction, 0.0f, distance - v.offset)) return Rgb(0.0f);
-  const float pdfLight = light.pdfArea * distance2 / cosAtLight;
-  const float weight =
-      misWeighted ? sampling::PowerHeuristic(pdfLight, sampling::CosineHemispherePdf(cosAtVertex)) : 1.0f;
-  return light.emission * (weight * cosAtVertex / pdfLight);
+  if (at.Occluded(v.origin, light.direction, 0.0f, light.distance - v.offset)) return Rgb(0.0f);
+  const float weight = sampling::PowerHeuristic(light.pdf, sampling::CosineHemispherePdf(light.cosAtVertex));
+  return light.emission * (weight * light.cosAtVertex / light.pdf);
 }
 
 Vec3 Shader::Impl::UnburiedOrigin(const PosedRayScene& at, const PathVertex& start, const Vec3& inside, Pcg32& rng,
@@ -405,24 +425,34 @@ PathVertex Shader::Impl::SampleStart(const PosedRayScene& at, const ShadeInput& 
   return start;
 }
 
-Rgb Shader::Impl::ReflectedAndSkyRadiance(const PosedRayScene& at, const Vec3& origin, const Vec3& direction,
-                                          Pcg32& rng, ShadeCounters& counters) const {
+Shader::Impl::Incident Shader::Impl::IncidentRadiance(const PosedRayScene& at, const Vec3& origin,
+                                                      const Vec3& direction, Pcg32& rng,
+                                                      ShadeCounters& counters) const {
+  Incident out;
   ++counters.rays;
   const std::optional<RayHit> hit = at.Intersect(origin, direction, 0.0f, kInfinity);
-  if (!hit) return scene.sky ? scene.sky->Radiance(direction) : Rgb(0.0f);
+  if (!hit) {
+    if (scene.sky) out.skyAndReflected = scene.sky->Radiance(direction);
+    return out;
+  }
   const Vec3 hitNormal = glm::normalize(hit->normal);
   const Material& material = scene.materials[materialOf[hit->triangle]];
   const float cosAtHit = glm::dot(hitNormal, direction);
+  if (cosAtHit < 0.0f && material.IsEmissive() && !lights.empty()) {
+    out.emitted = material.emission;
+    out.lightPdf = Luminance(material.emission) * inverseTotalPower * hit->t * hit->t / -cosAtHit;
+  }
   const Rgb albedo =
       material.albedoTexture < 0 ? material.albedo : scene.AlbedoAt(hit->triangle, hit->b1, hit->b2);
-  if (MaxComponent(albedo) <= 0.0f) return Rgb(0.0f);
+  if (MaxComponent(albedo) <= 0.0f) return out;
   PathVertex v;
   v.geometricNormal = cosAtHit < 0.0f ? hitNormal : -hitNormal;
   v.frame = Frame::FromNormal(v.geometricNormal);
   const Vec3 hitPoint = origin + hit->t * direction;
   v.offset = OffsetAt(hitPoint);
   v.origin = hitPoint + v.offset * v.geometricNormal;
-  return albedo * kInvPi * TracePath(at, v, rng, counters);
+  out.skyAndReflected = albedo * kInvPi * TracePath(at, v, rng, counters);
+  return out;
 }
 
 namespace {
@@ -563,13 +593,31 @@ ChangeEstimate Shader::EstimateChangeThrough(const PosedRayScene& before, const 
   for (int i = 0; i < paths; ++i) {
     const size_t k = size_t(i);
     double d = 0.0;
-    // The lights' direct light, sampled on the lights from the sample at
-    // both poses with the same points: it changes only where the object
-    // blocks a shadow ray at one pose and not at the other.
+    // The area lights: a point on them, its shadow ray traced at both
+    // poses. Only a ray toward a box can change (the rest are identical and
+    // skipped); those the silhouette sampling below also finds, combined by
+    // the balance heuristic -- light sampling finds a small light behind
+    // the object, silhouette sampling a thin sliver of a large one that a
+    // penumbra moves across.
     if (!s.lights.empty()) {
       const std::array<float, 4> u{lightChoice[k], rng.NextFloat(), onLight[k].x, onLight[k].y};
-      d += double(Luminance(s.SampleAreaLight(after, start, u, work, /*misWeighted=*/false)) -
-                  Luminance(s.SampleAreaLight(before, start, u, work, /*misWeighted=*/false)));
+      const Impl::LightPoint light = s.SampleLightPoint(start, u);
+      int containing = 0;
+      if (light.pdf > 0.0f)
+        for (const BoxSilhouette& silhouette : silhouettes) containing += silhouette.Contains(start.origin, light.direction);
+      if (containing > 0) {
+        const double silhouettePdf = double(containing) / totalSolidAngle;
+        work.rays += 2;
+        work.shadowRays += 2;
+        const float reach = light.distance - start.offset;
+        const bool litBefore = !before.Occluded(start.origin, light.direction, 0.0f, reach);
+        const bool litAfter = !after.Occluded(start.origin, light.direction, 0.0f, reach);
+        if (litBefore != litAfter) {
+          const double weight = double(light.pdf) / (double(light.pdf) + silhouettePdf);
+          d += (litAfter ? 1.0 : -1.0) * weight * double(Luminance(light.emission)) * double(light.cosAtVertex) /
+               double(light.pdf);
+        }
+      }
     }
     if (s.scene.sun)
       d += double(Luminance(s.SampleSun(after, start, inSunCone[k], work)) -
@@ -599,9 +647,15 @@ ChangeEstimate Shader::EstimateChangeThrough(const PosedRayScene& before, const 
     out.pathsThroughRegion += containing > 0;
     const double pdf = double(std::max(containing, 1)) / totalSolidAngle;
     Pcg32 atBefore(pathSeed, in.sampleId), atAfter = atBefore;
-    const Rgb lBefore = s.ReflectedAndSkyRadiance(before, start.origin, direction, atBefore, work);
-    const Rgb lAfter = s.ReflectedAndSkyRadiance(after, start.origin, direction, atAfter, work);
-    d += double(Luminance(lAfter) - Luminance(lBefore)) * double(cosTheta) / pdf;
+    // A light seen along the direction counts with the balance heuristic's
+    // weight against the light sample above.
+    const auto radiance = [&](const Impl::Incident& incident) {
+      const double weight = incident.lightPdf > 0.0f ? pdf / (pdf + double(incident.lightPdf)) : 1.0;
+      return weight * double(Luminance(incident.emitted)) + double(Luminance(incident.skyAndReflected));
+    };
+    const double lBefore = radiance(s.IncidentRadiance(before, start.origin, direction, atBefore, work));
+    const double lAfter = radiance(s.IncidentRadiance(after, start.origin, direction, atAfter, work));
+    d += (lAfter - lBefore) * double(cosTheta) / pdf;
     sum += d;
     sumSquares += d * d;
   }

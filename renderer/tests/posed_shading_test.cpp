@@ -206,8 +206,8 @@ Estimate AsEstimate(const ChangeEstimate& c) { return Estimate{Rgb(c.irradianceC
 Bounds3 OccluderBox(const OccluderScene& s, const ScenePose& pose) { return WorldBounds(s.t.scene, pose, 0); }
 
 // The analytic case again, as a change: the whole light the occluder blocked
-// arrives once it has moved aside. The light is sampled on itself (only
-// ~1 % of the region's directions would find it).
+// arrives once it has moved aside. The light is found by its own samples
+// (only ~1 % of the region's directions would find it).
 TEST(ChangeThroughTest, TheLightTheOccluderStopsBlockingArrivesThroughTheRegion) {
   const OccluderScene s = MakeOccluderScene();
   const Shader shader(s.t.scene, *s.t.rays, ShadingSettings{});

@@ -209,20 +209,24 @@ class Shader {
   /// poses (its bounds at each, or the SMA's motion volume) -- causes
   /// at first order, without shading the sample again (issue 14,
   /// docs/moving-objects.md "A test instead of a bound"):
-  ///     dE = dE_lights + integral over directions w through the region's
+  ///     dE = dE_sun + integral over directions w through the region's
   ///          boxes of (L_after(x, w) - L_before(x, w)) cos dw,
-  /// where dE_lights is the change of the direct light of the area lights
-  /// and the sun, and L counts the sky and reflected light but not a
-  /// light's emission (dE_lights has it: the two parts split E exactly).
-  /// Each of `paths` paired samples takes one light sample on the lights
-  /// and one direction w uniform in solid angle over the silhouettes of the
+  /// where L is everything arriving along w -- an area light's emission, the
+  /// sky, reflected light -- and dE_sun the change of the sun's direct light
+  /// (a direction never finds the sun). Each of `paths` paired samples takes
+  /// one direction w uniform in solid angle over the silhouettes of the
   /// region's boxes (the faces the sample sees, as spherical triangles; from
   /// inside a box, the hemisphere) -- every path where the change can be,
-  /// instead of the few a hemisphere's paths would send there -- each
-  /// traced at both poses from
-  /// the same random state (common random numbers): what meets nothing that
-  /// moved is identical at both and contributes exactly 0, and a small light
-  /// is found by its own sample, not as a rare direction. Not counted:
+  /// instead of the few a hemisphere's paths would send there --, one point
+  /// on the area lights whose shadow ray is tested only if it heads for a
+  /// box (the two combined by the balance heuristic: light sampling finds a
+  /// small light behind the object, silhouette sampling a thin sliver of a
+  /// large one that a penumbra moves across), and one direction in the sun's
+  /// cone; each is
+  /// traced at both poses from the same random state (common random
+  /// numbers): what meets nothing that moved is identical at both and
+  /// contributes exactly 0. The lights', sun's and silhouettes' numbers are
+  /// stratified over the paired samples. Not counted:
   /// reflected light whose first segment leaves outside the region and meets
   /// the object's effect later (a shadow the object casts elsewhere lighting
   /// the sample less -- second order). The sample is shaded from where
