@@ -261,6 +261,20 @@ TEST(ChangeThroughTest, AnOccluderMovedUnderASkyChangesTheSkyItCoversAndUncovers
   ASSERT_GT(exact, 0.05);
   const ChangeEstimate c = shader.EstimateChangeThrough(*t.rays->Initial(), *posed, atOrigin, region, 4096, nullptr);
   EXPECT_TRUE(Agrees(AsEstimate(c), Rgb(float(exact)), 0.05f, 4.0f));
+  // A region whose one box holds the sample too (its hemisphere is
+  // sampled), and the same with an overlapping box added (densities add
+  // up where silhouettes overlap): the same change.
+  Bounds3 around;
+  around.Extend(Vec3(-3.0f, -1.0f, -3.0f));
+  around.Extend(Vec3(3.0f, 3.0f, 3.0f));
+  const std::array<Bounds3, 1> enclosing{around};
+  EXPECT_TRUE(Agrees(AsEstimate(shader.EstimateChangeThrough(*t.rays->Initial(), *posed, atOrigin, enclosing, 1 << 16,
+                                                            nullptr)),
+                     Rgb(float(exact)), 0.05f, 4.0f));
+  const std::array<Bounds3, 3> overlapping{region[0], region[1], around};
+  EXPECT_TRUE(Agrees(AsEstimate(shader.EstimateChangeThrough(*t.rays->Initial(), *posed, atOrigin, overlapping,
+                                                            1 << 16, nullptr)),
+                     Rgb(float(exact)), 0.05f, 4.0f));
   // Independent full shadings at each pose with as many paths measure the
   // same change with over three times its noise (3.3x): the hemisphere's
   // paths mostly miss the region (the squares' 0.3 sr of the hemisphere's
