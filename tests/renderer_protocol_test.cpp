@@ -10,6 +10,7 @@
 #include <fstream>
 #include <map>
 #include <memory>
+#include <optional>
 #include <set>
 #include <thread>
 #include <vector>
@@ -786,6 +787,65 @@ TEST_F(RendererPoseTest, ABadPoseIsRefusedForThatBatchAndTheConnectionGoesOn) {
   ASSERT_TRUE(ok.ok()) << ok.error().message;
   EXPECT_EQ(ok->epoch, 3u);
   EXPECT_EQ(ok->irradiance, 0.0f);
+}
+
+// A verification batch over a real socket (issue 14): the floor point under
+// the lamp, tested for the move of the occluder from over it (the baseline,
+// epoch 0) to 3 to the side (the request's epoch 5), is answered with the
+// lamp's whole irradiance as its change -- direct light only, so exactly the
+// closed form -- and the request's epoch; no shading fields. A bad box is
+// refused for that batch only.
+TEST_F(RendererPoseTest, AVerificationBatchAnswersTheChangeOfTheMove) {
+  WireClient& c = *client_;
+  const ScenePose initial = ScenePose::Initial(scene_);
+  ScenePose aside = initial;
+  aside.epoch = 5;
+  aside.objectToWorld[0] = RigidTransform{glm::mat3(1.0f), Vec3(3.0f, 1.0f, 0.0f)};
+  const auto verification = [&](uint64_t id) {
+    wire::Envelope e = PoseBatch(id, 5, aside.objectToWorld, scene_, aside, floorTriangle_, floorB1_, floorB2_);
+    auto* v = e.mutable_shade_request()->mutable_verify_change();
+    v->set_baseline_epoch(0);
+    for (const ScenePose& p : {initial, aside}) {
+      const Bounds3 b = WorldBounds(scene_, p, 0);
+      for (float x : {b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z}) v->add_region_boxes(x);
+    }
+    return e;
+  };
+  ASSERT_TRUE(c.Send(verification(21)));
+  const auto deadline = std::chrono::steady_clock::now() + 60s;
+  std::optional<wire::ShadeReply> part;
+  while (!part && std::chrono::steady_clock::now() < deadline) {
+    auto e = c.Receive(60s);
+    ASSERT_TRUE(e.ok()) << e.error().message;
+    ASSERT_FALSE(e->has_error()) << e->error().message();
+    if (e->has_shade_reply() && e->shade_reply().batch_id() == 21) part = e->shade_reply();
+  }
+  ASSERT_TRUE(part);
+  EXPECT_EQ(part->remaining(), 0u);
+  EXPECT_EQ(part->scene_epoch(), 5u);
+  ASSERT_EQ(part->irradiance_change_size(), 1);
+  ASSERT_EQ(part->irradiance_change_stderr_size(), 1);
+  EXPECT_EQ(part->irradiance_size(), 0);
+  const double exact = LampIrradianceAt(0.0, 0.0);
+  EXPECT_NEAR(part->irradiance_change(0), exact, 4.0 * part->irradiance_change_stderr(0) + 1e-4 * exact);
+  EXPECT_LT(part->irradiance_change_stderr(0), 0.02 * exact);
+  EXPECT_GT(part->paths_traced(), 0u);
+
+  auto bad = verification(22);
+  bad.mutable_shade_request()->mutable_verify_change()->set_region_boxes(0, std::nanf(""));
+  ASSERT_TRUE(c.Send(bad));
+  auto e = c.Receive(30s);
+  ASSERT_TRUE(e.ok()) << e.error().message;
+  ASSERT_TRUE(e->has_error()) << BodyName(*e);
+  EXPECT_EQ(e->error().code(), wire::ERROR_CODE_INVALID_REQUEST);
+  EXPECT_EQ(e->error().request_id(), 22u);
+  EXPECT_FALSE(e->error().fatal());
+  EXPECT_NE(e->error().message().find("region_boxes box 0 is not finite"), std::string::npos) << e->error().message();
+  // The connection still shades.
+  ASSERT_TRUE(c.Send(PoseBatch(23, 5, aside.objectToWorld, scene_, aside, floorTriangle_, floorB1_, floorB2_)));
+  auto lit = Answer(c, 23);
+  ASSERT_TRUE(lit.ok()) << lit.error().message;
+  EXPECT_NEAR(lit->irradiance, exact, 0.05 * exact);
 }
 
 TEST(RendererProcessTest, BadSceneFileIsOneClearErrorAndNonZeroExit) {

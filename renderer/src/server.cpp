@@ -1,6 +1,7 @@
 #include "penumbra/renderer/server.h"
 
 #include <mutex>
+#include <optional>
 #include <thread>
 #include <unordered_set>
 
@@ -188,6 +189,12 @@ class RendererServer::Impl::Session : public std::enable_shared_from_this<Sessio
     if (!pose) return Reject(batchId, wire::ERROR_CODE_INVALID_REQUEST, pose.error().message);
     auto inputs = DecodeShadeRequest(request, scene, *pose, server_.Options().limits);
     if (!inputs) return Reject(batchId, wire::ERROR_CODE_INVALID_REQUEST, inputs.error().message);
+    std::optional<VerificationRequest> verification;
+    if (request.has_verify_change()) {
+      auto decoded = DecodeVerifyChange(request, scene, *inputs);
+      if (!decoded) return Reject(batchId, wire::ERROR_CODE_INVALID_REQUEST, decoded.error().message);
+      verification = std::move(*decoded);
+    }
     // The posed scene: the last one again while the SMAs stay at one pose,
     // else a top-level commit of a few instances -- microseconds, as cheap
     // as the validation above, so it is done here rather than on a worker.
@@ -199,6 +206,14 @@ class RendererServer::Impl::Session : public std::enable_shared_from_this<Sessio
     }
 
     auto job = std::make_shared<ShadeJob>();
+    if (verification) {
+      auto baseline = server_.GetShader().GetRays().AtPose(verification->baseline);
+      if (!baseline)
+        return Reject(batchId, wire::ERROR_CODE_OVERLOADED,
+                      fmt::format("batch {}: cannot place the objects: {}", batchId, baseline.error().message));
+      job->baseline = std::move(*baseline);
+      job->region = std::move(verification->region);
+    }
     job->batchId = batchId;
     job->paths = int(request.paths_per_sample());
     job->pose = std::move(*posed);
@@ -207,9 +222,14 @@ class RendererServer::Impl::Session : public std::enable_shared_from_this<Sessio
     job->onPart = [weak, connection = connection_](const ShadeJob& j, size_t begin, size_t end,
                                                      const ShadeCounters& counters, size_t remaining) {
       wire::Envelope reply;
-      FillShadeReply(j.batchId, std::span(j.inputs).subspan(begin, end - begin),
-                     std::span(j.outputs).subspan(begin, end - begin), uint32_t(remaining), counters,
-                     reply.mutable_shade_reply());
+      if (j.baseline)
+        FillChangeReply(j.batchId, std::span(j.inputs).subspan(begin, end - begin),
+                        std::span(j.changes).subspan(begin, end - begin), uint32_t(remaining), counters,
+                        reply.mutable_shade_reply());
+      else
+        FillShadeReply(j.batchId, std::span(j.inputs).subspan(begin, end - begin),
+                       std::span(j.outputs).subspan(begin, end - begin), uint32_t(remaining), counters,
+                       reply.mutable_shade_reply());
       reply.mutable_shade_reply()->set_scene_epoch(j.pose->Pose().epoch);
       if (!connection->Send(reply) && connection->IsOpen()) {
         // Never drop a result silently: closing makes the SMA re-send the batch elsewhere.

@@ -6,34 +6,80 @@
 
 namespace penumbra {
 
-Expected<ScenePose> DecodeShadePose(const wire::ShadeRequest& request, const Scene& scene) {
-  const uint64_t id = request.batch_id();
+namespace {
+
+// A pose from its epoch and its transforms field (`epochField` and
+// `transformsField` name them in messages).
+Expected<ScenePose> DecodePose(uint64_t id, uint64_t epoch, std::span<const float> transforms, const Scene& scene,
+                               const char* epochField, const char* transformsField) {
   const size_t objects = scene.objects.size();
-  const size_t values = size_t(request.object_transforms_size());
+  const size_t values = transforms.size();
   ScenePose pose;
-  pose.epoch = request.scene_epoch();
+  pose.epoch = epoch;
   if (values == 0) {
     if (objects > 0 && pose.epoch != 0)
-      return Fail(fmt::format("batch {}: scene_epoch {} without object_transforms (the initial pose is epoch 0 only; "
+      return Fail(fmt::format("batch {}: {} {} without {} (the initial pose is epoch 0 only; "
                               "a later epoch sends 12 values per movable object)",
-                              id, pose.epoch));
+                              id, epochField, pose.epoch, transformsField));
     pose.objectToWorld = ScenePose::Initial(scene).objectToWorld;
     return pose;
   }
   if (values != 12 * objects)
-    return Fail(fmt::format("batch {}: object_transforms has {} values, expected {} (12 per movable object for {} "
-                            "objects) or none",
-                            id, values, 12 * objects, objects));
+    return Fail(fmt::format("batch {}: {} has {} values, expected {} (12 per movable object for {} objects) or none",
+                            id, transformsField, values, 12 * objects, objects));
   pose.objectToWorld.reserve(objects);
-  const float* data = request.object_transforms().data();
   for (size_t o = 0; o < objects; ++o) {
-    auto transform = RigidTransform::FromRowMajor(std::span<const float>(data + 12 * o, 12));
+    auto transform = RigidTransform::FromRowMajor(transforms.subspan(12 * o, 12));
     if (!transform)
-      return Fail(fmt::format("batch {}: object_transforms of object {} ('{}'): {}", id, o + 1,
+      return Fail(fmt::format("batch {}: {} of object {} ('{}'): {}", id, transformsField, o + 1,
                               scene.objects[o].name, transform.error().message));
     pose.objectToWorld.push_back(*transform);
   }
   return pose;
+}
+
+}  // namespace
+
+Expected<ScenePose> DecodeShadePose(const wire::ShadeRequest& request, const Scene& scene) {
+  return DecodePose(request.batch_id(), request.scene_epoch(),
+                    std::span<const float>(request.object_transforms().data(), size_t(request.object_transforms_size())),
+                    scene, "scene_epoch", "object_transforms");
+}
+
+Expected<VerificationRequest> DecodeVerifyChange(const wire::ShadeRequest& request, const Scene& scene,
+                                                 std::span<const ShadeInput> inputs) {
+  const uint64_t id = request.batch_id();
+  const wire::VerifyChange& verify = request.verify_change();
+  VerificationRequest out;
+  auto baseline = DecodePose(
+      id, verify.baseline_epoch(),
+      std::span<const float>(verify.baseline_object_transforms().data(), size_t(verify.baseline_object_transforms_size())),
+      scene, "verify_change.baseline_epoch", "verify_change.baseline_object_transforms");
+  if (!baseline) return baseline.error();
+  out.baseline = std::move(*baseline);
+  const size_t values = size_t(verify.region_boxes_size());
+  if (values == 0 || values % 6 != 0 || values > 6 * kMaxVerificationBoxes)
+    return Fail(fmt::format("batch {}: verify_change.region_boxes has {} values, expected 6 per box for 1 to {} boxes",
+                            id, values, kMaxVerificationBoxes));
+  for (size_t b = 0; b < values / 6; ++b) {
+    const float* v = verify.region_boxes().data() + 6 * b;
+    Bounds3 box;
+    box.min = Vec3(v[0], v[1], v[2]);
+    box.max = Vec3(v[3], v[4], v[5]);
+    if (!IsFinite(box.min) || !IsFinite(box.max))
+      return Fail(fmt::format("batch {}: verify_change.region_boxes box {} is not finite", id, b));
+    if (box.min.x > box.max.x || box.min.y > box.max.y || box.min.z > box.max.z)
+      return Fail(fmt::format("batch {}: verify_change.region_boxes box {} has a min above its max", id, b));
+    out.region.push_back(box);
+  }
+  for (size_t i = 0; i < inputs.size(); ++i) {
+    const uint32_t object = scene.ObjectOfTriangle(inputs[i].triangle);
+    if (object != kStaticObject)
+      return Fail(fmt::format("batch {}: sample {} (id {}) lies on movable object '{}', which moves: only static "
+                              "samples can be verified",
+                              id, i, inputs[i].sampleId, scene.objects[object].name));
+  }
+  return out;
 }
 
 Expected<std::vector<ShadeInput>> DecodeShadeRequest(const wire::ShadeRequest& request, const Scene& scene,
@@ -99,6 +145,23 @@ void FillShadeReply(uint64_t batchId, std::span<const ShadeInput> inputs, std::s
     for (int c = 0; c < 3; ++c) reply->add_irradiance(out.irradiance[c]);
     reply->add_irradiance_stderr(out.irradianceStdErr);
     reply->add_sample_paths(out.paths);
+  }
+}
+
+void FillChangeReply(uint64_t batchId, std::span<const ShadeInput> inputs, std::span<const ChangeEstimate> changes,
+                     uint32_t remaining, const ShadeCounters& counters, wire::ShadeReply* reply) {
+  reply->set_batch_id(batchId);
+  reply->set_remaining(remaining);
+  reply->set_paths_traced(counters.paths);
+  reply->set_rays_traced(counters.rays);
+  const int n = int(inputs.size());
+  reply->mutable_sample_ids()->Reserve(n);
+  reply->mutable_irradiance_change()->Reserve(n);
+  reply->mutable_irradiance_change_stderr()->Reserve(n);
+  for (int i = 0; i < n; ++i) {
+    reply->add_sample_ids(inputs[size_t(i)].sampleId);
+    reply->add_irradiance_change(changes[size_t(i)].irradianceChange);
+    reply->add_irradiance_change_stderr(changes[size_t(i)].standardError);
   }
 }
 

@@ -131,7 +131,10 @@ struct Shader::Impl {
   Incident IncidentRadiance(const PosedRayScene& at, const Vec3& origin, const Vec3& direction, Pcg32& rng,
                             ShadeCounters& counters) const;
   // Irradiance estimate of one path from `start`.
-  Rgb TracePath(const PosedRayScene& at, const PathVertex& start, Pcg32& rng, ShadeCounters& counters) const;
+  // `firstSegment` > 0: the path continues one that already has that many
+  // segments (the caps on segments and Russian roulette count them).
+  Rgb TracePath(const PosedRayScene& at, const PathVertex& start, Pcg32& rng, ShadeCounters& counters,
+                int firstSegment = 0) const;
   // Next-event estimates at `v` (throughput not applied), one shadow ray
   // each; the area light's MIS-weighted against cosine sampling.
   Rgb SampleAreaLight(const PosedRayScene& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const {
@@ -224,12 +227,12 @@ Shader::Impl::Impl(const Scene& s, const RayScene& r, ShadingSettings ss)
 }
 
 Rgb Shader::Impl::TracePath(const PosedRayScene& at, const PathVertex& start, Pcg32& rng,
-                            ShadeCounters& counters) const {
+                            ShadeCounters& counters, int firstSegment) const {
   PathVertex v = start;
   Rgb throughput(1.0f);
   Rgb irradiance(0.0f);
   const int maxSegments = settings.MaxSegments();
-  for (int depth = 0; depth < maxSegments; ++depth) {
+  for (int depth = firstSegment; depth < maxSegments; ++depth) {
     if (!lights.empty()) irradiance += throughput * SampleAreaLight(at, v, rng, counters);
     if (scene.sun) irradiance += throughput * SampleSun(at, v, rng, counters);
 
@@ -451,7 +454,9 @@ Shader::Impl::Incident Shader::Impl::IncidentRadiance(const PosedRayScene& at, c
   const Vec3 hitPoint = origin + hit->t * direction;
   v.offset = OffsetAt(hitPoint);
   v.origin = hitPoint + v.offset * v.geometricNormal;
-  out.skyAndReflected = albedo * kInvPi * TracePath(at, v, rng, counters);
+  // The hit is the end of the sample's first segment (with maxBounces 0,
+  // direct light only, it reflects nothing).
+  out.skyAndReflected = albedo * kInvPi * TracePath(at, v, rng, counters, /*firstSegment=*/1);
   return out;
 }
 
@@ -557,7 +562,7 @@ class BoxSilhouette {
 
 ChangeEstimate Shader::EstimateChangeThrough(const PosedRayScene& before, const PosedRayScene& after,
                                              const ShadeInput& in, std::span<const Bounds3> region, int paths,
-                                             ShadeCounters* counters) const {
+                                             ShadeCounters* counters, const std::atomic<bool>* cancel) const {
   const Impl& s = *impl_;
   ChangeEstimate out;
   if (paths <= 0 || region.empty()) return out;
@@ -591,6 +596,9 @@ ChangeEstimate Shader::EstimateChangeThrough(const PosedRayScene& before, const 
   const std::vector<float> silhouetteChoice = sampling::Stratified1D(paths, rng);
   const std::vector<Vec2> inSilhouette = sampling::Stratified2D(paths, rng);
   for (int i = 0; i < paths; ++i) {
+    // As in Shade: a shutdown need not wait for thousands of paths; the
+    // caller drops the result.
+    if (cancel && i % 32 == 31 && cancel->load(std::memory_order_relaxed)) break;
     const size_t k = size_t(i);
     double d = 0.0;
     // The area lights: a point on them, its shadow ray traced at both

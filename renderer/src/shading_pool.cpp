@@ -33,7 +33,10 @@ std::shared_ptr<ShadingPool::Source> ShadingPool::AddSource() { return std::make
 
 void ShadingPool::Submit(const std::shared_ptr<Source>& source, std::shared_ptr<ShadeJob> job) {
   const size_t n = job->inputs.size();
-  job->outputs.assign(n, ShadeOutput{});
+  if (job->baseline)
+    job->changes.assign(n, ChangeEstimate{});
+  else
+    job->outputs.assign(n, ShadeOutput{});
   job->remaining_ = n;
   if (n == 0) return;
   // Enough chunks to keep every worker busy and answer in several parts, but
@@ -110,8 +113,15 @@ void ShadingPool::RunChunk(Source& source, const Chunk& chunk) {
     // A closed connection (or a shutdown) stops its work between samples,
     // and within a sample between paths, not after the chunk.
     if (source.cancelled.load(std::memory_order_relaxed)) break;
-    job.outputs[done] = job.pose ? shader_.Shade(*job.pose, job.inputs[done], job.paths, &counters, &source.cancelled)
-                                 : shader_.Shade(job.inputs[done], job.paths, &counters, &source.cancelled);
+    if (job.baseline) {
+      const int paths = job.paths > 0 ? job.paths : shader_.Settings().pathsPerSample;
+      const PosedRayScene& now = job.pose ? *job.pose : *shader_.GetRays().Initial();
+      job.changes[done] = shader_.EstimateChangeThrough(*job.baseline, now, job.inputs[done], job.region, paths,
+                                                        &counters, &source.cancelled);
+    } else {
+      job.outputs[done] = job.pose ? shader_.Shade(*job.pose, job.inputs[done], job.paths, &counters, &source.cancelled)
+                                   : shader_.Shade(job.inputs[done], job.paths, &counters, &source.cancelled);
+    }
   }
   const size_t shaded = done - chunk.begin;
   samplesShaded_ += shaded;

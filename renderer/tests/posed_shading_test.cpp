@@ -622,6 +622,100 @@ TEST(ShadePoseTest, SamplesOnAMovedObjectAreCheckedAtTheRequestsPose) {
   EXPECT_NE(refused.error().message.find("away from triangle"), std::string::npos) << refused.error().message;
 }
 
+// A verification batch (verify_change): the baseline pose and the boxes are
+// decoded and checked, a sample on the moving object is refused, and the
+// reply carries the changes.
+TEST(VerifyChangeTest, DecodesTheBaselineAndTheBoxesAndRefusesWhatCannotBeVerified) {
+  const OccluderScene s = MakeOccluderScene();
+  const Scene& scene = s.t.scene;
+  const ShadeInput floor = SampleAt(scene, Vec3(0.0f), kUp, 3);
+  ScenePose aside = ScenePose::Initial(scene);
+  aside.epoch = 4;
+  aside.objectToWorld[0] = Translation(Vec3(3.0f, 1.0f, 0.0f));
+  const auto request = [&](const ShadeInput& in) {
+    wire::ShadeRequest r = OneSampleRequest(scene, in);
+    r.set_scene_epoch(4);
+    AddTransform(r, aside.objectToWorld[0]);
+    auto* v = r.mutable_verify_change();
+    v->set_baseline_epoch(2);
+    for (float x : scene.objects[0].objectToWorld.ToRowMajor()) v->add_baseline_object_transforms(x);
+    for (const ScenePose& p : {ScenePose::Initial(scene), aside}) {
+      const Bounds3 b = WorldBounds(scene, p, 0);
+      for (float x : {b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z}) v->add_region_boxes(x);
+    }
+    return r;
+  };
+  const std::vector<ShadeInput> inputs{floor};
+  auto decoded = DecodeVerifyChange(request(floor), scene, inputs);
+  ASSERT_TRUE(decoded.ok()) << decoded.error().message;
+  EXPECT_EQ(decoded->baseline.epoch, 2u);
+  EXPECT_TRUE(decoded->baseline.SamePlaces(ScenePose::Initial(scene)));
+  ASSERT_EQ(decoded->region.size(), 2u);
+  EXPECT_EQ(decoded->region[1].min, WorldBounds(scene, aside, 0).min);
+
+  const auto refused = [&](wire::ShadeRequest r, const std::vector<ShadeInput>& in, const std::string& mention) {
+    auto d = DecodeVerifyChange(r, scene, in);
+    ASSERT_FALSE(d.ok()) << mention;
+    EXPECT_NE(d.error().message.find(mention), std::string::npos) << d.error().message;
+  };
+  {
+    wire::ShadeRequest r = request(floor);
+    r.mutable_verify_change()->set_region_boxes(4, std::nanf(""));
+    refused(r, inputs, "box 0 is not finite");
+  }
+  {
+    wire::ShadeRequest r = request(floor);
+    r.mutable_verify_change()->set_region_boxes(9, -5.0f);  // box 1's max y under its min
+    refused(r, inputs, "box 1 has a min above its max");
+  }
+  {
+    wire::ShadeRequest r = request(floor);
+    r.mutable_verify_change()->add_region_boxes(1.0f);
+    refused(r, inputs, "region_boxes has 13 values");
+  }
+  {
+    wire::ShadeRequest r = request(floor);
+    r.mutable_verify_change()->clear_region_boxes();
+    refused(r, inputs, "region_boxes has 0 values");
+  }
+  {
+    wire::ShadeRequest r = request(floor);
+    for (int i = 0; i < 6 * 16; ++i) r.mutable_verify_change()->add_region_boxes(0.0f);  // 18 boxes
+    refused(r, inputs, "1 to 16 boxes");
+  }
+  {
+    wire::ShadeRequest r = request(floor);
+    r.mutable_verify_change()->set_baseline_object_transforms(0, 3.0f);  // a scale
+    refused(r, inputs, "verify_change.baseline_object_transforms of object 1");
+  }
+  {
+    wire::ShadeRequest r = request(floor);
+    r.mutable_verify_change()->clear_baseline_object_transforms();  // a later epoch without its pose
+    refused(r, inputs, "verify_change.baseline_epoch 2 without");
+  }
+  {
+    ShadeInput onOccluder;
+    onOccluder.triangle = scene.objects[0].firstTriangle;
+    onOccluder.b1 = onOccluder.b2 = 0.25f;
+    onOccluder.position = WorldPointAt(scene, aside, onOccluder.triangle, 0.25f, 0.25f);
+    onOccluder.normal = kUp;
+    refused(request(onOccluder), {onOccluder}, "lies on movable object 'occluder'");
+  }
+
+  // The reply: one change and its standard error per sample.
+  const std::vector<ChangeEstimate> changes{ChangeEstimate{0.25f, 0.01f, 64, 60, 1.5f}};
+  wire::ShadeReply reply;
+  FillChangeReply(42, inputs, changes, 0, ShadeCounters{128, 300, 100, 0}, &reply);
+  EXPECT_EQ(reply.batch_id(), 42u);
+  ASSERT_EQ(reply.sample_ids_size(), 1);
+  EXPECT_EQ(reply.sample_ids(0), floor.sampleId);
+  ASSERT_EQ(reply.irradiance_change_size(), 1);
+  EXPECT_EQ(reply.irradiance_change(0), 0.25f);
+  EXPECT_EQ(reply.irradiance_change_stderr(0), 0.01f);
+  EXPECT_EQ(reply.irradiance_size(), 0);
+  EXPECT_EQ(reply.paths_traced(), 128u);
+}
+
 // --- Reference images of a moved scene ------------------------------------------------
 
 TEST(PlaceObjectTest, ReadsATransformOrATranslationAndRefusesTheRest) {

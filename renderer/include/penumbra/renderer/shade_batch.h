@@ -38,6 +38,28 @@ Expected<std::vector<ShadeInput>> DecodeShadeRequest(const wire::ShadeRequest& r
 Expected<std::vector<ShadeInput>> DecodeShadeRequest(const wire::ShadeRequest& request, const Scene& scene,
                                                      const ShadeLimits& limits);
 
+/// What a verification batch (ShadeRequest::verify_change) measures: the
+/// change from `baseline` to the request's pose through `region`.
+struct VerificationRequest {
+  ScenePose baseline;
+  std::vector<Bounds3> region;
+};
+inline constexpr size_t kMaxVerificationBoxes = 16;
+
+/// Decodes verify_change for the decoded `inputs`: the baseline pose (as
+/// DecodeShadePose checks a pose) and 1 to kMaxVerificationBoxes boxes, each
+/// finite with min <= max. Fails, naming the batch and the field, for any
+/// other, and for a sample on a movable object (it moves: only static
+/// samples can be verified).
+Expected<VerificationRequest> DecodeVerifyChange(const wire::ShadeRequest& request, const Scene& scene,
+                                                 std::span<const ShadeInput> inputs);
+
+/// Fills one reply part of a verification batch: sample_ids,
+/// irradiance_change and irradiance_change_stderr (the caller sets
+/// scene_epoch).
+void FillChangeReply(uint64_t batchId, std::span<const ShadeInput> inputs, std::span<const ChangeEstimate> changes,
+                     uint32_t remaining, const ShadeCounters& counters, wire::ShadeReply* reply);
+
 /// Fills one reply part: results for `inputs[i]` are `outputs[i]` (the
 /// caller sets scene_epoch).
 void FillShadeReply(uint64_t batchId, std::span<const ShadeInput> inputs, std::span<const ShadeOutput> outputs,

@@ -231,10 +231,10 @@ class Shader {
   /// the object's effect later (a shadow the object casts elsewhere lighting
   /// the sample less -- second order). The sample is shaded from where
   /// `before` puts it (a static sample: the same at both). Thread-safe;
-  /// deterministic in (seed, sampleId).
+  /// deterministic in (seed, sampleId). `cancel` as for Shade.
   ChangeEstimate EstimateChangeThrough(const PosedRayScene& before, const PosedRayScene& after,
                                        const ShadeInput& input, std::span<const Bounds3> region, int paths,
-                                       ShadeCounters* counters) const;
+                                       ShadeCounters* counters, const std::atomic<bool>* cancel = nullptr) const;
 
   const ShadingSettings& Settings() const;
   const Scene& GetScene() const;

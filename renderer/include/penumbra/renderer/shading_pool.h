@@ -36,6 +36,13 @@ struct ShadeJob {
   std::shared_ptr<const PosedRayScene> pose;
   std::vector<ShadeInput> inputs;
   std::vector<ShadeOutput> outputs;  // filled by the pool; sized like inputs
+  /// A verification batch (ShadeRequest::verify_change) when set: each input
+  /// is not shaded but its change from `baseline` to `pose` through
+  /// `region` is estimated (Shader::EstimateChangeThrough) into `changes`
+  /// (sized like inputs by the pool; `outputs` then stays empty).
+  std::shared_ptr<const PosedRayScene> baseline;
+  std::vector<Bounds3> region;
+  std::vector<ChangeEstimate> changes;
   PartCallback onPart;
 
  private:
