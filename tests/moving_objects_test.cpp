@@ -180,18 +180,24 @@ Agreement Compare(const std::multimap<PlaceKey, HeldSample>& moved, const std::m
     auto [lo, hi] = fresh.equal_range(key);
     if (lo == hi) continue;
     double best = 1e30;
+    float bestFresh = 0.0f;
     for (auto it = lo; it != hi; ++it) {
       const float la = Luminance(s.radiance), lb = Luminance(it->second.radiance);
-      best = std::min(best, double(std::abs(la - lb)) / std::max({la, lb, floor}));
+      const double relative = double(std::abs(la - lb)) / std::max({la, lb, floor});
+      if (relative < best) {
+        best = relative;
+        bestFresh = lb;
+      }
     }
     ++a.compared;
     a.meanRelative += best;
     if (best > 0.21) ++a.outside;
     if (best > worstRel) {
       worstRel = best;
-      a.worst = fmt::format("object {} at ({:.4f}, {:.4f}, {:.4f}): relative difference {:.3f}", key.object,
-                            double(key.position[0]) * 1e-4, double(key.position[1]) * 1e-4,
-                            double(key.position[2]) * 1e-4, best);
+      a.worst = fmt::format("object {} at ({:.4f}, {:.4f}, {:.4f}): relative difference {:.3f} (luminance {:.4g} "
+                            "against {:.4g} fresh, floor {:.4g})",
+                            key.object, double(key.position[0]) * 1e-4, double(key.position[1]) * 1e-4,
+                            double(key.position[2]) * 1e-4, best, Luminance(s.radiance), bestFresh, floor);
     }
   }
   if (a.compared > 0) a.meanRelative /= double(a.compared);

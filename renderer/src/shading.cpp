@@ -137,12 +137,17 @@ struct Shader::Impl {
                 int firstSegment = 0) const;
   // Next-event estimates at `v` (throughput not applied), one shadow ray
   // each; the area light's MIS-weighted against cosine sampling.
+  // (The point on the light and the sun's direction take their two numbers
+  // in the order of the draws that were once the unsequenced arguments of
+  // the warp, as GCC evaluated them -- last first --, so that every sample's
+  // estimate stays what it has been.)
   Rgb SampleAreaLight(const PosedRayScene& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const {
-    const float u0 = rng.NextFloat(), u1 = rng.NextFloat(), u2 = rng.NextFloat(), u3 = rng.NextFloat();
+    const float u0 = rng.NextFloat(), u1 = rng.NextFloat();
+    const float u3 = rng.NextFloat(), u2 = rng.NextFloat();
     return SampleAreaLight(at, v, {u0, u1, u2, u3}, counters);
   }
   Rgb SampleSun(const PosedRayScene& at, const PathVertex& v, Pcg32& rng, ShadeCounters& counters) const {
-    const float u0 = rng.NextFloat(), u1 = rng.NextFloat();
+    const float u1 = rng.NextFloat(), u0 = rng.NextFloat();
     return SampleSun(at, v, Vec2(u0, u1), counters);
   }
   // The same from given uniform numbers: u[0], u[1] choose the light, u[2],
