@@ -126,20 +126,32 @@ Expected<std::vector<ShadeInput>> DecodeShadeRequest(const wire::ShadeRequest& r
   return inputs;
 }
 
-void FillShadeReply(uint64_t batchId, std::span<const ShadeInput> inputs, std::span<const ShadeOutput> outputs,
-                    uint32_t remaining, const ShadeCounters& counters, wire::ShadeReply* reply) {
+namespace {
+
+// What every reply part carries: the batch, its progress, the work done and
+// the sample ids. Returns the number of samples.
+int FillReplyPart(uint64_t batchId, std::span<const ShadeInput> inputs, uint32_t remaining,
+                  const ShadeCounters& counters, wire::ShadeReply* reply) {
   reply->set_batch_id(batchId);
   reply->set_remaining(remaining);
   reply->set_paths_traced(counters.paths);
   reply->set_rays_traced(counters.rays);
   const int n = int(inputs.size());
   reply->mutable_sample_ids()->Reserve(n);
+  for (const ShadeInput& in : inputs) reply->add_sample_ids(in.sampleId);
+  return n;
+}
+
+}  // namespace
+
+void FillShadeReply(uint64_t batchId, std::span<const ShadeInput> inputs, std::span<const ShadeOutput> outputs,
+                    uint32_t remaining, const ShadeCounters& counters, wire::ShadeReply* reply) {
+  const int n = FillReplyPart(batchId, inputs, remaining, counters, reply);
   reply->mutable_radiance()->Reserve(3 * n);
   reply->mutable_irradiance()->Reserve(3 * n);
   reply->mutable_irradiance_stderr()->Reserve(n);
   reply->mutable_sample_paths()->Reserve(n);
   for (int i = 0; i < n; ++i) {
-    reply->add_sample_ids(inputs[size_t(i)].sampleId);
     const ShadeOutput& out = outputs[size_t(i)];
     for (int c = 0; c < 3; ++c) reply->add_radiance(out.radiance[c]);
     for (int c = 0; c < 3; ++c) reply->add_irradiance(out.irradiance[c]);
@@ -150,16 +162,10 @@ void FillShadeReply(uint64_t batchId, std::span<const ShadeInput> inputs, std::s
 
 void FillChangeReply(uint64_t batchId, std::span<const ShadeInput> inputs, std::span<const ChangeEstimate> changes,
                      uint32_t remaining, const ShadeCounters& counters, wire::ShadeReply* reply) {
-  reply->set_batch_id(batchId);
-  reply->set_remaining(remaining);
-  reply->set_paths_traced(counters.paths);
-  reply->set_rays_traced(counters.rays);
-  const int n = int(inputs.size());
-  reply->mutable_sample_ids()->Reserve(n);
+  const int n = FillReplyPart(batchId, inputs, remaining, counters, reply);
   reply->mutable_irradiance_change()->Reserve(n);
   reply->mutable_irradiance_change_stderr()->Reserve(n);
   for (int i = 0; i < n; ++i) {
-    reply->add_sample_ids(inputs[size_t(i)].sampleId);
     reply->add_irradiance_change(changes[size_t(i)].irradianceChange);
     reply->add_irradiance_change_stderr(changes[size_t(i)].standardError);
   }
