@@ -59,6 +59,10 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.0, 1000.0))->capture_default_str();
   app.add_flag("--invalidate-all-on-move", options.invalidateEverythingOnMove,
                "Every move invalidates every cached sample (a full recomputation: the baseline for benchmarks)");
+  app.add_option("--move-test-paths", options.pool.verifyPaths,
+                 "Paired samples of the test that keeps a static sample a move's indirect-light bound would "
+                 "invalidate (0: no test, the bound invalidates it)")
+      ->check(CLI::Range(0u, 1u << 16))->capture_default_str();
   app.add_option("--credits", options.pool.creditsPerRenderer, "Batches in flight per renderer")
       ->check(CLI::Range(1u, 1024u))->capture_default_str();
   app.add_option("--max-batch", options.pool.maxBatchSamples, "Largest batch sent to a renderer")

@@ -272,8 +272,7 @@ MoveInvalidator::MoveInvalidator(const Scene& scene, std::span<const MotionVolum
 
 InvalidationVerdict MoveInvalidator::Judge(const VertexSample& v, bool complete) const {
   InvalidationVerdict verdict;
-  verdict.tolerance = std::max({params_.noiseZ * v.irradianceStdErr, params_.relativeFloor * v.irradiance,
-                                params_.absoluteFloor});
+  verdict.tolerance = params_.Tolerance(v.irradiance, v.irradianceStdErr);
   const Vec3& p = v.position;
   const Vec3& n = v.normal;
   if (!IsFinite(p) || !IsFinite(n) || !std::isfinite(v.irradiance) || !std::isfinite(v.irradianceStdErr)) {

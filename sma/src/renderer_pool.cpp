@@ -171,13 +171,17 @@ void RendererPool::OnLinkMessage(RendererLink& link, wire::Envelope&& envelope) 
       const auto& error = envelope.error();
       const bool invalid = error.code() == wire::ERROR_CODE_INVALID_REQUEST;
       std::optional<std::vector<ShadedSample>> givenUp;
+      std::vector<VerifiedSample> testsGivenUp;
       {
         std::lock_guard lock(mutex_);
         if (error.code() == wire::ERROR_CODE_SHUTTING_DOWN) scheduler_.RendererDraining(link.Index());
         // A refused batch: its samples go back to the queue, except those
-        // refused as invalid three times, which are given up on.
+        // refused as invalid three times, which are given up on (and tests
+        // refused as invalid, at once: they fail, and are shaded instead).
         givenUp = scheduler_.OnBatchRefused(link.Index(), error.request_id(), invalid);
+        testsGivenUp = scheduler_.TakeVerifyGivenUp();
       }
+      if (!testsGivenUp.empty()) FinishVerified(std::move(testsGivenUp));
       if (givenUp && invalid)
         log->error("renderer {} refused batch {}: {}", link.Label(), error.request_id(), error.message());
       else if (!givenUp)
@@ -215,6 +219,29 @@ void RendererPool::OnReply(RendererLink& link, const wire::ShadeReply& reply) {
     std::lock_guard lock(mutex_);
     scheduler_.CompletePrepared(outcome.prepared);
   }
+  if (!outcome.verified.empty()) FinishVerified(std::move(outcome.verified));
+}
+
+void RendererPool::FinishVerified(std::vector<VerifiedSample>&& verified) {
+  // Acted on (the cache written, reshades requested) before they are
+  // forgotten: a tested vertex is always suspect in the cache, stored, or
+  // alive in the pool.
+  if (onVerified_) onVerified_(verified);
+  {
+    std::lock_guard lock(mutex_);
+    scheduler_.CompleteVerified(verified);
+  }
+  PostDispatch();
+}
+
+size_t RendererPool::Verify(std::span<const VerifyRequest> requests) {
+  size_t added = 0;
+  {
+    std::lock_guard lock(mutex_);
+    added = scheduler_.Verify(requests);
+  }
+  PostDispatch();
+  return added;
 }
 
 void RendererPool::CheckTimeouts() {
@@ -335,7 +362,9 @@ void RendererPool::Dispatch() {
   for (auto& [link, batch] : batches) {
     if (!link) continue;  // cannot happen: a renderer leaves the scheduler when its link goes
     const ScenePose* at = batch.prepared ? preparedPose.get() : pose.get();
-    if (!link->Send(EncodeShadeRequestFrame(batch.id, batch.pathsPerSample, batch.samples, at)))
+    auto frame = batch.verify ? EncodeVerifyRequestFrame(batch.id, batch.pathsPerSample, batch.samples, *batch.verify)
+                              : EncodeShadeRequestFrame(batch.id, batch.pathsPerSample, batch.samples, at);
+    if (!link->Send(std::move(frame)))
       link->Drop("cannot queue a batch");  // closing requeues it (OnLinkClosed)
   }
 }
@@ -373,6 +402,9 @@ RendererPoolStats RendererPool::Stats() const {
   s.preparedRequested = c.preparedRequested;
   s.preparedShaded = c.preparedShaded;
   s.preparedDropped = c.preparedDropped;
+  s.queuedVerify = c.queuedVerify;
+  s.verifyRequested = c.verifyRequested;
+  s.verified = c.verified;
   for (const auto& link : links_) {
     const RendererLoad load = scheduler_.Load(link->Index());
     RendererStatus r;

@@ -136,23 +136,33 @@ std::optional<CachedSample> SampleCache::Read(VertexId v) const {
   });
 }
 
+std::optional<CachedSample> SampleCache::ReadSuspect(VertexId v) const {
+  return ReadConsistent(v, [](const Slot& s) -> std::optional<CachedSample> {
+    if (!s.suspect.load(kRelaxed)) return std::nullopt;
+    return CachedSample{LoadRgb(s.radiance), LoadRgb(s.irradiance), s.irradianceStdErr.load(kRelaxed),
+                        s.paths.load(kRelaxed), s.rounds.load(kRelaxed), s.generation.load(kRelaxed),
+                        s.epoch.load(kRelaxed)};
+  });
+}
+
 Rgb SampleCache::Radiance(VertexId v) const {
-  return ReadConsistent(v, [](const Slot& s) { return LoadRgb(s.radiance); });
+  // A suspect slot keeps its values but reads unshaded: zero.
+  return ReadConsistent(v, [](const Slot& s) { return s.shaded.load(kRelaxed) ? LoadRgb(s.radiance) : Rgb(0.0f); });
 }
 Rgb SampleCache::Irradiance(VertexId v) const {
-  return ReadConsistent(v, [](const Slot& s) { return LoadRgb(s.irradiance); });
+  return ReadConsistent(v, [](const Slot& s) { return s.shaded.load(kRelaxed) ? LoadRgb(s.irradiance) : Rgb(0.0f); });
 }
 float SampleCache::IrradianceStdErr(VertexId v) const {
   const Slot* s = Find(v);
-  return s ? s->irradianceStdErr.load(kRelaxed) : 0.0f;
+  return s && s->shaded.load(std::memory_order_acquire) ? s->irradianceStdErr.load(kRelaxed) : 0.0f;
 }
 uint32_t SampleCache::Paths(VertexId v) const {
   const Slot* s = Find(v);
-  return s ? s->paths.load(kRelaxed) : 0;
+  return s && s->shaded.load(std::memory_order_acquire) ? s->paths.load(kRelaxed) : 0;
 }
 uint16_t SampleCache::Rounds(VertexId v) const {
   const Slot* s = Find(v);
-  return s ? s->rounds.load(kRelaxed) : 0;
+  return s && s->shaded.load(std::memory_order_acquire) ? s->rounds.load(kRelaxed) : 0;
 }
 uint32_t SampleCache::Generation(VertexId v) const {
   const Slot* s = Find(v);
@@ -230,6 +240,9 @@ size_t SampleCache::Put(std::span<const ShadedSample> samples, bool keepRounds, 
     } else if (!s.shaded.load(kRelaxed)) {
       WriteValues(s, sample, keepRounds ? sample.round : 0);
       if (s.awaitingReshade.exchange(0, kRelaxed)) ++reshaded_;
+      // A reshade replaces a sample held back for a test: the test's
+      // answer, when it comes, finds the slot no longer suspect.
+      s.suspect.store(0, kRelaxed);
       // Release: IsShaded()'s acquire load then sees the values (and
       // EndWrite publishes them to Read()).
       s.shaded.store(1, std::memory_order_release);
@@ -253,17 +266,17 @@ bool SampleCache::Evict(VertexId v) {
   Slot& s = *found;
   const uint32_t sequence = BeginWrite(s);
   const bool wasShaded = s.shaded.load(kRelaxed) != 0;
-  if (wasShaded) {
+  const bool wasSuspect = s.suspect.load(kRelaxed) != 0;  // it then stays AwaitingReshade
+  if (wasShaded || wasSuspect) {
     s.shaded.store(0, std::memory_order_release);
+    s.suspect.store(0, std::memory_order_release);
     WriteValues(s, ShadedSample{v, Rgb(0.0f), Rgb(0.0f), 0.0f, 0, 0}, 0);
     s.generation.fetch_add(1, std::memory_order_release);
   }
   EndWrite(s, sequence);
-  if (wasShaded) {
-    --shadedCount_;
-    ++changes_;
-  }
-  return wasShaded;
+  if (wasShaded) --shadedCount_;
+  if (wasShaded || wasSuspect) ++changes_;
+  return wasShaded || wasSuspect;
 }
 
 size_t SampleCache::SlotBytes() { return sizeof(Slot); }
@@ -276,6 +289,7 @@ bool SampleCache::Forget(VertexId v) {
   const bool wasShaded = s.shaded.load(kRelaxed) != 0;
   s.shaded.store(0, std::memory_order_release);
   s.awaitingReshade.store(0, std::memory_order_release);
+  s.suspect.store(0, std::memory_order_release);
   WriteValues(s, ShadedSample{v, Rgb(0.0f), Rgb(0.0f), 0.0f, 0, 0}, 0);
   s.generation.fetch_add(1, std::memory_order_release);
   EndWrite(s, sequence);
@@ -290,19 +304,83 @@ bool SampleCache::Invalidate(VertexId v, uint64_t epoch) {
   if (s.validFrom.load(kRelaxed) < epoch) s.validFrom.store(epoch, std::memory_order_release);
   // A sample already shaded at this pose (dispatched after the move was
   // published, stored before it was applied here) is kept.
-  const bool evict = s.shaded.load(kRelaxed) != 0 && s.epoch.load(kRelaxed) < epoch;
+  const bool wasShaded = s.shaded.load(kRelaxed) != 0;
+  const bool evict = (wasShaded || s.suspect.load(kRelaxed) != 0) && s.epoch.load(kRelaxed) < epoch;
   if (evict) {
     s.shaded.store(0, std::memory_order_release);
+    s.suspect.store(0, std::memory_order_release);
     s.awaitingReshade.store(1, std::memory_order_release);
     WriteValues(s, ShadedSample{v, Rgb(0.0f), Rgb(0.0f), 0.0f, 0, 0, 0}, 0);
     s.generation.fetch_add(1, std::memory_order_release);
   }
   EndWrite(s, sequence);
   if (evict) {
-    --shadedCount_;
+    if (wasShaded) --shadedCount_;
     ++changes_;
   }
   return evict;
+}
+
+std::optional<uint32_t> SampleCache::Suspect(VertexId v, uint64_t epoch) {
+  Slot* found = const_cast<Slot*>(Find(v));
+  if (!found) return std::nullopt;  // never written: nothing to test
+  Slot& s = *found;
+  const uint32_t sequence = BeginWrite(s);
+  if (s.validFrom.load(kRelaxed) < epoch) s.validFrom.store(epoch, std::memory_order_release);
+  const bool wasShaded = s.shaded.load(kRelaxed) != 0;
+  std::optional<uint32_t> generation;
+  if ((wasShaded || s.suspect.load(kRelaxed) != 0) && s.epoch.load(kRelaxed) < epoch) {
+    // The values stay: only the flags say the sample may not be shown.
+    s.shaded.store(0, std::memory_order_release);
+    s.suspect.store(1, std::memory_order_release);
+    s.awaitingReshade.store(1, std::memory_order_release);
+    generation = s.generation.fetch_add(1, std::memory_order_release) + 1;
+  }
+  EndWrite(s, sequence);
+  if (generation) {
+    if (wasShaded) --shadedCount_;
+    ++changes_;
+  }
+  return generation;
+}
+
+bool SampleCache::Confirm(VertexId v, uint32_t generation) {
+  Slot* found = const_cast<Slot*>(Find(v));
+  if (!found) return false;
+  Slot& s = *found;
+  const uint32_t sequence = BeginWrite(s);
+  const bool ok = s.suspect.load(kRelaxed) != 0 && s.generation.load(kRelaxed) == generation;
+  if (ok) {
+    s.suspect.store(0, std::memory_order_release);
+    s.awaitingReshade.store(0, std::memory_order_release);
+    s.shaded.store(1, std::memory_order_release);
+  }
+  EndWrite(s, sequence);
+  if (ok) {
+    ++shadedCount_;
+    ++changes_;
+    ++confirmed_;
+  }
+  return ok;
+}
+
+bool SampleCache::FailSuspect(VertexId v, uint32_t generation) {
+  Slot* found = const_cast<Slot*>(Find(v));
+  if (!found) return false;
+  Slot& s = *found;
+  const uint32_t sequence = BeginWrite(s);
+  const bool ok = s.suspect.load(kRelaxed) != 0 && s.generation.load(kRelaxed) == generation;
+  if (ok) {
+    s.suspect.store(0, std::memory_order_release);
+    WriteValues(s, ShadedSample{v, Rgb(0.0f), Rgb(0.0f), 0.0f, 0, 0, 0}, 0);
+    s.generation.fetch_add(1, std::memory_order_release);
+  }
+  EndWrite(s, sequence);
+  if (ok) {
+    ++changes_;
+    ++failedTests_;
+  }
+  return ok;
 }
 
 }  // namespace penumbra::sma

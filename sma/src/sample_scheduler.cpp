@@ -1,6 +1,7 @@
 #include "penumbra/sma/sample_scheduler.h"
 
 #include <algorithm>
+#include <limits>
 
 #include <fmt/format.h>
 
@@ -185,6 +186,65 @@ std::vector<SampleRequest> SampleScheduler::TakeQueuedPrepared() {
   return queued;
 }
 
+// --- Tests of a move's change ------------------------------------------------------
+
+size_t SampleScheduler::Verify(std::span<const VerifyRequest> requests) {
+  size_t added = 0;
+  for (const VerifyRequest& r : requests) {
+    if (!r.context) continue;
+    auto [it, inserted] = verify_.try_emplace(r.request.vertex);
+    VerifyEntry& e = it->second;
+    if (inserted) {
+      e.request = r;
+      verifyQueue_.push_back(r.request.vertex);
+      ++queuedVerify_;
+      ++added;
+    } else if (e.state == EntryState::kQueued) {
+      e.request = r;  // a newer move's test replaces the one not sent yet, in its place
+    } else {
+      e.next = r;
+    }
+  }
+  verifyRequested_ += added;
+  return added;
+}
+
+void SampleScheduler::CompleteVerified(std::span<const VerifiedSample> samples) {
+  for (const VerifiedSample& s : samples) {
+    auto it = verify_.find(s.vertex);
+    if (it == verify_.end() || it->second.state != EntryState::kAnswered) continue;
+    VerifyEntry& e = it->second;
+    if (!e.next) {
+      verify_.erase(it);
+      continue;
+    }
+    e.request = *e.next;
+    e.next.reset();
+    e.state = EntryState::kQueued;
+    verifyQueue_.push_back(s.vertex);
+    ++queuedVerify_;
+  }
+}
+
+bool SampleScheduler::TakeNextVerify(const VerifyContext* context, VertexId& out) {
+  while (!verifyQueue_.empty()) {
+    const VertexId v = verifyQueue_.front();
+    auto it = verify_.find(v);
+    if (it == verify_.end() || it->second.state != EntryState::kQueued) {
+      verifyQueue_.pop_front();
+      continue;
+    }
+    // One context per batch: a run of the queue. Tests of one move are
+    // queued together, so runs are long.
+    if (context && it->second.request.context.get() != context) return false;
+    verifyQueue_.pop_front();
+    --queuedVerify_;
+    out = v;
+    return true;
+  }
+  return false;
+}
+
 // --- Renderers ------------------------------------------------------------------
 
 void SampleScheduler::RendererReady(RendererId renderer, const RendererCapacity& capacity) {
@@ -226,6 +286,33 @@ void SampleScheduler::RequeueAll(Renderer& renderer) {
 }
 
 void SampleScheduler::Requeue(uint64_t batchId, const Batch& batch, std::vector<ShadedSample>* givenUpIfInvalid) {
+  if (batch.verify) {
+    // Back to the front of the test queue; refused as invalid, given up as
+    // failing (the vertex is then shaded again, never waited for).
+    for (auto v = batch.vertices.rbegin(); v != batch.vertices.rend(); ++v) {
+      auto e = verify_.find(*v);
+      if (e == verify_.end() || e->second.state != EntryState::kInFlight || e->second.batch != batchId) continue;
+      --verifyInFlight_;
+      if (givenUpIfInvalid) {
+        e->second.state = EntryState::kAnswered;
+        VerifiedSample failed;
+        failed.vertex = *v;
+        failed.change = std::numeric_limits<float>::infinity();
+        failed.generation = e->second.request.generation;
+        failed.tolerance = e->second.request.tolerance;
+        failed.targetEpoch = batch.epoch;
+        failed.request = e->second.request.request;
+        failed.request.round = 0;
+        verifyGivenUp_.push_back(failed);
+        continue;
+      }
+      e->second.state = EntryState::kQueued;
+      ++queuedVerify_;
+      ++requeued_;
+      verifyQueue_.push_front(*v);
+    }
+    return;
+  }
   if (batch.prepared) {
     // Back to the front of the prepared queue while their preparation is
     // the current one; else (or refused as invalid: nobody waits for a
@@ -302,6 +389,7 @@ ReplyOutcome SampleScheduler::OnReply(RendererId id, const wire::ShadeReply& rep
                   fmt::format("reply for batch {} was shaded at scene epoch {}, but the batch asked for epoch {} "
                               "(a renderer without movable-object support?)",
                               batchId, reply.scene_epoch(), batch.epoch));
+  if (batch.verify) return OnVerifyReply(renderer, id, it, reply);
   auto decoded = DecodeShadeReply(reply, batch.paths);
   if (!decoded) return Reject(renderer, id, fmt::format("reply for batch {}: {}", batchId, decoded.error().message));
   for (ShadedSample& sample : *decoded) sample.epoch = batch.epoch;
@@ -347,19 +435,76 @@ ReplyOutcome SampleScheduler::OnReply(RendererId id, const wire::ShadeReply& rep
   const bool prepared = batch.prepared;
   ReplyOutcome outcome;
   if (reply.remaining() == 0) {
-    // Service rate: pipelined batches overlap, so time a batch from the
-    // later of its sending and the previous completion.
-    const auto now = now_();
-    const double seconds = std::chrono::duration<double>(now - std::max(batch.sentAt, renderer.lastCompletion)).count();
-    if (seconds > 0.0) {
-      const double rate = double(batch.vertices.size()) / seconds;
-      renderer.rate = renderer.rate > 0.0 ? 0.7 * renderer.rate + 0.3 * rate : rate;
-    }
-    renderer.lastCompletion = now;
-    renderer.batches.erase(it);
+    EndBatch(renderer, it);
     outcome.batchDone = true;
   }
   (prepared ? outcome.prepared : outcome.results) = std::move(*decoded);
+  return outcome;
+}
+
+void SampleScheduler::EndBatch(Renderer& renderer, std::map<uint64_t, Batch>::iterator it) {
+  const Batch& batch = it->second;
+  // Service rate: pipelined batches overlap, so time a batch from the
+  // later of its sending and the previous completion. (A test costs about
+  // as much per sample as a first estimate: paired paths, fewer bounces.)
+  const auto now = now_();
+  const double seconds = std::chrono::duration<double>(now - std::max(batch.sentAt, renderer.lastCompletion)).count();
+  if (seconds > 0.0) {
+    const double rate = double(batch.vertices.size()) / seconds;
+    renderer.rate = renderer.rate > 0.0 ? 0.7 * renderer.rate + 0.3 * rate : rate;
+  }
+  renderer.lastCompletion = now;
+  renderer.batches.erase(it);
+}
+
+ReplyOutcome SampleScheduler::OnVerifyReply(Renderer& renderer, RendererId id, std::map<uint64_t, Batch>::iterator it,
+                                            const wire::ShadeReply& reply) {
+  const uint64_t batchId = it->first;
+  Batch& batch = it->second;
+  std::vector<uint16_t> rounds;
+  auto decoded = DecodeVerifyReply(reply, &rounds);
+  if (!decoded) return Reject(renderer, id, fmt::format("reply for batch {}: {}", batchId, decoded.error().message));
+  for (size_t i = 0; i < decoded->size(); ++i) {
+    VerifiedSample& answer = (*decoded)[i];
+    auto e = verify_.find(answer.vertex);
+    if (e == verify_.end() || e->second.state != EntryState::kInFlight || e->second.batch != batchId ||
+        e->second.request.request.round != rounds[i])
+      return Reject(renderer, id,
+                    fmt::format("reply for batch {} names sample {}, which it was not asked to test", batchId,
+                                WireSampleId(answer.vertex, rounds[i])));
+    // What the change may physically be: at most the brightest irradiance.
+    if (std::abs(answer.change) > options_.radianceBounds.maxIrradiance ||
+        answer.changeStdErr > options_.radianceBounds.maxIrradiance) {
+      ++rejected_;
+      return Reject(renderer, id,
+                    fmt::format("reply for batch {}: sample {}: change {} (standard error {}) exceeds the scene's "
+                                "brightest irradiance {}",
+                                batchId, WireSampleId(answer.vertex, rounds[i]), answer.change, answer.changeStdErr,
+                                options_.radianceBounds.maxIrradiance));
+    }
+    const VerifyRequest& asked = e->second.request;
+    answer.generation = asked.generation;
+    answer.tolerance = asked.tolerance;
+    answer.targetEpoch = batch.epoch;
+    answer.request = asked.request;
+    answer.request.round = 0;
+  }
+  const size_t n = decoded->size();
+  if (reply.remaining() == 0 && batch.answered + n != batch.vertices.size())
+    return Reject(renderer, id,
+                  fmt::format("batch {} ended with {} of {} samples", batchId, batch.answered + n, batch.vertices.size()));
+  for (const VerifiedSample& answer : *decoded) verify_.at(answer.vertex).state = EntryState::kAnswered;
+  verifyInFlight_ -= n;
+  verified_ += n;
+  batch.answered += n;
+  renderer.samplesInFlight -= n;
+  renderer.shaded += n;
+  ReplyOutcome outcome;
+  if (reply.remaining() == 0) {
+    EndBatch(renderer, it);
+    outcome.batchDone = true;
+  }
+  outcome.verified = std::move(*decoded);
   return outcome;
 }
 
@@ -486,14 +631,16 @@ std::vector<AssignedBatch> SampleScheduler::Assemble() {
       // it among every free credit so that all renderers work on it.
       const double byRate = r.rate > 0.0 ? r.rate * std::chrono::duration<double>(options_.targetBatchTime).count()
                                          : double(options_.minBatchSamples * 4);
-      const size_t fairShare = size_t((queuedTotal_ + queuedPrepared_ + freeCredits - 1) / freeCredits);
+      const size_t fairShare = size_t((queuedTotal_ + queuedPrepared_ + queuedVerify_ + freeCredits - 1) / freeCredits);
       const size_t size = std::clamp<size_t>(std::min<size_t>(size_t(byRate), fairShare), options_.minBatchSamples,
                                              std::max(options_.minBatchSamples, r.capacity.maxBatchSamples));
       // One priority per batch, the most urgent one queued.
       // Prepared samples (a predicted move's) after visible and predicted ones.
+      // Tests after those, before prepared samples.
       VertexId v = kNoVertex;
       Priority priority = Priority::kVisible;
       bool prepared = false;
+      std::shared_ptr<const VerifyContext> verify;
       const auto takeFirst = [&](std::initializer_list<Priority> priorities) {
         for (Priority p : priorities) {
           if (TakeNext(p, v)) {
@@ -504,28 +651,42 @@ std::vector<AssignedBatch> SampleScheduler::Assemble() {
         return false;
       };
       if (!takeFirst({Priority::kVisible, Priority::kPredicted})) {
-        prepared = TakeNextPrepared(v);
-        if (!prepared) takeFirst({Priority::kBackground, Priority::kImprove});
+        if (TakeNextVerify(nullptr, v)) {
+          verify = verify_.at(v).request.context;
+        } else {
+          prepared = TakeNextPrepared(v);
+          if (!prepared) takeFirst({Priority::kBackground, Priority::kImprove});
+        }
       }
       // Every queued entry sits in one of the queues.
       PENUMBRA_CHECK(v != kNoVertex, fmt::format("{} samples counted as queued but none found",
-                                                 queuedTotal_ + queuedPrepared_));
+                                                 queuedTotal_ + queuedPrepared_ + queuedVerify_));
       // Predicted and prepared samples are the first estimates a coming view
       // or move will show.
       const bool firstEstimate = prepared || priority == Priority::kVisible || priority == Priority::kPredicted;
-      const uint32_t paths = priority == Priority::kImprove                  ? options_.improvePaths
+      const uint32_t paths = verify                                           ? options_.verifyPaths
+                             : priority == Priority::kImprove                  ? options_.improvePaths
                              : firstEstimate && options_.firstPaths > 0 ? options_.firstPaths
                                                                         : options_.pathsPerSample;
-      const uint64_t epoch = prepared ? preparedEpoch_ : epoch_;
-      AssignedBatch assigned{id, nextBatchId_++, epoch, paths, prepared, {}};
+      const uint64_t epoch = verify ? (verify->target ? verify->target->epoch : 0) : prepared ? preparedEpoch_ : epoch_;
+      AssignedBatch assigned{id, nextBatchId_++, epoch, paths, prepared, {}, verify};
       Batch batch;
       batch.prepared = prepared;
+      batch.verify = verify;
       batch.paths = paths > 0 ? paths : r.capacity.defaultPaths;
       batch.epoch = epoch;
       batch.sentAt = now;
-      const auto takeMore = [&] { return prepared ? TakeNextPrepared(v) : TakeNext(priority, v); };
+      const auto takeMore = [&] {
+        return verify ? TakeNextVerify(verify.get(), v) : prepared ? TakeNextPrepared(v) : TakeNext(priority, v);
+      };
       for (bool first = true; first || (batch.vertices.size() < size && takeMore()); first = false) {
-        if (prepared) {
+        if (verify) {
+          VerifyEntry& e = verify_.at(v);
+          e.state = EntryState::kInFlight;
+          e.batch = assigned.id;
+          ++verifyInFlight_;
+          assigned.samples.push_back(e.request.request);
+        } else if (prepared) {
           PreparedEntry& e = prepared_.at(v);
           e.state = EntryState::kInFlight;
           e.batch = assigned.id;
@@ -579,6 +740,9 @@ SchedulerCounters SampleScheduler::Counters() const {
   c.preparedRequested = preparedRequested_;
   c.preparedShaded = preparedShaded_;
   c.preparedDropped = preparedDropped_;
+  c.queuedVerify = queuedVerify_;
+  c.verifyRequested = verifyRequested_;
+  c.verified = verified_;
   return c;
 }
 

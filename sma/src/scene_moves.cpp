@@ -179,7 +179,11 @@ InvalidatedStatic InvalidatedStaticVertices(const Scene& scene, const ScenePose&
   out.direct.reserve(chosen->direct.size());
   for (uint32_t i : chosen->direct) out.direct.push_back(candidates[i].vertex);
   out.indirectOnly.reserve(chosen->indirectOnly.size());
-  for (uint32_t i : chosen->indirectOnly) out.indirectOnly.push_back(candidates[i].vertex);
+  out.indirectOnlyTolerance.reserve(chosen->indirectOnly.size());
+  for (uint32_t i : chosen->indirectOnly) {
+    out.indirectOnly.push_back(candidates[i].vertex);
+    out.indirectOnlyTolerance.push_back(params.Tolerance(irradiance[i], stdErr[i]));
+  }
   return out;
 }
 
@@ -194,10 +198,10 @@ void PoseHistory::Record(std::shared_ptr<const ScenePose> pose) {
   }
 }
 
-const ScenePose* PoseHistory::At(uint64_t epoch) const {
+std::shared_ptr<const ScenePose> PoseHistory::Shared(uint64_t epoch) const {
   const auto it = std::lower_bound(poses_.begin(), poses_.end(), epoch,
                                    [](const std::shared_ptr<const ScenePose>& p, uint64_t e) { return p->epoch < e; });
-  return it != poses_.end() && (*it)->epoch == epoch ? it->get() : nullptr;
+  return it != poses_.end() && (*it)->epoch == epoch ? *it : nullptr;
 }
 
 size_t PoseHistory::BytesOf(const ScenePose& pose) {
@@ -235,7 +239,11 @@ Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cac
       out.vertices.push_back(v);
       continue;
     }
-    const std::optional<CachedSample> sample = cache.Read(v);
+    // A sample held back for an earlier move's test (SampleCache::Suspect)
+    // is judged again like a stored one: tested again, invalidated, or left
+    // to its pending test.
+    std::optional<CachedSample> sample = cache.Read(v);
+    if (!sample) sample = cache.ReadSuspect(v);
     // Nothing cached: invalidating costs nothing (only ValidFrom rises), and
     // refuses a sample of it shaded at the old pose that may be on its way.
     // So the test is asked about cached samples only (most of a refined
@@ -285,7 +293,12 @@ Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cac
     const InvalidatedStatic chosen =
         InvalidatedStaticVertices(scene, shadedAt, newPose, objects, candidates, brightest);
     out.vertices.insert(out.vertices.end(), chosen.direct.begin(), chosen.direct.end());
-    out.vertices.insert(out.vertices.end(), chosen.indirectOnly.begin(), chosen.indirectOnly.end());
+    if (rule == InvalidationRule::kTestIndirect) {
+      for (size_t i = 0; i < chosen.indirectOnly.size(); ++i)
+        out.tested.push_back(TestedVertex{chosen.indirectOnly[i], epoch, chosen.indirectOnlyTolerance[i]});
+    } else {
+      out.vertices.insert(out.vertices.end(), chosen.indirectOnly.begin(), chosen.indirectOnly.end());
+    }
     out.urgent.insert(out.urgent.end(), chosen.direct.begin(), chosen.direct.end());
   }
   for (std::vector<VertexId>* list : {&out.vertices, &out.urgent}) {

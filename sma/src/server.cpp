@@ -124,7 +124,10 @@ class SmaServer::Impl {
     options_.pool.radianceBounds = RadianceBounds::ForScene(scene);
     pool_ = RendererPool::Create(
         io_, options_.pool, [this](std::vector<ShadedSample>&& samples) { OnResults(std::move(samples)); },
-        [this](VertexId v) { return cache_.IsShaded(v); });
+        // A sample held back for a move's test is stored as far as requests
+        // go: the test's answer confirms it or asks for it (OnVerified).
+        [this](VertexId v) { return cache_.IsShaded(v) || cache_.IsSuspect(v); });
+    pool_->SetVerifiedHandler([this](const std::vector<VerifiedSample>& verified) { OnVerified(verified); });
     pose_ = std::make_shared<const ScenePose>(ScenePose::Initial(scene));
     posed_ = tracer_->Initial();
     pool_->SetPose(pose_);
@@ -198,6 +201,29 @@ class SmaServer::Impl {
       auto improved = std::make_shared<std::vector<VertexId>>(std::move(changed));
       for (auto& session : Sessions()) NotifyImproved(session, answered, improved);
     }
+  }
+
+  // Called by the renderer pool (I/O thread) with the answers of a move's
+  // tests: each suspect sample is kept (Confirm; sessions are told as of an
+  // arrival, and a held one goes out as RESHADED with the value the client
+  // already shows) or dropped and asked again at background priority, like
+  // the indirect class without a test. A sample whose slot was written
+  // since (a newer move's test or invalidation, a reshade) is left to
+  // whoever wrote it.
+  void OnVerified(const std::vector<VerifiedSample>& verified) {
+    auto confirmed = std::make_shared<std::vector<VertexId>>();
+    std::vector<SampleRequest> reshade;
+    for (const VerifiedSample& v : verified) {
+      if (v.Passes(options_.moveTestZ)) {
+        if (cache_.Confirm(v.vertex, v.generation)) confirmed->push_back(v.vertex);
+      } else if (cache_.FailSuspect(v.vertex, v.generation)) {
+        reshade.push_back(v.request);
+      }
+    }
+    // Asked for before the pool forgets the tests: the vertex stays alive.
+    if (!reshade.empty()) pool_->Request(reshade, Priority::kBackground);
+    if (!confirmed->empty())
+      for (auto& session : Sessions()) NotifyArrived(session, confirmed);
   }
 
   std::vector<std::shared_ptr<Session>> Sessions() { return skeleton_.Sessions(); }
@@ -337,6 +363,8 @@ class SmaServer::Impl {
   MoveCoalescer moveQueue_;
   std::atomic<uint64_t> moves_{0};             // moves applied (scene epochs after 0)
   std::atomic<uint64_t> samplesInvalidated_{0};  // cached samples evicted by moves
+  std::atomic<uint64_t> samplesTested_{0};       // cached samples held back for a move's test
+  std::atomic<uint64_t> lastMoveTested_{0};
   std::atomic<uint64_t> lastMoveInvalidated_{0};
   std::atomic<uint64_t> samplesInvalidatedUrgent_{0};
   /// Recent poses by epoch, bounded (PoseHistory). Only the move job reads
@@ -1529,6 +1557,10 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
   AddCounter(reply, "moves_refused", double(movesRefused_.load()));
   AddCounter(reply, "moves_coalesced", double(moveQueue_.Coalesced()));
   AddCounter(reply, "samples_invalidated", double(samplesInvalidated_.load()));
+  AddCounter(reply, "samples_tested", double(samplesTested_.load()));
+  AddCounter(reply, "last_move_tested", double(lastMoveTested_.load()));
+  AddCounter(reply, "tests_kept", double(cache_.Confirmed()));
+  AddCounter(reply, "tests_failed", double(cache_.FailedTests()));
   AddCounter(reply, "samples_reshaded_after_move", double(cache_.Reshaded()));
   AddCounter(reply, "samples_stale_refused", double(samplesStale_.load()));
   AddCounter(reply, "last_move_invalidated", double(lastMoveInvalidated_.load()));
@@ -1590,6 +1622,8 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
   AddCounter(reply, "samples_prepared", double(pool.preparedRequested));
   AddCounter(reply, "samples_prepared_shaded", double(pool.preparedShaded));
   AddCounter(reply, "samples_queued_prepared", double(pool.queuedPrepared));
+  AddCounter(reply, "tests_queued", double(pool.queuedVerify));
+  AddCounter(reply, "tests_answered", double(pool.verified));
   AddCounter(reply, "predicted_views", double(predictedViews_.load()));
   AddCounter(reply, "samples_requested_predicted", double(samplesPredicted_.load()));
   const uint64_t newTriangles = viewTrianglesNew_.load(), newShaded = viewTrianglesNewShaded_.load();
@@ -1883,10 +1917,10 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
     // Every pose so far, by epoch: each cached sample is judged against the
     // pose it was shaded at. Only this job touches the history.
     poseHistory_.Record(oldPose);
-    invalidation = PlanInvalidation(hierarchy_, cache_, *oldPose, *newPose,
-                                    options_.invalidateEverythingOnMove ? InvalidationRule::kEverything
-                                                                       : InvalidationRule::kTest,
-                                    &poseHistory_);
+    const InvalidationRule rule = options_.invalidateEverythingOnMove ? InvalidationRule::kEverything
+                                  : options_.pool.verifyPaths > 0      ? InvalidationRule::kTestIndirect
+                                                                       : InvalidationRule::kTest;
+    invalidation = PlanInvalidation(hierarchy_, cache_, *oldPose, *newPose, rule, &poseHistory_);
     poseHistory_.Record(newPose);
   }
   // 3. Invalidate under the exclusive lock: a delta is planned and built
@@ -1898,6 +1932,7 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
   size_t evicted = 0;
   size_t evictedUrgent = 0;  // of which urgent: the moved objects' own and where direct light changed
   std::vector<VertexId> prepared;  // first estimates shaded ahead at this pose (move prediction), now stored
+  std::vector<VerifyRequest> tests;  // samples held back for a test of this move
   MovePreparation::AppliedOutcome preparedFor;
   {
     std::unique_lock lock(stateMutex_);
@@ -1905,6 +1940,30 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
       const bool was = cache_.Invalidate(v, newPose->epoch);
       evicted += was;
       if (was && std::binary_search(invalidation.urgent.begin(), invalidation.urgent.end(), v)) ++evictedUrgent;
+    }
+    // The indirect class: held back and tested (one context per baseline
+    // pose: `tested` is grouped by it), or -- when the region is more than
+    // a test can take -- invalidated like the rest.
+    std::shared_ptr<const VerifyContext> context;
+    for (const TestedVertex& t : invalidation.tested) {
+      if (!context || context->baseline->epoch != t.baselineEpoch) {
+        context.reset();
+        std::shared_ptr<const ScenePose> baseline =
+            t.baselineEpoch == oldPose->epoch ? oldPose : poseHistory_.Shared(t.baselineEpoch);
+        if (baseline) {
+          if (auto boxes = VerifyRegionBoxes(scene_, *baseline, *newPose))
+            context = std::make_shared<const VerifyContext>(VerifyContext{baseline, newPose, std::move(*boxes)});
+        }
+      }
+      if (!context) {
+        evicted += cache_.Invalidate(t.vertex, newPose->epoch);
+        continue;
+      }
+      const std::optional<uint32_t> generation = cache_.Suspect(t.vertex, newPose->epoch);
+      if (!generation) continue;  // shaded at the new pose already: valid
+      VerifyRequest request{MakeSampleRequest(hierarchy_, t.vertex), context, *generation, t.tolerance};
+      request.request.round = VerifyRound(newPose->epoch);
+      tests.push_back(std::move(request));
     }
     // Under the same lock: a view mapped after the invalidation finds them
     // stored, and sessions told of the move below do not ask for them.
@@ -1915,6 +1974,11 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
   // a hit (sessions' requests below then find them alive), dropped after a
   // miss.
   if (preparedFor.preparedEpoch != 0) pool_->EndPreparation(preparedFor.preparedEpoch, preparedFor.hit);
+  // Suspect in the cache, so alive (stored, as requests see it) until
+  // the pool has them.
+  if (!tests.empty()) pool_->Verify(tests);
+  samplesTested_ += tests.size();
+  lastMoveTested_ = tests.size();
   ++moves_;
   samplesInvalidated_ += evicted;
   lastMoveInvalidated_ = evicted;
@@ -1938,9 +2002,9 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
     if (!arrived->empty()) NotifyArrived(session, arrived);
   }
   log_->debug("scene epoch {}: {} object(s) moved; {} vertices invalidated ({} of the objects'), {} of {} cached "
-              "samples evicted, {} prepared samples stored; applied in {:.1f} ms",
+              "samples evicted, {} held back for a test, {} prepared samples stored; applied in {:.1f} ms",
               newPose->epoch, notice->movedObjects.size(), invalidation.vertices.size(),
-              invalidation.objectVertices, evicted, cachedBefore, arrived->size(), ms);
+              invalidation.objectVertices, evicted, cachedBefore, tests.size(), arrived->size(), ms);
   if (options_.movePrediction) PredictNextMove(*newPose);
 }
 

@@ -60,6 +60,75 @@ std::shared_ptr<const std::string> EncodeShadeRequestFrame(uint64_t batchId, uin
   return std::make_shared<const std::string>(EncodeEnvelopeFrame(envelope));
 }
 
+std::optional<std::vector<Bounds3>> VerifyRegionBoxes(const Scene& scene, const ScenePose& baseline,
+                                                      const ScenePose& target) {
+  std::vector<Bounds3> boxes;
+  for (uint32_t o = 0; o < scene.objects.size(); ++o) {
+    if (o < baseline.objectToWorld.size() && o < target.objectToWorld.size() &&
+        baseline.objectToWorld[o] == target.objectToWorld[o])
+      continue;
+    // Two boxes, not their union: the estimator samples each box's
+    // silhouette, and a long thin move's union would be mostly empty.
+    boxes.push_back(WorldBounds(scene, baseline, o));
+    boxes.push_back(WorldBounds(scene, target, o));
+    if (boxes.size() > kMaxVerifyBoxes) return std::nullopt;
+  }
+  if (boxes.empty()) return std::nullopt;
+  return boxes;
+}
+
+void FillVerifyRequest(uint64_t batchId, uint32_t pathsPerSample, std::span<const SampleRequest> samples,
+                       const VerifyContext& context, wire::ShadeRequest* request) {
+  FillShadeRequest(batchId, pathsPerSample, samples, request, context.target.get());
+  wire::VerifyChange& verify = *request->mutable_verify_change();
+  if (context.baseline) {
+    verify.set_baseline_epoch(context.baseline->epoch);
+    for (const RigidTransform& t : context.baseline->objectToWorld) {
+      const std::array<float, 12> m = t.ToRowMajor();
+      verify.mutable_baseline_object_transforms()->Add(m.begin(), m.end());
+    }
+  }
+  for (const Bounds3& box : context.regionBoxes)
+    for (float value : {box.min.x, box.min.y, box.min.z, box.max.x, box.max.y, box.max.z}) verify.add_region_boxes(value);
+}
+
+std::shared_ptr<const std::string> EncodeVerifyRequestFrame(uint64_t batchId, uint32_t pathsPerSample,
+                                                            std::span<const SampleRequest> samples,
+                                                            const VerifyContext& context) {
+  wire::Envelope envelope;
+  FillVerifyRequest(batchId, pathsPerSample, samples, context, envelope.mutable_shade_request());
+  return std::make_shared<const std::string>(EncodeEnvelopeFrame(envelope));
+}
+
+Expected<std::vector<VerifiedSample>> DecodeVerifyReply(const wire::ShadeReply& reply, std::vector<uint16_t>* rounds) {
+  const int n = reply.sample_ids_size();
+  if (reply.irradiance_change_size() != n || reply.irradiance_change_stderr_size() != n || reply.radiance_size() != 0 ||
+      reply.irradiance_size() != 0)
+    return Fail(fmt::format("inconsistent verification arrays ({} ids, {} changes, {} stderr, {} radiance, {} "
+                            "irradiance values)",
+                            n, reply.irradiance_change_size(), reply.irradiance_change_stderr_size(),
+                            reply.radiance_size(), reply.irradiance_size()));
+  std::vector<VerifiedSample> out;
+  out.reserve(size_t(n));  // bounded by the frame the part came in
+  std::unordered_set<uint64_t> seen;
+  seen.reserve(size_t(n));
+  for (int i = 0; i < n; ++i) {
+    const uint64_t id = reply.sample_ids(i);
+    if (!seen.insert(id).second) return Fail(fmt::format("sample {} is answered twice", id));
+    if (RoundOfWireId(id) > 0xffffu) return Fail(fmt::format("sample id {} names no round this SMA asks for", id));
+    const float change = reply.irradiance_change(i), sigma = reply.irradiance_change_stderr(i);
+    if (!std::isfinite(change) || !std::isfinite(sigma) || sigma < 0.0f)
+      return Fail(fmt::format("sample {}: change {} with standard error {} is impossible", id, change, sigma));
+    VerifiedSample v;
+    v.vertex = VertexOfWireId(id);
+    v.change = change;
+    v.changeStdErr = sigma;
+    out.push_back(v);
+    if (rounds) rounds->push_back(uint16_t(RoundOfWireId(id)));
+  }
+  return out;
+}
+
 Status CheckShadeReplyShape(const wire::ShadeReply& reply) {
   const int n = reply.sample_ids_size();
   if (reply.radiance_size() != 3 * n || reply.irradiance_size() != 3 * n || reply.irradiance_stderr_size() != n ||

@@ -128,6 +128,12 @@ struct InvalidationParams {
   /// leave surfaces from slightly offset origins. < 0: 1e-4 of the scene's
   /// bounding-box diagonal.
   float padding = -1.0f;
+
+  /// tau for a sample of irradiance luminance `irradiance` and standard
+  /// error `stdErr`: the largest of the three terms above.
+  float Tolerance(float irradiance, float stdErr) const {
+    return std::max({noiseZ * stdErr, relativeFloor * irradiance, absoluteFloor});
+  }
 };
 
 /// What the invalidator needs of one cached static vertex.

@@ -95,6 +95,9 @@ struct RendererPoolStats {
   uint64_t preparedRequested = 0;  // prepared samples queued since start
   uint64_t preparedShaded = 0;     // prepared samples answered since start
   uint64_t preparedDropped = 0;    // queued prepared samples a newer preparation replaced
+  uint64_t queuedVerify = 0;       // tests of a move's change waiting (Verify)
+  uint64_t verifyRequested = 0;    // tests queued since start
+  uint64_t verified = 0;           // tests answered since start
   std::vector<RendererStatus> renderers;
 };
 
@@ -153,6 +156,16 @@ class RendererPool : public std::enable_shared_from_this<RendererPool> {
   /// SampleScheduler::EndPreparation (call after SetPose to the pose applied).
   void EndPreparation(uint64_t epoch, bool hit);
 
+  /// Tests of a move's change at samples held back in the cache
+  /// (SampleScheduler::Verify). Thread-safe.
+  size_t Verify(std::span<const VerifyRequest> requests);
+  /// Receives the answers (an I/O thread), with what each request carried;
+  /// the pool forgets them after it returns, so it must leave each vertex
+  /// stored, suspect, or requested again. Tests a renderer refused as
+  /// invalid arrive as failing. Set before Start().
+  using VerifiedHandler = std::function<void(const std::vector<VerifiedSample>& verified)>;
+  void SetVerifiedHandler(VerifiedHandler onVerified) { onVerified_ = std::move(onVerified); }
+
   /// Samples queued or in flight.
   size_t Outstanding() const;
   bool AnyRendererReady() const;
@@ -173,12 +186,14 @@ class RendererPool : public std::enable_shared_from_this<RendererPool> {
   // Assembles batches under the lock, then encodes and sends them without it.
   void Dispatch();
   void PostDispatch();  // Dispatch on an I/O thread, once however often asked before it runs
+  void FinishVerified(std::vector<VerifiedSample>&& verified);  // the handler, then CompleteVerified
   std::shared_ptr<RendererLink> FindLinkLocked(uint32_t index) const;
 
   asio::io_context& io_;
   const RendererPoolOptions options_;
   ResultHandler onResults_;
   ResultHandler onPrepared_;
+  VerifiedHandler onVerified_;
   StoredCheck isStored_;
   std::atomic<bool> dispatchPosted_{false};
   asio::steady_timer resolveTimer_;

@@ -131,6 +131,15 @@ class SampleCache {
     const Slot* s = Find(v);
     return s && s->awaitingReshade.load(std::memory_order_acquire) != 0;
   }
+  /// Whether the vertex's sample is held back awaiting a move's test
+  /// (Suspect): then it is also unshaded and AwaitingReshade.
+  bool IsSuspect(VertexId v) const {
+    const Slot* s = Find(v);
+    return s && s->suspect.load(std::memory_order_acquire) != 0;
+  }
+  /// The whole sample of a suspect vertex (as Read of a shaded one), for a
+  /// later move to judge again; nothing when the vertex is not suspect.
+  std::optional<CachedSample> ReadSuspect(VertexId v) const;
   /// The earliest scene epoch a sample of this vertex may have been shaded
   /// at to be stored (0 for a vertex never invalidated).
   uint64_t ValidFrom(VertexId v) const;
@@ -185,7 +194,28 @@ class SampleCache {
   /// (ValidFrom), and a stored sample shaded earlier is evicted (as Evict,
   /// and the vertex then reads AwaitingReshade). A sample already shaded at
   /// `epoch` or later is kept. Returns whether a sample was evicted.
+  /// A suspect sample counts as stored: Invalidate drops it too (and
+  /// returns true).
   bool Invalidate(VertexId v, uint64_t epoch);
+  /// As Invalidate, but the sample shaded before `epoch` is kept in the slot
+  /// for a test (see the file comment): the vertex reads unshaded,
+  /// AwaitingReshade and IsSuspect. A suspect sample is suspected again for
+  /// the later epoch. Returns the slot's new generation, for Confirm or
+  /// FailSuspect; nothing when there was no sample shaded before `epoch`
+  /// (none at all: nothing to test; one shaded at `epoch` or later: valid).
+  std::optional<uint32_t> Suspect(VertexId v, uint64_t epoch);
+  /// The test passed: the suspect sample of generation `generation` is valid
+  /// again, as it was (shaded, not awaiting a reshade). False -- nothing
+  /// done -- when the slot was written since (not suspect, or another
+  /// generation).
+  bool Confirm(VertexId v, uint32_t generation);
+  /// The test failed: the suspect sample of generation `generation` is
+  /// dropped; the vertex stays AwaitingReshade (the caller asks for it).
+  /// False -- nothing done -- when the slot was written since.
+  bool FailSuspect(VertexId v, uint32_t generation);
+  /// Samples a test kept (Confirm) and dropped (FailSuspect) so far.
+  uint64_t Confirmed() const { return confirmed_.load(std::memory_order_relaxed); }
+  uint64_t FailedTests() const { return failedTests_.load(std::memory_order_relaxed); }
 
   /// Bytes one vertex's slot takes (a freed vertex's slot is reused by the
   /// next vertex made: the collector counts it free).
@@ -222,6 +252,7 @@ class SampleCache {
     std::atomic<uint32_t> paths{0};
     std::atomic<uint16_t> rounds{0};
     std::atomic<uint8_t> awaitingReshade{0};
+    std::atomic<uint8_t> suspect{0};  // values kept for a move's test (Suspect)
     std::atomic<uint64_t> epoch{0};      // of the stored sample
     std::atomic<uint64_t> validFrom{0};  // samples shaded before this epoch are refused
   };
@@ -263,6 +294,8 @@ class SampleCache {
   std::atomic<size_t> shadedCount_{0};
   std::atomic<uint64_t> changes_{0};
   std::atomic<uint64_t> reshaded_{0};
+  std::atomic<uint64_t> confirmed_{0};
+  std::atomic<uint64_t> failedTests_{0};
   mutable std::atomic<uint64_t> hits_{0};
   mutable std::atomic<uint64_t> misses_{0};
 };

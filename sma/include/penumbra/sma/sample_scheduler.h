@@ -36,6 +36,17 @@
 //    batches carry the predicted epoch and their results come back apart
 //    (ReplyOutcome::prepared): nothing about them reaches the cache unless
 //    the move they were prepared for happens as predicted (move_prediction.h).
+//  * Tests (issue 14, docs/moving-objects.md "A test instead of a bound"):
+//    verification requests (Verify) ask a renderer for the change a move
+//    made to static samples held back in the cache (SampleCache::Suspect),
+//    kept apart like prepared shading -- a vertex may be alive in both --
+//    and assembled after visible and predicted samples, before prepared and
+//    background ones (a test decides whether a vertex a client holds must
+//    be shaded again, and costs a fraction of shading it). A batch tests
+//    against one VerifyContext only. Their answers come back apart
+//    (ReplyOutcome::verified). A renderer lost puts them back in the queue; a
+//    batch refused as invalid gives them up as failed (TakeVerifyGivenUp),
+//    so that the vertex is shaded again rather than waited for.
 //
 // Threads: not synchronised; the pool calls it under its own mutex.
 
@@ -48,6 +59,7 @@
 #include <span>
 #include <string>
 #include <unordered_map>
+#include <utility>
 #include <vector>
 
 #include "penumbra/sma/sample_cache.h"
@@ -76,6 +88,7 @@ struct SampleSchedulerOptions {
   // improvement rounds average their paths in, so nothing shaded is wasted.
   uint32_t firstPaths = 8;
   uint32_t improvePaths = 64;       // each improvement round
+  uint32_t verifyPaths = 64;        // paired samples of each move's test (Verify)
   uint32_t creditsPerRenderer = 4;  // batches in flight per renderer (and at most its own limit)
   uint32_t minBatchSamples = 8;
   uint32_t maxBatchSamples = 2048;  // and at most the renderer's own limit
@@ -104,6 +117,9 @@ struct AssignedBatch {
   uint32_t pathsPerSample = 0;  // as sent (0: the renderer's default)
   bool prepared = false;        // shading ahead of a predicted move (Prepare): `epoch` is the predicted pose's
   std::vector<SampleRequest> samples;
+  /// Set: a verification batch (Verify) testing `samples` against it;
+  /// `epoch` is its target pose's.
+  std::shared_ptr<const VerifyContext> verify;
 };
 
 /// What a reply part came to.
@@ -112,6 +128,9 @@ struct ReplyOutcome {
   /// Answers to a prepared batch (Prepare): shaded at its predicted epoch
   /// (ShadedSample::epoch), for the caller to keep, then CompletePrepared().
   std::vector<ShadedSample> prepared;
+  /// Answers to a verification batch (Verify), with what their requests
+  /// carried, for the caller to act on, then CompleteVerified().
+  std::vector<VerifiedSample> verified;
   /// Set when the reply was nonsense: the renderer's batches were requeued
   /// and it is quarantined; its link should be dropped.
   std::optional<std::string> badReply;
@@ -145,6 +164,9 @@ struct SchedulerCounters {
   uint64_t preparedRequested = 0;  // prepared samples queued since start
   uint64_t preparedShaded = 0;     // prepared samples answered since start
   uint64_t preparedDropped = 0;    // queued prepared samples a newer preparation replaced
+  uint64_t queuedVerify = 0;       // tests (Verify) waiting
+  uint64_t verifyRequested = 0;    // tests queued since start
+  uint64_t verified = 0;           // tests answered since start
 };
 
 class SampleScheduler {
@@ -171,7 +193,7 @@ class SampleScheduler {
   /// would land in a reused slot).
   bool AnyAlive(std::span<const VertexId> vertices) const {
     for (VertexId v : vertices)
-      if (entries_.contains(v) || prepared_.contains(v)) return true;
+      if (entries_.contains(v) || prepared_.contains(v) || verify_.contains(v)) return true;
     return false;
   }
   /// The results have been stored: forget these vertices.
@@ -204,6 +226,20 @@ class SampleScheduler {
   /// again. Returns the number of requests made.
   size_t EndPreparation(uint64_t epoch, bool hit, const std::function<bool(VertexId)>& stored = {});
   uint64_t PreparedEpoch() const { return preparedEpoch_; }
+
+  // --- Tests of a move's change (see the file comment) ---
+  /// Queues tests. A vertex already queued for a test takes the new request
+  /// (a newer move's: it replaces the old in place); one in flight is
+  /// tested again with it once answered (CompleteVerified). Returns the
+  /// number newly queued.
+  size_t Verify(std::span<const VerifyRequest> requests);
+  /// The answers have been acted on: forget these vertices (or queue the
+  /// request that arrived while they were in flight).
+  void CompleteVerified(std::span<const VerifiedSample> samples);
+  /// Tests given up because a renderer refused their batch as invalid,
+  /// answered as failing (an infinite change): the caller acts on them as
+  /// on any failed test, then CompleteVerified().
+  std::vector<VerifiedSample> TakeVerifyGivenUp() { return std::exchange(verifyGivenUp_, {}); }
 
   // --- Renderers (events from their links) ---
   /// Connected and past its handshake: it may get work (unless quarantined).
@@ -242,10 +278,10 @@ class SampleScheduler {
   // --- Observation ---
   /// Requested samples queued or in flight (prepared ones not included:
   /// nobody waits for them).
-  size_t Outstanding() const { return size_t(queuedTotal_ + inFlight_); }
+  size_t Outstanding() const { return size_t(queuedTotal_ + inFlight_ + queuedVerify_ + verifyInFlight_); }
   size_t Queued() const { return size_t(queuedTotal_); }
   /// Anything to assemble: requested or prepared samples queued.
-  bool AnyQueued() const { return queuedTotal_ + queuedPrepared_ > 0; }
+  bool AnyQueued() const { return queuedTotal_ + queuedPrepared_ + queuedVerify_ > 0; }
   bool Quarantined(RendererId renderer) const;
   /// How long a renderer must still wait before it may be reconnected.
   std::chrono::milliseconds QuarantineLeft(RendererId renderer) const;
@@ -273,8 +309,15 @@ class SampleScheduler {
     EntryState state = EntryState::kQueued;
     uint64_t batch = 0;
   };
+  struct VerifyEntry {
+    VerifyRequest request;
+    EntryState state = EntryState::kQueued;
+    uint64_t batch = 0;
+    std::optional<VerifyRequest> next;  // arrived while in flight: tested after
+  };
   struct Batch {
     bool prepared = false;  // its vertices are in prepared_, not entries_
+    std::shared_ptr<const VerifyContext> verify;  // set: its vertices are in verify_
     std::vector<VertexId> vertices;
     size_t answered = 0;
     uint32_t paths = 0;  // paths per sample asked for (the renderer's default when the request said 0)
@@ -298,6 +341,8 @@ class SampleScheduler {
   bool Accepts(const Renderer& r, Clock::time_point now) const;
   bool TakeNext(Priority priority, VertexId& out);
   bool TakeNextPrepared(VertexId& out);
+  // The next queued test; with `context`, only one of that context.
+  bool TakeNextVerify(const VerifyContext* context, VertexId& out);
   // Removes every prepared sample not sent yet; returns their requests.
   std::vector<SampleRequest> TakeQueuedPrepared();
   // A queued first estimate not wanted by a view: to the predicted queue if
@@ -310,6 +355,10 @@ class SampleScheduler {
   void Requeue(uint64_t batchId, const Batch& batch, std::vector<ShadedSample>* givenUpIfInvalid);
   void RequeueAll(Renderer& renderer);
   ReplyOutcome Reject(Renderer& renderer, RendererId id, std::string reason);
+  ReplyOutcome OnVerifyReply(Renderer& renderer, RendererId id, std::map<uint64_t, Batch>::iterator batch,
+                             const wire::ShadeReply& reply);
+  // The batch's last part arrived: its renderer's rate, and it is forgotten.
+  void EndBatch(Renderer& renderer, std::map<uint64_t, Batch>::iterator batch);
 
   SampleSchedulerOptions options_;
   Now now_;
@@ -326,6 +375,13 @@ class SampleScheduler {
   uint64_t preparedRequested_ = 0;
   uint64_t preparedShaded_ = 0;
   uint64_t preparedDropped_ = 0;
+  std::unordered_map<VertexId, VerifyEntry> verify_;
+  std::deque<VertexId> verifyQueue_;
+  uint64_t queuedVerify_ = 0;
+  uint64_t verifyInFlight_ = 0;
+  uint64_t verifyRequested_ = 0;
+  uint64_t verified_ = 0;
+  std::vector<VerifiedSample> verifyGivenUp_;
   std::map<RendererId, Renderer> renderers_;  // by id: dispatch order is stable
   uint64_t nextBatchId_ = 1;
   uint64_t lastRequestSerial_ = 0;

@@ -120,6 +120,9 @@ struct InvalidationCandidate {
 struct InvalidatedStatic {
   std::vector<VertexId> direct;
   std::vector<VertexId> indirectOnly;
+  /// Parallel to indirectOnly: each one's tolerance tau (luminance of
+  /// irradiance), for a test of its actual change (VerifyRequest).
+  std::vector<float> indirectOnlyTolerance;
 };
 /// `brightestReflected`: the brightest reflected radiance (luminance) of
 /// every cached sample, which bounds what the volume can block or reflect;
@@ -131,6 +134,15 @@ InvalidatedStatic InvalidatedStaticVertices(const Scene& scene, const ScenePose&
 /// Luminance of a candidate's reflected radiance, albedo/pi E.
 inline float ReflectedLuminance(const InvalidationCandidate& c) { return Luminance(c.albedo * c.irradiance) * kInvPi; }
 
+/// A cached static sample a move is to be tested at instead of invalidated
+/// (InvalidationRule::kTestIndirect): the epoch it was shaded at and its
+/// tolerance.
+struct TestedVertex {
+  VertexId vertex = kNoVertex;
+  uint64_t baselineEpoch = 0;
+  float tolerance = 0.0f;
+};
+
 /// What a move from `oldPose` to `newPose` invalidates.
 struct Invalidation {
   std::vector<VertexId> vertices;  // sorted, each once: the moved objects' vertices and those the test chose
@@ -139,12 +151,19 @@ struct Invalidation {
   /// of `vertices` under InvalidationRule::kEverything): what a viewer
   /// sees change first, re-shaded at visible priority.
   std::vector<VertexId> urgent;
+  /// Under InvalidationRule::kTestIndirect: the indirect-only class, not in
+  /// `vertices`, sorted by baseline epoch then vertex: a renderer measures
+  /// their change (docs/moving-objects.md "A test instead of a bound").
+  std::vector<TestedVertex> tested;
 };
 
 /// How much a move invalidates: what the test chooses, or everything cached
 /// (a full recomputation: the benchmarks' baseline, and a check that needs
 /// every sample shaded at the final pose; --invalidate-all-on-move).
-enum class InvalidationRule { kTest, kEverything };
+/// kTestIndirect: as kTest, but the vertices invalidated only by the
+/// indirect-light bound are to be tested (Invalidation::tested) rather
+/// than invalidated.
+enum class InvalidationRule { kTest, kTestIndirect, kEverything };
 
 /// The poses of recent scene epochs, so that each cached sample can be
 /// judged against the pose it was shaded at (PlanInvalidation). Bounded
@@ -165,7 +184,9 @@ class PoseHistory {
   /// Forgets the oldest poses beyond the byte budget, never the newest.
   void Record(std::shared_ptr<const ScenePose> pose);
   /// The pose recorded for `epoch`, or null (never recorded, or forgotten).
-  const ScenePose* At(uint64_t epoch) const;
+  const ScenePose* At(uint64_t epoch) const { return Shared(epoch).get(); }
+  /// The same, shared (a test's VerifyContext keeps its baseline alive).
+  std::shared_ptr<const ScenePose> Shared(uint64_t epoch) const;
   size_t Size() const { return poses_.size(); }
   size_t Bytes() const { return bytes_; }
   /// The newest recorded epoch; nothing when empty.

@@ -108,6 +108,13 @@ struct SmaOptions {
   /// baseline benchmarks compare with, and what tests that need every
   /// sample shaded at the final pose ask for.
   bool invalidateEverythingOnMove = false;
+  /// Cached samples a move's indirect-light bound would invalidate are
+  /// tested instead (docs/moving-objects.md "A test instead of a bound"):
+  /// held back in the cache (SampleCache::Suspect) while a renderer
+  /// measures their change with `pool.verifyPaths` paired samples, kept when
+  /// |change| + moveTestZ sigma <= tau, shaded again otherwise.
+  /// pool.verifyPaths 0: no test, the bound invalidates them.
+  float moveTestZ = 3.0f;
   /// Movement prediction for moving objects (issue 15; move_prediction.h):
   /// after each move, the next pose is predicted (the animated objects at
   /// their paths' next step) and what it will invalidate and someone needs

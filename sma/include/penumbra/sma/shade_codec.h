@@ -9,7 +9,9 @@
 // Threads: none of their own; any thread may call them.
 
 #include <cstdint>
+#include <cmath>
 #include <memory>
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
@@ -61,6 +63,77 @@ void FillShadeRequest(uint64_t batchId, uint32_t pathsPerSample, std::span<const
 std::shared_ptr<const std::string> EncodeShadeRequestFrame(uint64_t batchId, uint32_t pathsPerSample,
                                                            std::span<const SampleRequest> samples,
                                                            const ScenePose* pose = nullptr);
+
+// --- Verification batches (issue 14, docs/moving-objects.md "A test instead
+// of a bound") ----------------------------------------------------------------
+
+/// A move's test as a verification batch carries it: the change of static
+/// samples' irradiance from `baseline` (the pose they were shaded at) to
+/// `target` (the pose the batch is shaded at), measured through
+/// `regionBoxes` (world space), the boxes that hold every object placed
+/// differently at the two poses. Shared by all the samples it tests.
+struct VerifyContext {
+  std::shared_ptr<const ScenePose> baseline;
+  std::shared_ptr<const ScenePose> target;
+  std::vector<Bounds3> regionBoxes;  // 1 .. kMaxVerifyBoxes
+};
+/// The renderer's limit on region boxes (renderer/shade_batch.h).
+inline constexpr size_t kMaxVerifyBoxes = 16;
+
+/// The test of one static sample: the vertex (request.round is set by the
+/// scheduler: each target epoch draws its own random stream), the cache
+/// generation its suspect sample has (SampleCache::Suspect), and the change
+/// it may have and still be kept (luminance of irradiance).
+struct VerifyRequest {
+  SampleRequest request;
+  std::shared_ptr<const VerifyContext> context;
+  uint32_t generation = 0;
+  float tolerance = 0.0f;
+};
+
+/// A renderer's answer to one test.
+struct VerifiedSample {
+  VertexId vertex = kNoVertex;
+  float change = 0.0f;        // Luminance(E(target)) - Luminance(E(baseline)), first order
+  float changeStdErr = 0.0f;  // its standard error
+  // From the request:
+  uint32_t generation = 0;
+  float tolerance = 0.0f;
+  uint64_t targetEpoch = 0;
+  SampleRequest request;  // round 0: to ask for a reshade when the test fails
+  /// Kept when the change, z standard errors beyond it, is within the
+  /// tolerance: |change| + z sigma <= tolerance (z = 3: a sample that truly
+  /// changes by more than its tolerance passes less than 0.14 % of the time).
+  bool Passes(float z = 3.0f) const {
+    return std::isfinite(change) && std::isfinite(changeStdErr) && std::abs(change) + z * changeStdErr <= tolerance;
+  }
+};
+
+/// The round a test of a move to scene epoch `targetEpoch` asks under (its
+/// wire id's high bits, WireSampleId): above every improvement round, and
+/// different for consecutive epochs so that testing a vertex again after the
+/// next move draws other random numbers.
+constexpr uint16_t VerifyRound(uint64_t targetEpoch) { return uint16_t(0x8000u | (targetEpoch & 0x7fffu)); }
+constexpr bool IsVerifyRound(uint16_t round) { return (round & 0x8000u) != 0; }
+
+/// The boxes that hold every object placed differently at `baseline` and
+/// `target` (WorldBounds at each), for VerifyContext::regionBoxes; nothing
+/// when no object moved or more than kMaxVerifyBoxes boxes would be needed.
+std::optional<std::vector<Bounds3>> VerifyRegionBoxes(const Scene& scene, const ScenePose& baseline,
+                                                      const ScenePose& target);
+
+/// Fills `request` with one verification batch: the samples at the
+/// context's target pose (FillShadeRequest) and its verify_change.
+void FillVerifyRequest(uint64_t batchId, uint32_t pathsPerSample, std::span<const SampleRequest> samples,
+                       const VerifyContext& context, wire::ShadeRequest* request);
+std::shared_ptr<const std::string> EncodeVerifyRequestFrame(uint64_t batchId, uint32_t pathsPerSample,
+                                                            std::span<const SampleRequest> samples,
+                                                            const VerifyContext& context);
+/// A verification reply part: one id, change and standard error per sample
+/// (no radiance), each id once, values finite with a non-negative error.
+/// `vertex`, `change` and `changeStdErr` are filled, with the round of each
+/// id in `rounds` (parallel); the rest is the scheduler's.
+Expected<std::vector<VerifiedSample>> DecodeVerifyReply(const wire::ShadeReply& reply, std::vector<uint16_t>* rounds);
 
 /// OK when a reply part's arrays agree: per sample one id, three radiance,
 /// three irradiance and one standard-error value, and no path counts or one
