@@ -307,6 +307,12 @@ void SampleScheduler::Requeue(uint64_t batchId, const Batch& batch, std::vector<
         continue;
       }
       e->second.state = EntryState::kQueued;
+      // A newer move's test arrived while this one was in flight: send that
+      // one (the older one's cache generation is gone), and only that one.
+      if (e->second.next) {
+        e->second.request = std::move(*e->second.next);
+        e->second.next.reset();
+      }
       ++queuedVerify_;
       ++requeued_;
       verifyQueue_.push_front(*v);

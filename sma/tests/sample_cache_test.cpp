@@ -6,6 +6,8 @@
 
 #include <atomic>
 #include <cmath>
+#include <functional>
+#include <optional>
 #include <thread>
 #include <vector>
 
@@ -278,6 +280,254 @@ TEST(SampleCache, ImprovedSampleKeepsTheOldestEpochItMixes) {
   EXPECT_EQ(cache.Read(0)->epoch, 1u);
   // So a move at epoch 2 evicts it: part of it was shaded at epoch 1.
   EXPECT_TRUE(cache.Invalidate(0, 2));
+}
+
+// A test instead of an invalidation (issue 14, docs/moving-objects.md "A
+// test instead of a bound"): a suspect sample is held back -- unshaded to
+// every reader, awaiting its reshade -- with its values kept, and comes back
+// as it was when its test passes.
+TEST(SampleCache, ASuspectSampleReadsUnshadedAndAPassedTestRestoresItAsItWas) {
+  SampleCache cache;
+  ASSERT_EQ(cache.Store(std::vector{At(0, 1.0f, 1), At(1, 2.0f, 1)}), 2u);
+  ASSERT_EQ(cache.Improve(std::vector{At(0, 3.0f, 2, 1)}).size(), 1u);  // 16 + 16 paths, one round
+  const CachedSample before = *cache.Read(0);
+  ASSERT_EQ(before.paths, 32u);
+  ASSERT_EQ(before.rounds, 1u);
+  ASSERT_EQ(before.epoch, 1u);
+  const uint64_t changes = cache.Changes();
+
+  const std::optional<uint32_t> generation = cache.Suspect(0, 3);
+  ASSERT_TRUE(generation.has_value());
+  EXPECT_EQ(*generation, before.generation + 1);
+  EXPECT_EQ(cache.Generation(0), *generation);
+  EXPECT_GT(cache.Changes(), changes);
+  // Nobody is shown it...
+  EXPECT_FALSE(cache.IsShaded(0));
+  EXPECT_FALSE(cache.Read(0).has_value());
+  EXPECT_EQ(cache.Radiance(0), Rgb(0.0f));
+  EXPECT_EQ(cache.Irradiance(0), Rgb(0.0f));
+  EXPECT_EQ(cache.Paths(0), 0u);
+  EXPECT_EQ(cache.Luminance(0), 0.0f);
+  EXPECT_TRUE(cache.AwaitingReshade(0));
+  EXPECT_TRUE(cache.IsSuspect(0));
+  EXPECT_EQ(cache.ValidFrom(0), 3u);
+  EXPECT_EQ(cache.ShadedCount(), 1u);
+  // ...but it is kept, whole, for the test.
+  const std::optional<CachedSample> kept = cache.ReadSuspect(0);
+  ASSERT_TRUE(kept.has_value());
+  EXPECT_EQ(kept->radiance, before.radiance);
+  EXPECT_EQ(kept->irradiance, before.irradiance);
+  EXPECT_EQ(kept->irradianceStdErr, before.irradianceStdErr);
+  EXPECT_EQ(kept->paths, before.paths);
+  EXPECT_EQ(kept->rounds, before.rounds);
+  EXPECT_EQ(kept->epoch, 1u);
+  EXPECT_EQ(kept->generation, *generation);
+  EXPECT_FALSE(cache.ReadSuspect(1).has_value()) << "not suspect";
+  EXPECT_TRUE(cache.IsShaded(1));
+
+  // The test passed: the same sample, shaded again, at its own pose.
+  EXPECT_TRUE(cache.Confirm(0, *generation));
+  EXPECT_EQ(cache.Confirmed(), 1u);
+  EXPECT_EQ(cache.FailedTests(), 0u);
+  EXPECT_TRUE(cache.IsShaded(0));
+  EXPECT_FALSE(cache.IsSuspect(0));
+  EXPECT_FALSE(cache.AwaitingReshade(0));
+  EXPECT_FALSE(cache.ReadSuspect(0).has_value());
+  EXPECT_EQ(cache.ShadedCount(), 2u);
+  EXPECT_EQ(cache.Reshaded(), 0u) << "kept, not shaded again";
+  const std::optional<CachedSample> after = cache.Read(0);
+  ASSERT_TRUE(after.has_value());
+  EXPECT_EQ(after->radiance, before.radiance);
+  EXPECT_EQ(after->irradiance, before.irradiance);
+  EXPECT_EQ(after->irradianceStdErr, before.irradianceStdErr);
+  EXPECT_EQ(after->paths, before.paths);
+  EXPECT_EQ(after->rounds, before.rounds);
+  EXPECT_EQ(after->epoch, 1u) << "the pose it was shaded at, not the move's";
+  EXPECT_EQ(after->generation, *generation);
+  EXPECT_TRUE(Whole(*after));
+  // Confirmed once only.
+  EXPECT_FALSE(cache.Confirm(0, *generation));
+  EXPECT_FALSE(cache.FailSuspect(0, *generation));
+  EXPECT_EQ(cache.Confirmed(), 1u);
+  EXPECT_EQ(cache.ShadedCount(), 2u);
+  // A reply shaded before the move is still refused, and the next
+  // improvement round is taken.
+  std::vector<VertexId> stale;
+  EXPECT_EQ(cache.Store(std::vector{At(0, 9.0f, 2)}, &stale), 0u);
+  EXPECT_EQ(cache.Radiance(0), before.radiance);
+  EXPECT_EQ(cache.Improve(std::vector{At(0, 3.0f, 3, 2)}).size(), 1u);
+  EXPECT_EQ(cache.Read(0)->epoch, 1u);
+
+  // The next move is judged from the pose it was shaded at: epoch 1.
+  const std::optional<uint32_t> again = cache.Suspect(0, 4);
+  ASSERT_TRUE(again.has_value());
+  EXPECT_EQ(cache.ReadSuspect(0)->epoch, 1u);
+  EXPECT_EQ(cache.ShadedCount(), 1u);
+}
+
+// Whatever wrote the slot since Suspect -- a newer move's test or
+// invalidation, the reshade, eviction, the id freed -- owns it: the late
+// answer of the old test confirms nothing and drops nothing.
+TEST(SampleCache, AnAnswerForAnOlderGenerationConfirmsAndFailsNothing) {
+  struct Case {
+    const char* name;
+    std::function<void(SampleCache&)> writeSince;
+    bool shadedAfter;     // vertex 0, once written since
+    bool awaitingAfter;
+    bool suspectAfter;
+    size_t shadedCountAfter;  // vertex 1 stays shaded throughout
+  };
+  const std::vector<Case> cases{
+      {"a newer move's test", [](SampleCache& c) { ASSERT_TRUE(c.Suspect(0, 4).has_value()); }, false, true, true, 1},
+      {"a newer move's invalidation", [](SampleCache& c) { EXPECT_TRUE(c.Invalidate(0, 4)); }, false, true, false, 1},
+      {"the same move's invalidation", [](SampleCache& c) { EXPECT_TRUE(c.Invalidate(0, 3)); }, false, true, false, 1},
+      {"the reshade at the new pose",
+       [](SampleCache& c) { EXPECT_EQ(c.Store(std::vector{At(0, 7.0f, 3)}), 1u); }, true, false, false, 2},
+      {"eviction", [](SampleCache& c) { EXPECT_TRUE(c.Evict(0)); }, false, true, false, 1},
+      {"the id freed", [](SampleCache& c) { EXPECT_FALSE(c.Forget(0)) << "it read unshaded"; }, false, false, false, 1},
+  };
+  for (const Case& k : cases) {
+    SCOPED_TRACE(k.name);
+    SampleCache cache;
+    ASSERT_EQ(cache.Store(std::vector{At(0, 1.0f, 1), At(1, 2.0f, 1)}), 2u);
+    const std::optional<uint32_t> generation = cache.Suspect(0, 3);
+    ASSERT_TRUE(generation.has_value());
+    k.writeSince(cache);
+    const std::optional<CachedSample> read = cache.Read(0);
+    const uint32_t slotGeneration = cache.Generation(0);
+
+    EXPECT_FALSE(cache.Confirm(0, *generation));
+    EXPECT_FALSE(cache.FailSuspect(0, *generation));
+    // Nothing changed.
+    EXPECT_EQ(cache.Confirmed(), 0u);
+    EXPECT_EQ(cache.FailedTests(), 0u);
+    EXPECT_EQ(cache.Generation(0), slotGeneration);
+    EXPECT_EQ(cache.IsShaded(0), k.shadedAfter);
+    EXPECT_EQ(cache.AwaitingReshade(0), k.awaitingAfter);
+    EXPECT_EQ(cache.IsSuspect(0), k.suspectAfter);
+    EXPECT_EQ(cache.ReadSuspect(0).has_value(), k.suspectAfter);
+    EXPECT_EQ(cache.ShadedCount(), k.shadedCountAfter);
+    EXPECT_EQ(cache.Read(0).has_value(), read.has_value());
+    if (k.shadedAfter) {
+      EXPECT_EQ(cache.Radiance(0), Rgb(7.0f)) << "the reshade stays";
+      EXPECT_EQ(cache.Reshaded(), 1u);
+    }
+    if (k.suspectAfter) {
+      EXPECT_NE(slotGeneration, *generation);
+      EXPECT_EQ(cache.ReadSuspect(0)->epoch, 1u) << "still the sample shaded at epoch 1";
+      EXPECT_EQ(cache.ValidFrom(0), 4u);
+    }
+    if (!k.shadedAfter && !k.suspectAfter) {
+      EXPECT_EQ(cache.Radiance(0), Rgb(0.0f));
+      EXPECT_FALSE(cache.ReadSuspect(0).has_value());
+    }
+  }
+}
+
+// The test failed: the sample is dropped, the vertex waits for its reshade,
+// and only a sample shaded at the move's pose or later is stored.
+TEST(SampleCache, AFailedTestDropsTheSampleAndOnlyTheReshadeAtTheNewPoseIsStored) {
+  SampleCache cache;
+  ASSERT_EQ(cache.Store(std::vector{At(0, 1.0f, 1), At(1, 2.0f, 1)}), 2u);
+  const std::optional<uint32_t> generation = cache.Suspect(0, 3);
+  ASSERT_TRUE(generation.has_value());
+
+  // A reply shaded before the move, arriving during the test: stale.
+  std::vector<VertexId> stale;
+  EXPECT_EQ(cache.Store(std::vector{At(0, 5.0f, 2)}, &stale), 0u);
+  EXPECT_EQ(stale, std::vector<VertexId>{0});
+  EXPECT_TRUE(cache.IsSuspect(0)) << "a stale reply does not end the test";
+  EXPECT_EQ(cache.ReadSuspect(0)->radiance, Rgb(1.0f));
+  // An improvement of a suspect sample is refused too.
+  stale.clear();
+  EXPECT_TRUE(cache.Improve(std::vector{At(0, 5.0f, 3, 1)}, &stale).empty());
+  EXPECT_EQ(stale, std::vector<VertexId>{0});
+  EXPECT_TRUE(cache.IsSuspect(0));
+
+  EXPECT_TRUE(cache.FailSuspect(0, *generation));
+  EXPECT_EQ(cache.FailedTests(), 1u);
+  EXPECT_EQ(cache.Confirmed(), 0u);
+  EXPECT_FALSE(cache.IsSuspect(0));
+  EXPECT_FALSE(cache.ReadSuspect(0).has_value());
+  EXPECT_FALSE(cache.IsShaded(0));
+  EXPECT_FALSE(cache.Read(0).has_value());
+  EXPECT_TRUE(cache.AwaitingReshade(0));
+  EXPECT_EQ(cache.Generation(0), *generation + 1) << "a reader's copy of the suspect sample can tell";
+  EXPECT_EQ(cache.ShadedCount(), 1u);
+  // Failed once only; a confirmation arriving after it keeps nothing.
+  EXPECT_FALSE(cache.FailSuspect(0, *generation));
+  EXPECT_FALSE(cache.Confirm(0, *generation));
+  EXPECT_FALSE(cache.Confirm(0, *generation + 1)) << "not suspect";
+  EXPECT_FALSE(cache.IsShaded(0));
+  EXPECT_EQ(cache.FailedTests(), 1u);
+
+  stale.clear();
+  EXPECT_EQ(cache.Store(std::vector{At(0, 5.0f, 2)}, &stale), 0u);
+  EXPECT_EQ(stale, std::vector<VertexId>{0});
+  EXPECT_EQ(cache.Store(std::vector{At(0, 7.0f, 3)}, &stale), 1u);
+  EXPECT_EQ(stale.size(), 1u);
+  EXPECT_TRUE(cache.IsShaded(0));
+  EXPECT_FALSE(cache.AwaitingReshade(0));
+  EXPECT_EQ(cache.Reshaded(), 1u);
+  EXPECT_EQ(cache.ShadedCount(), 2u);
+  const CachedSample reshaded = *cache.Read(0);
+  EXPECT_EQ(reshaded.radiance, Rgb(7.0f));
+  EXPECT_EQ(reshaded.epoch, 3u);
+  EXPECT_EQ(reshaded.rounds, 0u);
+  EXPECT_EQ(reshaded.paths, 16u);
+}
+
+// Only a sample shaded before the move's epoch is suspected: a vertex with
+// no sample has nothing to test, and one shaded at the move's pose is valid.
+TEST(SampleCache, OnlyASampleShadedBeforeTheEpochIsSuspected) {
+  SampleCache cache;
+  cache.Reserve(8);
+  const size_t memory = cache.MemoryBytes();
+  EXPECT_FALSE(cache.Suspect(5, 3).has_value()) << "its chunk was never written";
+  EXPECT_FALSE(cache.Suspect(100, 3).has_value()) << "beyond the cache";
+  EXPECT_EQ(cache.MemoryBytes(), memory) << "nothing allocated for nothing to test";
+  EXPECT_FALSE(cache.IsSuspect(5));
+  EXPECT_FALSE(cache.AwaitingReshade(5));
+
+  ASSERT_EQ(cache.Store(std::vector{At(0, 1.0f, 3), At(1, 1.0f, 4)}), 2u);
+  EXPECT_FALSE(cache.Suspect(2, 3).has_value()) << "its chunk exists, it was never shaded";
+  EXPECT_FALSE(cache.IsSuspect(2));
+  EXPECT_FALSE(cache.AwaitingReshade(2));
+  const uint32_t generation = cache.Generation(0);
+  EXPECT_FALSE(cache.Suspect(0, 3).has_value()) << "shaded at the move's pose";
+  EXPECT_FALSE(cache.Suspect(1, 3).has_value()) << "shaded after it";
+  for (VertexId v : {0u, 1u}) {
+    EXPECT_TRUE(cache.IsShaded(v)) << v;
+    EXPECT_FALSE(cache.IsSuspect(v)) << v;
+    EXPECT_FALSE(cache.AwaitingReshade(v)) << v;
+  }
+  EXPECT_EQ(cache.Generation(0), generation);
+  EXPECT_EQ(cache.ShadedCount(), 2u);
+  EXPECT_FALSE(cache.Confirm(0, generation)) << "nothing suspect to confirm";
+  EXPECT_FALSE(cache.FailSuspect(0, generation));
+  EXPECT_TRUE(cache.IsShaded(0));
+}
+
+// A suspect sample counts as stored: a move that invalidates it drops it,
+// and the vertex awaits its reshade.
+TEST(SampleCache, InvalidatingASuspectSampleDropsIt) {
+  SampleCache cache;
+  ASSERT_EQ(cache.Store(std::vector{At(0, 1.0f, 1), At(1, 2.0f, 1)}), 2u);
+  ASSERT_TRUE(cache.Suspect(0, 3).has_value());
+  const uint32_t generation = cache.Generation(0);
+  EXPECT_TRUE(cache.Invalidate(0, 5));
+  EXPECT_FALSE(cache.IsSuspect(0));
+  EXPECT_FALSE(cache.ReadSuspect(0).has_value());
+  EXPECT_FALSE(cache.IsShaded(0));
+  EXPECT_TRUE(cache.AwaitingReshade(0));
+  EXPECT_EQ(cache.Generation(0), generation + 1);
+  EXPECT_EQ(cache.ValidFrom(0), 5u);
+  EXPECT_EQ(cache.ShadedCount(), 1u) << "counted out once, by Suspect";
+  EXPECT_FALSE(cache.Invalidate(0, 6)) << "nothing left to drop";
+  EXPECT_FALSE(cache.Suspect(0, 6).has_value()) << "nothing left to test";
+  EXPECT_EQ(cache.Store(std::vector{At(0, 3.0f, 6)}), 1u);
+  EXPECT_EQ(cache.Reshaded(), 1u);
+  EXPECT_EQ(cache.ShadedCount(), 2u);
 }
 
 // Replies and moves race on one slot: whatever the interleaving, no sample

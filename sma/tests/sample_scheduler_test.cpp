@@ -1,13 +1,18 @@
 // The sample scheduler with a fake clock and no socket: requeue on loss,
 // never two requests for a vertex, priorities and interest, credits, a
-// renderer's timeout moving its work, quarantine after a bad reply.
+// renderer's timeout moving its work, quarantine after a bad reply, and the
+// tests of a move's change (Verify), kept apart from shading.
 
 #include <gtest/gtest.h>
 
 #include <chrono>
 #include <cmath>
+#include <functional>
 #include <limits>
+#include <memory>
 #include <set>
+#include <string>
+#include <tuple>
 #include <vector>
 
 #include "penumbra/sma/sample_scheduler.h"
@@ -701,6 +706,444 @@ TEST(SampleScheduler, EndingAPreparationTurnsItsQueuedSamplesIntoRequestsOrDrops
   EXPECT_FALSE(s.AnyAlive(std::vector<VertexId>{10}));
   EXPECT_EQ(s.Counters().queuedPrepared, 0u);
   EXPECT_EQ(s.Counters().preparedDropped, 4u);
+}
+
+// --- Tests of a move's change (Verify) ------------------------------------------
+
+// A move's test as the server makes it: from the pose of epoch `baseline` to
+// the pose of epoch `target`, through one box.
+std::shared_ptr<const VerifyContext> MoveTest(uint64_t baseline, uint64_t target) {
+  auto from = std::make_shared<ScenePose>();
+  from->epoch = baseline;
+  auto to = std::make_shared<ScenePose>();
+  to->epoch = target;
+  Bounds3 box;
+  box.Extend(Vec3(0.0f));
+  box.Extend(Vec3(1.0f));
+  return std::make_shared<const VerifyContext>(VerifyContext{from, to, {box}});
+}
+
+// Tests of vertices first .. first + count - 1 under `context`, asked under
+// the round of its target epoch as the server asks them; each carries a
+// generation and a tolerance of its own (`generation` + v, 0.25 (v + 1)).
+std::vector<VerifyRequest> Tests(VertexId first, VertexId count, const std::shared_ptr<const VerifyContext>& context,
+                                 uint32_t generation = 100) {
+  std::vector<VerifyRequest> out;
+  for (VertexId v = first; v < first + count; ++v) {
+    VerifyRequest t;
+    t.request.vertex = v;
+    t.request.position = Vec3(float(v), 1.0f, 2.0f);
+    t.request.triangle = v + 7;
+    t.request.round = VerifyRound(context->target->epoch);
+    t.context = context;
+    t.generation = generation + v;
+    t.tolerance = 0.25f * float(v + 1);
+    out.push_back(t);
+  }
+  return out;
+}
+
+// The renderer's answer to a verification batch, at the batch's pose: every
+// sample changed by `change`, with standard error 0.01.
+wire::ShadeReply ChangeAnswer(const AssignedBatch& batch, float change = 0.1f, uint32_t remaining = 0) {
+  wire::ShadeReply r;
+  r.set_batch_id(batch.id);
+  r.set_remaining(remaining);
+  r.set_scene_epoch(batch.epoch);
+  for (const SampleRequest& s : batch.samples) {
+    r.add_sample_ids(WireSampleId(s.vertex, s.round));
+    r.add_irradiance_change(change);
+    r.add_irradiance_change_stderr(0.01f);
+  }
+  return r;
+}
+
+// Shading answers at the batch's pose.
+wire::ShadeReply AnswerAtItsEpoch(const AssignedBatch& batch) {
+  wire::ShadeReply r = Answer(batch);
+  r.set_scene_epoch(batch.epoch);
+  return r;
+}
+
+// Tests decide whether a vertex a client holds must be shaded again, so they
+// go after what views need now or soon and before prepared shading and
+// refinement; a batch tests against one move's context only, at its target
+// pose, with the test's paths.
+TEST(SampleScheduler, TestsGoAfterPredictedBeforePreparedAndBackgroundOneContextPerBatch) {
+  FakeClock clock;
+  SampleSchedulerOptions o = Options();
+  o.verifyPaths = 24;
+  SampleScheduler s(o, clock.Function());
+  s.SetEpoch(7);
+  const auto first = MoveTest(5, 6), second = MoveTest(4, 7);
+  s.Request(Requests(0, 4), Priority::kBackground);
+  EXPECT_EQ(s.Verify(Tests(10, 3, first)), 3u);
+  EXPECT_EQ(s.Verify(Tests(20, 2, second)), 2u);
+  EXPECT_EQ(s.Prepare(Requests(30, 2), 8), 2u);
+  s.Request(Requests(100, 4), Priority::kPredicted);
+  s.Request(Requests(200, 2), Priority::kVisible);
+  EXPECT_EQ(s.Counters().queuedVerify, 5u);
+  EXPECT_EQ(s.Counters().verifyRequested, 5u);
+  EXPECT_EQ(s.Outstanding(), 4u + 5u + 4u + 2u) << "tests are outstanding work, prepared samples are not";
+  EXPECT_TRUE(s.AnyAlive(std::vector<VertexId>{21}));
+  EXPECT_FALSE(s.AnyAlive(std::vector<VertexId>{22}));
+  s.RendererReady(1, kOneCredit);
+
+  std::vector<AssignedBatch> order;
+  for (int i = 0; i < 6; ++i) {
+    auto batches = s.Assemble();
+    ASSERT_EQ(batches.size(), 1u) << "one credit";
+    const AssignedBatch& b = batches[0];
+    order.push_back(b);
+    auto outcome = s.OnReply(1, b.verify ? ChangeAnswer(b) : AnswerAtItsEpoch(b));
+    ASSERT_FALSE(outcome.badReply) << *outcome.badReply;
+    if (b.verify) {
+      EXPECT_TRUE(outcome.results.empty());
+      EXPECT_TRUE(outcome.prepared.empty());
+      EXPECT_EQ(outcome.verified.size(), b.samples.size());
+      s.CompleteVerified(outcome.verified);
+    } else {
+      EXPECT_TRUE(outcome.verified.empty());
+      s.Complete(outcome.results);
+      s.CompletePrepared(outcome.prepared);
+    }
+  }
+  EXPECT_TRUE(s.Assemble().empty());
+  EXPECT_EQ(VerticesOf({order[0]}), (std::set<VertexId>{200, 201})) << "visible";
+  EXPECT_EQ(VerticesOf({order[1]}), (std::set<VertexId>{100, 101, 102, 103})) << "predicted";
+  EXPECT_EQ(VerticesOf({order[2]}), (std::set<VertexId>{10, 11, 12})) << "the first move's tests";
+  EXPECT_EQ(VerticesOf({order[3]}), (std::set<VertexId>{20, 21})) << "the second move's, in a batch of their own";
+  EXPECT_EQ(VerticesOf({order[4]}), (std::set<VertexId>{30, 31})) << "prepared";
+  EXPECT_EQ(VerticesOf({order[5]}), (std::set<VertexId>{0, 1, 2, 3})) << "background";
+  for (int i : {0, 1, 4, 5}) EXPECT_EQ(order[size_t(i)].verify, nullptr) << i;
+  EXPECT_EQ(order[2].verify, first);
+  EXPECT_EQ(order[3].verify, second);
+  EXPECT_EQ(order[2].epoch, 6u) << "the context's target pose, not the current epoch";
+  EXPECT_EQ(order[3].epoch, 7u);
+  for (int i : {2, 3}) {
+    const AssignedBatch& b = order[size_t(i)];
+    ASSERT_NE(b.verify, nullptr) << i;
+    EXPECT_FALSE(b.prepared);
+    EXPECT_EQ(b.pathsPerSample, 24u) << "the test's paths";
+    for (const SampleRequest& r : b.samples) EXPECT_EQ(r.round, VerifyRound(b.verify->target->epoch));
+  }
+  EXPECT_EQ(order[4].epoch, 8u);
+  EXPECT_EQ(order[5].epoch, 7u);
+  EXPECT_EQ(order[5].pathsPerSample, 100u);
+  EXPECT_EQ(s.Counters().verified, 5u);
+  EXPECT_EQ(s.Counters().queuedVerify, 0u);
+  EXPECT_EQ(s.Outstanding(), 0u);
+  EXPECT_FALSE(s.AnyAlive(std::vector<VertexId>{10, 11, 12, 20, 21}));
+}
+
+// An answer carries the change and its standard error from the renderer and
+// the rest from its request: the cache generation to confirm or fail, the
+// tolerance, the pose it was tested at, and the request to shade again (as
+// a first estimate) when it fails. A batch may come back in parts.
+TEST(SampleScheduler, AnsweredTestsComeBackApartWithWhatTheirRequestsCarried) {
+  FakeClock clock;
+  SampleScheduler s(Options(), clock.Function());
+  s.SetEpoch(6);
+  const auto move = MoveTest(5, 6);
+  s.Verify(Tests(10, 3, move));
+  s.RendererReady(1, kOneCredit);
+  auto batches = s.Assemble();
+  ASSERT_EQ(batches.size(), 1u);
+  ASSERT_EQ(batches[0].samples.size(), 3u);
+  EXPECT_EQ(s.Outstanding(), 3u) << "in flight";
+  EXPECT_EQ(s.Request(Requests(10, 1), Priority::kVisible), 1u) << "a test and a request are apart";
+  s.RendererReady(2, kOneCredit);
+  auto shading = s.Assemble();
+  ASSERT_EQ(shading.size(), 1u);
+  ASSERT_EQ(shading[0].verify, nullptr);
+
+  AssignedBatch firstPart = batches[0], rest = batches[0];
+  firstPart.samples.resize(1);
+  rest.samples.erase(rest.samples.begin());
+  wire::ShadeReply part = ChangeAnswer(firstPart, -0.2f, /*remaining=*/2);
+  part.set_irradiance_change_stderr(0, 0.05f);
+  auto outcome = s.OnReply(1, part);
+  ASSERT_FALSE(outcome.badReply) << *outcome.badReply;
+  EXPECT_FALSE(outcome.batchDone);
+  EXPECT_TRUE(outcome.results.empty());
+  ASSERT_EQ(outcome.verified.size(), 1u);
+  std::vector<VerifiedSample> verified = outcome.verified;
+  outcome = s.OnReply(1, ChangeAnswer(rest, 0.3f));
+  ASSERT_FALSE(outcome.badReply) << *outcome.badReply;
+  EXPECT_TRUE(outcome.batchDone);
+  ASSERT_EQ(outcome.verified.size(), 2u);
+  verified.insert(verified.end(), outcome.verified.begin(), outcome.verified.end());
+
+  const std::vector<VerifyRequest> asked = Tests(10, 3, move);
+  for (size_t i = 0; i < verified.size(); ++i) {
+    const VerifiedSample& v = verified[i];
+    const VerifyRequest& a = asked[v.vertex - 10];
+    SCOPED_TRACE(v.vertex);
+    EXPECT_EQ(v.vertex, batches[0].samples[i].vertex);
+    EXPECT_EQ(v.change, i == 0 ? -0.2f : 0.3f);
+    EXPECT_EQ(v.changeStdErr, i == 0 ? 0.05f : 0.01f);
+    EXPECT_EQ(v.generation, a.generation);
+    EXPECT_EQ(v.tolerance, a.tolerance);
+    EXPECT_EQ(v.targetEpoch, 6u);
+    EXPECT_EQ(v.request.vertex, v.vertex);
+    EXPECT_EQ(v.request.position, a.request.position);
+    EXPECT_EQ(v.request.triangle, a.request.triangle);
+    EXPECT_EQ(v.request.round, 0u) << "shaded again as a first estimate";
+  }
+  // Answered, not yet acted on: still alive, no longer outstanding.
+  EXPECT_EQ(s.Outstanding(), 1u) << "the shading request only";
+  EXPECT_TRUE(s.AnyAlive(std::vector<VertexId>{11}));
+  EXPECT_EQ(s.Counters().verified, 3u);
+  EXPECT_EQ(s.Load(1).samplesShaded, 3u);
+  EXPECT_EQ(s.Load(1).samplesInFlight, 0u);
+  s.CompleteVerified(verified);
+  EXPECT_FALSE(s.AnyAlive(std::vector<VertexId>{11}));
+  EXPECT_TRUE(s.AnyAlive(std::vector<VertexId>{10})) << "its shading request is still alive";
+  auto shaded = s.OnReply(2, AnswerAtItsEpoch(shading[0]));
+  ASSERT_FALSE(shaded.badReply) << *shaded.badReply;
+  EXPECT_EQ(shaded.results.size(), 1u);
+  EXPECT_TRUE(shaded.verified.empty());
+}
+
+// A test's answer is checked like a shading answer: anything not asked, a
+// value that is not a number or more than the scene's brightest irradiance,
+// or a shading answer, is a bad reply -- the renderer is quarantined and
+// every test it had goes back to the queue, none lost.
+TEST(SampleScheduler, BadTestRepliesQuarantineTheRendererAndRequeueTheTests) {
+  FakeClock clock;
+  SampleScheduler s(Options(), clock.Function());  // maxIrradiance 40
+  s.SetEpoch(6);
+  const auto move = MoveTest(5, 6);
+  s.Verify(Tests(10, 3, move));
+  using Spoil = std::function<void(wire::ShadeReply&, const AssignedBatch&)>;
+  const std::vector<std::tuple<std::string, Spoil, std::string>> spoilers{
+      {"another round",
+       [](wire::ShadeReply& r, const AssignedBatch& b) {
+         r.set_sample_ids(1, WireSampleId(b.samples[1].vertex, VerifyRound(7)));
+       },
+       "not asked to test"},
+      {"a vertex not tested",
+       [](wire::ShadeReply& r, const AssignedBatch& b) { r.set_sample_ids(1, WireSampleId(99, b.samples[1].round)); },
+       "not asked to test"},
+      {"a first estimate's id",
+       [](wire::ShadeReply& r, const AssignedBatch& b) { r.set_sample_ids(1, WireSampleId(b.samples[1].vertex, 0)); },
+       "not asked to test"},
+      {"not a number", [](wire::ShadeReply& r, const AssignedBatch&) { r.set_irradiance_change(1, std::nanf("")); },
+       "impossible"},
+      {"an infinite change",
+       [](wire::ShadeReply& r, const AssignedBatch&) {
+         r.set_irradiance_change(2, -std::numeric_limits<float>::infinity());
+       },
+       "impossible"},
+      {"a negative error", [](wire::ShadeReply& r, const AssignedBatch&) { r.set_irradiance_change_stderr(1, -0.5f); },
+       "impossible"},
+      {"brighter than the brightest", [](wire::ShadeReply& r, const AssignedBatch&) { r.set_irradiance_change(1, 41.0f); },
+       "exceeds the scene's brightest irradiance"},
+      {"darker than the darkest",
+       [](wire::ShadeReply& r, const AssignedBatch&) { r.set_irradiance_change(1, -41.0f); },
+       "exceeds the scene's brightest irradiance"},
+      {"an error beyond it",
+       [](wire::ShadeReply& r, const AssignedBatch&) { r.set_irradiance_change_stderr(2, 41.0f); },
+       "exceeds the scene's brightest irradiance"},
+      {"a shading answer", [](wire::ShadeReply& r, const AssignedBatch& b) { r = AnswerAtItsEpoch(b); },
+       "inconsistent verification arrays"},
+      {"another pose", [](wire::ShadeReply& r, const AssignedBatch&) { r.set_scene_epoch(5); }, "scene epoch 5"},
+      {"one short",
+       [](wire::ShadeReply& r, const AssignedBatch&) {
+         r.mutable_sample_ids()->RemoveLast();
+         r.mutable_irradiance_change()->RemoveLast();
+         r.mutable_irradiance_change_stderr()->RemoveLast();
+       },
+       "ended with 2 of 3"},
+  };
+  RendererId renderer = 0;
+  uint64_t requeued = 0, rejected = 0;
+  for (const auto& [name, spoil, mention] : spoilers) {
+    SCOPED_TRACE(name);
+    s.RendererReady(++renderer, kOneCredit);  // the ones before are quarantined
+    auto batches = s.Assemble();
+    ASSERT_EQ(batches.size(), 1u);
+    ASSERT_EQ(batches[0].renderer, renderer);
+    ASSERT_EQ(batches[0].verify, move);
+    ASSERT_EQ(VerticesOf(batches), (std::set<VertexId>{10, 11, 12})) << "every test back, none lost";
+    wire::ShadeReply reply = ChangeAnswer(batches[0]);
+    spoil(reply, batches[0]);
+    auto outcome = s.OnReply(renderer, reply);
+    ASSERT_TRUE(outcome.badReply);
+    EXPECT_NE(outcome.badReply->find(mention), std::string::npos) << *outcome.badReply;
+    EXPECT_TRUE(outcome.verified.empty()) << "nothing of a bad part is taken";
+    EXPECT_TRUE(s.Quarantined(renderer));
+    EXPECT_EQ(s.Load(renderer).badReplies, 1u);
+    EXPECT_EQ(s.Counters().requeued, requeued += 3);
+    if (mention.starts_with("exceeds")) ++rejected;
+    EXPECT_EQ(s.Counters().rejected, rejected);
+    EXPECT_EQ(s.Counters().queuedVerify, 3u);
+    EXPECT_EQ(s.Counters().verified, 0u);
+    EXPECT_EQ(s.Outstanding(), 3u);
+  }
+  s.RendererReady(++renderer, kOneCredit);
+  auto batches = s.Assemble();
+  ASSERT_EQ(batches.size(), 1u);
+  auto outcome = s.OnReply(renderer, ChangeAnswer(batches[0]));
+  ASSERT_FALSE(outcome.badReply) << *outcome.badReply;
+  EXPECT_EQ(outcome.verified.size(), 3u);
+}
+
+// A renderer lost, or a batch refused for a passing reason, puts its tests
+// back; a batch refused as invalid gives them up as failing (an infinite
+// change), so that their vertices are shaded again rather than waited for.
+TEST(SampleScheduler, ALostRendererRequeuesItsTestsAndAnInvalidRefusalGivesThemUpAsFailing) {
+  FakeClock clock;
+  SampleScheduler s(Options(), clock.Function());
+  const auto move = MoveTest(5, 6);
+  s.Verify(Tests(10, 3, move));
+  s.RendererReady(1, kOneCredit);
+  auto batches = s.Assemble();
+  ASSERT_EQ(batches.size(), 1u);
+  EXPECT_EQ(s.Counters().queuedVerify, 0u);
+  EXPECT_EQ(s.RendererLost(1), 3u);
+  EXPECT_EQ(s.Counters().requeued, 3u);
+  EXPECT_EQ(s.Counters().queuedVerify, 3u);
+  EXPECT_EQ(s.Outstanding(), 3u);
+  EXPECT_EQ(s.Load(1).failures, 1u);
+
+  s.RendererReady(2, kOneCredit);
+  batches = s.Assemble();
+  ASSERT_EQ(batches.size(), 1u);
+  EXPECT_EQ(batches[0].renderer, 2u);
+  EXPECT_EQ(batches[0].verify, move);
+  EXPECT_EQ(VerticesOf(batches), (std::set<VertexId>{10, 11, 12}));
+  auto refused = s.OnBatchRefused(2, batches[0].id, /*invalid=*/false);
+  ASSERT_TRUE(refused.has_value());
+  EXPECT_TRUE(refused->empty());
+  EXPECT_TRUE(s.TakeVerifyGivenUp().empty()) << "requeued, not given up";
+  EXPECT_EQ(s.Counters().requeued, 6u);
+  EXPECT_EQ(s.Outstanding(), 3u);
+
+  batches = s.Assemble();
+  ASSERT_EQ(batches.size(), 1u);
+  EXPECT_EQ(VerticesOf(batches), (std::set<VertexId>{10, 11, 12}));
+  refused = s.OnBatchRefused(2, batches[0].id, /*invalid=*/true);
+  ASSERT_TRUE(refused.has_value());
+  EXPECT_TRUE(refused->empty()) << "no black sample stored for a test";
+  EXPECT_EQ(s.Counters().failed, 0u);
+  EXPECT_EQ(s.Outstanding(), 0u);
+  EXPECT_FALSE(s.AnyQueued());
+  EXPECT_TRUE(s.Assemble().empty());
+  const std::vector<VerifiedSample> givenUp = s.TakeVerifyGivenUp();
+  ASSERT_EQ(givenUp.size(), 3u);
+  EXPECT_TRUE(s.TakeVerifyGivenUp().empty()) << "taken once";
+  const std::vector<VerifyRequest> asked = Tests(10, 3, move);
+  std::set<VertexId> vertices;
+  for (const VerifiedSample& v : givenUp) {
+    SCOPED_TRACE(v.vertex);
+    vertices.insert(v.vertex);
+    const VerifyRequest& a = asked[v.vertex - 10];
+    EXPECT_TRUE(std::isinf(v.change));
+    EXPECT_FALSE(v.Passes());
+    EXPECT_FALSE(v.Passes(0.0f));
+    EXPECT_EQ(v.generation, a.generation);
+    EXPECT_EQ(v.tolerance, a.tolerance);
+    EXPECT_EQ(v.targetEpoch, 6u);
+    EXPECT_EQ(v.request.vertex, v.vertex);
+    EXPECT_EQ(v.request.position, a.request.position);
+    EXPECT_EQ(v.request.round, 0u);
+  }
+  EXPECT_EQ(vertices, (std::set<VertexId>{10, 11, 12}));
+  EXPECT_TRUE(s.AnyAlive(std::vector<VertexId>{10})) << "until acted on";
+  s.CompleteVerified(givenUp);
+  EXPECT_FALSE(s.AnyAlive(std::vector<VertexId>{10, 11, 12}));
+  EXPECT_FALSE(s.OnBatchRefused(2, batches[0].id, true).has_value()) << "not in flight any more";
+}
+
+// One test per vertex at a time: a newer move's test of a queued vertex
+// takes the old one's place; one of a vertex whose test is in flight (or
+// answered, not yet acted on) waits for CompleteVerified.
+TEST(SampleScheduler, ATestAskedAgainReplacesAQueuedOneAndWaitsForOneInFlight) {
+  FakeClock clock;
+  SampleScheduler s(Options(), clock.Function());
+  const auto moveA = MoveTest(1, 2), moveB = MoveTest(2, 3), moveC = MoveTest(3, 4), moveD = MoveTest(4, 5);
+  EXPECT_EQ(s.Verify(Tests(0, 1, moveA, 100)), 1u);
+  EXPECT_EQ(s.Verify(Tests(0, 1, moveB, 200)), 0u) << "replaces the queued test";
+  EXPECT_EQ(s.Verify(std::vector<VerifyRequest>{VerifyRequest{}}), 0u) << "no context: nothing to test";
+  EXPECT_EQ(s.Counters().queuedVerify, 1u);
+  EXPECT_EQ(s.Counters().verifyRequested, 1u);
+  EXPECT_EQ(s.Outstanding(), 1u);
+  s.RendererReady(1, RendererCapacity{4, 1000, 32});
+  auto batches = s.Assemble();
+  ASSERT_EQ(batches.size(), 1u);
+  ASSERT_EQ(batches[0].samples.size(), 1u);
+  EXPECT_EQ(batches[0].verify, moveB);
+  EXPECT_EQ(batches[0].epoch, 3u);
+  EXPECT_EQ(batches[0].samples[0].round, VerifyRound(3));
+
+  EXPECT_EQ(s.Verify(Tests(0, 1, moveC, 300)), 0u);
+  EXPECT_FALSE(s.AnyQueued()) << "not tested twice at once";
+  EXPECT_TRUE(s.Assemble().empty());
+  auto outcome = s.OnReply(1, ChangeAnswer(batches[0]));
+  ASSERT_FALSE(outcome.badReply) << *outcome.badReply;
+  ASSERT_EQ(outcome.verified.size(), 1u);
+  EXPECT_EQ(outcome.verified[0].generation, 200u);
+  EXPECT_EQ(outcome.verified[0].targetEpoch, 3u);
+  EXPECT_TRUE(s.Assemble().empty()) << "answered, not yet acted on";
+  s.CompleteVerified(outcome.verified);
+  EXPECT_EQ(s.Counters().queuedVerify, 1u);
+  EXPECT_EQ(s.Outstanding(), 1u);
+  batches = s.Assemble();
+  ASSERT_EQ(batches.size(), 1u);
+  EXPECT_EQ(batches[0].verify, moveC);
+  EXPECT_EQ(batches[0].epoch, 4u);
+  EXPECT_EQ(batches[0].samples[0].round, VerifyRound(4));
+
+  // Answered, and asked again before it is acted on.
+  outcome = s.OnReply(1, ChangeAnswer(batches[0]));
+  ASSERT_EQ(outcome.verified.size(), 1u);
+  EXPECT_EQ(outcome.verified[0].generation, 300u);
+  EXPECT_EQ(s.Verify(Tests(0, 1, moveD, 400)), 0u);
+  EXPECT_TRUE(s.Assemble().empty());
+  s.CompleteVerified(outcome.verified);
+  batches = s.Assemble();
+  ASSERT_EQ(batches.size(), 1u);
+  EXPECT_EQ(batches[0].verify, moveD);
+  outcome = s.OnReply(1, ChangeAnswer(batches[0]));
+  ASSERT_EQ(outcome.verified.size(), 1u);
+  EXPECT_EQ(outcome.verified[0].generation, 400u);
+  s.CompleteVerified(outcome.verified);
+  EXPECT_FALSE(s.AnyAlive(std::vector<VertexId>{0}));
+  EXPECT_FALSE(s.AnyQueued());
+  EXPECT_EQ(s.Outstanding(), 0u);
+  // A stale completion (of a vertex no longer tested) changes nothing.
+  s.CompleteVerified(outcome.verified);
+  EXPECT_FALSE(s.AnyQueued());
+}
+
+// A test requeued (its renderer lost) while a newer move's test of the same
+// vertex waited for it is sent as the newer one: the older would only be
+// answered for a cache generation that is gone.
+TEST(SampleScheduler, ARequeuedTestIsSentAsTheNewerTestThatWaitedForIt) {
+  FakeClock clock;
+  SampleScheduler s(Options(), clock.Function());
+  const auto moveA = MoveTest(1, 2), moveB = MoveTest(2, 3);
+  s.Verify(Tests(0, 1, moveA, 100));
+  s.RendererReady(1, kOneCredit);
+  auto batches = s.Assemble();
+  ASSERT_EQ(batches.size(), 1u);
+  EXPECT_EQ(batches[0].verify, moveA);
+  EXPECT_EQ(s.Verify(Tests(0, 1, moveB, 200)), 0u);
+  EXPECT_EQ(s.RendererLost(1), 1u);
+  s.RendererReady(2, kOneCredit);
+  batches = s.Assemble();
+  ASSERT_EQ(batches.size(), 1u);
+  EXPECT_EQ(batches[0].verify, moveB);
+  EXPECT_EQ(batches[0].epoch, 3u);
+  EXPECT_EQ(batches[0].samples[0].round, VerifyRound(3));
+  auto outcome = s.OnReply(2, ChangeAnswer(batches[0]));
+  ASSERT_FALSE(outcome.badReply) << *outcome.badReply;
+  ASSERT_EQ(outcome.verified.size(), 1u);
+  EXPECT_EQ(outcome.verified[0].generation, 200u);
+  s.CompleteVerified(outcome.verified);
+  EXPECT_FALSE(s.AnyQueued()) << "the older test is not sent after it";
+  EXPECT_FALSE(s.AnyAlive(std::vector<VertexId>{0}));
 }
 
 }  // namespace

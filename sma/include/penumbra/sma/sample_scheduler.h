@@ -230,8 +230,9 @@ class SampleScheduler {
   // --- Tests of a move's change (see the file comment) ---
   /// Queues tests. A vertex already queued for a test takes the new request
   /// (a newer move's: it replaces the old in place); one in flight is
-  /// tested again with it once answered (CompleteVerified). Returns the
-  /// number newly queued.
+  /// tested again with it once answered (CompleteVerified), or with it
+  /// instead when the old test goes back to the queue (a renderer lost).
+  /// Returns the number newly queued.
   size_t Verify(std::span<const VerifyRequest> requests);
   /// The answers have been acted on: forget these vertices (or queue the
   /// request that arrived while they were in flight).
