@@ -57,10 +57,12 @@ struct Stack {
 // Renderers with few bounces (fast) and an SMA that refines a little and
 // improves displayed samples until their standard error is below 3 %, so
 // converged radiance is comparable across stacks within a stated noise.
-Stack StartStack(const std::string& scene, int rendererCount, const std::string& tag) {
+Stack StartStack(const std::string& scene, int rendererCount, const std::string& tag,
+                 const std::vector<std::string>& extraSmaArgs = {}) {
   Stack stack;
   std::vector<std::string> smaArgs = {"--scene", scene, "--criterion", "nld_os", "--max-refine-depth", "2",
                                       "--improve-target-error", "0.03", "--improve-max-paths", "2048"};
+  smaArgs.insert(smaArgs.end(), extraSmaArgs.begin(), extraSmaArgs.end());
   for (int i = 0; i < rendererCount; ++i) {
     stack.renderers.push_back(MustStart(PENUMBRA_RENDERER_EXE,
                                         {"--scene", scene, "--threads", "1", "--spp", "32", "--max-bounces", "2"},
@@ -251,9 +253,12 @@ std::multimap<PlaceKey, HeldSample> FreshStackSamples(const RigidTransform& boxA
 class MovingObjectsTest : public ::testing::Test {};
 
 // (a) + (b): after a move and convergence, every held sample agrees with a
-// fresh stack started with the box at its new place.
-TEST_F(MovingObjectsTest, AMovedBoxConvergesToWhatAFreshStackComputes) {
-  Stack stack = StartStack(kFloating, 1, "moved");
+// fresh stack started with the box at its new place. `smaArgs` choose how
+// the move's invalidation decides; with `expectTestsKept`, some samples must
+// have been kept by a renderer's test of their change (so the comparison
+// covers what the test kept, not only what was shaded again).
+void CheckAMovedBoxConvergesToWhatAFreshStackComputes(const std::vector<std::string>& smaArgs, bool expectTestsKept) {
+  Stack stack = StartStack(kFloating, 1, "moved", smaArgs);
   auto client = SmaTestClient::Connect(stack.sma.port, "mover");
   ASSERT_TRUE(client.ok()) << client.error().message;
   const wire::MovableObjectInfo* box = FindObject(client->Info(), "box");
@@ -277,6 +282,16 @@ TEST_F(MovingObjectsTest, AMovedBoxConvergesToWhatAFreshStackComputes) {
   auto epoch = client->Counter("scene_epoch");
   ASSERT_TRUE(epoch.ok()) << epoch.error().message;
   EXPECT_EQ(*epoch, 1.0);
+  auto tested = client->Counter("samples_tested");
+  auto kept = client->Counter("tests_kept");
+  auto failed = client->Counter("tests_failed");
+  ASSERT_TRUE(tested.ok() && kept.ok() && failed.ok());
+  std::printf("the move's test: %.0f samples held back, %.0f kept, %.0f shaded again\n", *tested, *kept, *failed);
+  if (expectTestsKept) {
+    EXPECT_GT(*kept, 0.0) << "no sample was kept by a test: the comparison does not cover the test";
+  } else {
+    EXPECT_EQ(*tested, 0.0);
+  }
   const auto after = SamplesByPlace(*client);
 
   const auto fresh = FreshStackSamples(target, "front");
@@ -293,6 +308,22 @@ TEST_F(MovingObjectsTest, AMovedBoxConvergesToWhatAFreshStackComputes) {
   // the fresh stack where the shadow moved.
   EXPECT_GT(stale.outside, 0u) << "the move changed nothing the comparison can see";
   ASSERT_TRUE(stack.sma.process.Running()) << stack.sma.process.LogTail();
+}
+
+// The default: the indirect class is tested, the direct class re-shaded.
+TEST_F(MovingObjectsTest, AMovedBoxConvergesToWhatAFreshStackComputes) {
+  CheckAMovedBoxConvergesToWhatAFreshStackComputes({}, /*expectTestsKept=*/true);
+}
+
+// The direct class tested too (--move-test-direct): samples in the box's
+// shafts are kept only where their light did not change.
+TEST_F(MovingObjectsTest, AMovedBoxConvergesToWhatAFreshStackComputesWithTheDirectClassTestedToo) {
+  CheckAMovedBoxConvergesToWhatAFreshStackComputes({"--move-test-direct", "true"}, /*expectTestsKept=*/true);
+}
+
+// Without the test, the bound alone invalidates (--move-test-paths 0).
+TEST_F(MovingObjectsTest, AMovedBoxConvergesToWhatAFreshStackComputesWithTheBoundAlone) {
+  CheckAMovedBoxConvergesToWhatAFreshStackComputes({"--move-test-paths", "0"}, /*expectTestsKept=*/false);
 }
 
 // (c) Two clients of the same SMA both see the move, and hold the same

@@ -63,6 +63,9 @@ int main(int argc, char** argv) {
                  "Paired samples of the test that keeps a static sample a move's indirect-light bound would "
                  "invalidate (0: no test, the bound invalidates it)")
       ->check(CLI::Range(0u, 1u << 16))->capture_default_str();
+  app.add_option("--move-test-direct", options.moveTestDirect,
+                 "Also test the samples whose direct light a move may change, instead of re-shading them at once")
+      ->capture_default_str();
   app.add_option("--credits", options.pool.creditsPerRenderer, "Batches in flight per renderer")
       ->check(CLI::Range(1u, 1024u))->capture_default_str();
   app.add_option("--max-batch", options.pool.maxBatchSamples, "Largest batch sent to a renderer")

@@ -188,6 +188,11 @@ std::vector<SampleRequest> SampleScheduler::TakeQueuedPrepared() {
 
 // --- Tests of a move's change ------------------------------------------------------
 
+namespace {
+// Cache slot generations only rise (modulo 2^32).
+bool NotOlder(uint32_t a, uint32_t b) { return int32_t(a - b) >= 0; }
+}  // namespace
+
 size_t SampleScheduler::Verify(std::span<const VerifyRequest> requests) {
   size_t added = 0;
   for (const VerifyRequest& r : requests) {
@@ -200,8 +205,13 @@ size_t SampleScheduler::Verify(std::span<const VerifyRequest> requests) {
       ++queuedVerify_;
       ++added;
     } else if (e.state == EntryState::kQueued) {
-      e.request = r;  // a newer move's test replaces the one not sent yet, in its place
-    } else {
+      // A newer move's test replaces the one not sent yet, in its place.
+      if (NotOlder(r.generation, e.request.generation)) e.request = r;
+    } else if (NotOlder(r.generation, e.request.generation) && (!e.next || NotOlder(r.generation, e.next->generation))) {
+      // Tested once the one in flight is answered. A request for an older
+      // generation than one already asked for (a retest of a sample a later
+      // move has suspected again, racing that move) is of no use: its answer
+      // would find the slot changed.
       e.next = r;
     }
   }
@@ -303,6 +313,8 @@ void SampleScheduler::Requeue(uint64_t batchId, const Batch& batch, std::vector<
         failed.targetEpoch = batch.epoch;
         failed.request = e->second.request.request;
         failed.request.round = 0;
+        failed.testRound = e->second.request.request.round;
+        failed.context = e->second.request.context;
         verifyGivenUp_.push_back(failed);
         continue;
       }
@@ -494,6 +506,8 @@ ReplyOutcome SampleScheduler::OnVerifyReply(Renderer& renderer, RendererId id, s
     answer.targetEpoch = batch.epoch;
     answer.request = asked.request;
     answer.request.round = 0;
+    answer.testRound = asked.request.round;
+    answer.context = asked.context;
   }
   const size_t n = decoded->size();
   if (reply.remaining() == 0 && batch.answered + n != batch.vertices.size())
@@ -670,7 +684,8 @@ std::vector<AssignedBatch> SampleScheduler::Assemble() {
       // Predicted and prepared samples are the first estimates a coming view
       // or move will show.
       const bool firstEstimate = prepared || priority == Priority::kVisible || priority == Priority::kPredicted;
-      const uint32_t paths = verify                                           ? options_.verifyPaths
+      const uint32_t paths = verify                                           ? (verify->paths > 0 ? verify->paths
+                                                                                                   : options_.verifyPaths)
                              : priority == Priority::kImprove                  ? options_.improvePaths
                              : firstEstimate && options_.firstPaths > 0 ? options_.firstPaths
                                                                         : options_.pathsPerSample;

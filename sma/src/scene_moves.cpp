@@ -177,7 +177,11 @@ InvalidatedStatic InvalidatedStaticVertices(const Scene& scene, const ScenePose&
     return out;
   }
   out.direct.reserve(chosen->direct.size());
-  for (uint32_t i : chosen->direct) out.direct.push_back(candidates[i].vertex);
+  out.directTolerance.reserve(chosen->direct.size());
+  for (uint32_t i : chosen->direct) {
+    out.direct.push_back(candidates[i].vertex);
+    out.directTolerance.push_back(params.Tolerance(irradiance[i], stdErr[i]));
+  }
   out.indirectOnly.reserve(chosen->indirectOnly.size());
   out.indirectOnlyTolerance.reserve(chosen->indirectOnly.size());
   for (uint32_t i : chosen->indirectOnly) {
@@ -292,14 +296,26 @@ Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cac
     if (objects.empty()) continue;  // every object is back where it was when these were shaded
     const InvalidatedStatic chosen =
         InvalidatedStaticVertices(scene, shadedAt, newPose, objects, candidates, brightest);
-    out.vertices.insert(out.vertices.end(), chosen.direct.begin(), chosen.direct.end());
-    if (rule == InvalidationRule::kTestIndirect) {
+    const size_t testedBefore = out.tested.size();
+    if (rule == InvalidationRule::kTestIndirect || rule == InvalidationRule::kTestAll) {
       for (size_t i = 0; i < chosen.indirectOnly.size(); ++i)
-        out.tested.push_back(TestedVertex{chosen.indirectOnly[i], epoch, chosen.indirectOnlyTolerance[i]});
+        out.tested.push_back(TestedVertex{chosen.indirectOnly[i], epoch, chosen.indirectOnlyTolerance[i], false});
     } else {
       out.vertices.insert(out.vertices.end(), chosen.indirectOnly.begin(), chosen.indirectOnly.end());
     }
-    out.urgent.insert(out.urgent.end(), chosen.direct.begin(), chosen.direct.end());
+    if (rule == InvalidationRule::kTestAll) {
+      for (size_t i = 0; i < chosen.direct.size(); ++i)
+        out.tested.push_back(TestedVertex{chosen.direct[i], epoch, chosen.directTolerance[i], true});
+      // One epoch's tests: the direct class first (a shadow that moved is
+      // what a viewer sees first), each in vertex order.
+      std::sort(out.tested.begin() + std::ptrdiff_t(testedBefore), out.tested.end(),
+                [](const TestedVertex& a, const TestedVertex& b) {
+                  return a.direct != b.direct ? a.direct : a.vertex < b.vertex;
+                });
+    } else {
+      out.vertices.insert(out.vertices.end(), chosen.direct.begin(), chosen.direct.end());
+      out.urgent.insert(out.urgent.end(), chosen.direct.begin(), chosen.direct.end());
+    }
   }
   for (std::vector<VertexId>* list : {&out.vertices, &out.urgent}) {
     std::sort(list->begin(), list->end());

@@ -213,12 +213,41 @@ class SmaServer::Impl {
   void OnVerified(const std::vector<VerifiedSample>& verified) {
     auto confirmed = std::make_shared<std::vector<VertexId>>();
     std::vector<SampleRequest> reshade;
+    std::vector<VerifyRequest> retests;
+    std::map<const VerifyContext*, std::shared_ptr<const VerifyContext>> retestContexts;
     for (const VerifiedSample& v : verified) {
       if (v.Passes(options_.moveTestZ)) {
         if (cache_.Confirm(v.vertex, v.generation)) confirmed->push_back(v.vertex);
-      } else if (cache_.FailSuspect(v.vertex, v.generation)) {
-        reshade.push_back(v.request);
+        continue;
       }
+      // The estimate within tau, its noise beyond: a first test is asked
+      // again with kRetestFactor times the paths (half the noise at 4x),
+      // other random numbers, and only the retest's answer counts (the
+      // first's is the one that looked ambiguous). The sample stays suspect.
+      const bool byNoise = std::isfinite(v.change) && std::abs(v.change) <= v.tolerance;
+      if (byNoise && v.context && v.testRound == VerifyRound(v.targetEpoch) &&
+          cache_.IsSuspect(v.vertex) && cache_.Generation(v.vertex) == v.generation) {
+        std::shared_ptr<const VerifyContext>& retest = retestContexts[v.context.get()];
+        if (!retest) {
+          VerifyContext more = *v.context;
+          more.paths = kRetestFactor * std::max(1u, options_.pool.verifyPaths);
+          retest = std::make_shared<const VerifyContext>(std::move(more));
+        }
+        VerifyRequest again{v.request, retest, v.generation, v.tolerance};
+        again.request.round = VerifyRetestRound(v.targetEpoch);
+        retests.push_back(std::move(again));
+        continue;
+      }
+      if (cache_.FailSuspect(v.vertex, v.generation)) {
+        reshade.push_back(v.request);
+        if (byNoise) ++testsFailedByNoise_;
+      }
+    }
+    // Queued behind the tests in flight (the pool forgets the answered
+    // ones after this returns, then queues these).
+    if (!retests.empty()) {
+      testsRetested_ += retests.size();
+      pool_->Verify(retests);
     }
     // Asked for before the pool forgets the tests: the vertex stays alive.
     if (!reshade.empty()) pool_->Request(reshade, Priority::kBackground);
@@ -363,7 +392,12 @@ class SmaServer::Impl {
   MoveCoalescer moveQueue_;
   std::atomic<uint64_t> moves_{0};             // moves applied (scene epochs after 0)
   std::atomic<uint64_t> samplesInvalidated_{0};  // cached samples evicted by moves
-  std::atomic<uint64_t> samplesTested_{0};       // cached samples held back for a move's test
+  std::atomic<uint64_t> samplesInvalidatedOfObjects_{0};  // of which on movable objects
+  std::atomic<uint64_t> samplesTested_{0};
+  std::atomic<uint64_t> testsFailedByNoise_{0};  // failed with |change| <= tau, after a retest
+  std::atomic<uint64_t> testsRetested_{0};       // tests asked again with more paths (OnVerified)
+  // A retest's paths, as a multiple of --move-test-paths.
+  static constexpr uint32_t kRetestFactor = 4;       // cached samples held back for a move's test
   std::atomic<uint64_t> lastMoveTested_{0};
   std::atomic<uint64_t> lastMoveInvalidated_{0};
   std::atomic<uint64_t> samplesInvalidatedUrgent_{0};
@@ -1557,10 +1591,13 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
   AddCounter(reply, "moves_refused", double(movesRefused_.load()));
   AddCounter(reply, "moves_coalesced", double(moveQueue_.Coalesced()));
   AddCounter(reply, "samples_invalidated", double(samplesInvalidated_.load()));
+  AddCounter(reply, "samples_invalidated_of_objects", double(samplesInvalidatedOfObjects_.load()));
   AddCounter(reply, "samples_tested", double(samplesTested_.load()));
   AddCounter(reply, "last_move_tested", double(lastMoveTested_.load()));
   AddCounter(reply, "tests_kept", double(cache_.Confirmed()));
   AddCounter(reply, "tests_failed", double(cache_.FailedTests()));
+  AddCounter(reply, "tests_failed_by_noise", double(testsFailedByNoise_.load()));
+  AddCounter(reply, "tests_retested", double(testsRetested_.load()));
   AddCounter(reply, "samples_reshaded_after_move", double(cache_.Reshaded()));
   AddCounter(reply, "samples_stale_refused", double(samplesStale_.load()));
   AddCounter(reply, "last_move_invalidated", double(lastMoveInvalidated_.load()));
@@ -1918,8 +1955,9 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
     // pose it was shaded at. Only this job touches the history.
     poseHistory_.Record(oldPose);
     const InvalidationRule rule = options_.invalidateEverythingOnMove ? InvalidationRule::kEverything
-                                  : options_.pool.verifyPaths > 0      ? InvalidationRule::kTestIndirect
-                                                                       : InvalidationRule::kTest;
+                                  : options_.pool.verifyPaths == 0     ? InvalidationRule::kTest
+                                  : options_.moveTestDirect            ? InvalidationRule::kTestAll
+                                                                       : InvalidationRule::kTestIndirect;
     invalidation = PlanInvalidation(hierarchy_, cache_, *oldPose, *newPose, rule, &poseHistory_);
     poseHistory_.Record(newPose);
   }
@@ -1931,6 +1969,7 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
   //    that arrive later are refused by the cache (validFrom).
   size_t evicted = 0;
   size_t evictedUrgent = 0;  // of which urgent: the moved objects' own and where direct light changed
+  size_t evictedOfObjects = 0;  // of which on movable objects (the moved ones' own)
   std::vector<VertexId> prepared;  // first estimates shaded ahead at this pose (move prediction), now stored
   std::vector<VerifyRequest> tests;  // samples held back for a test of this move
   MovePreparation::AppliedOutcome preparedFor;
@@ -1939,6 +1978,7 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
     for (VertexId v : invalidation.vertices) {
       const bool was = cache_.Invalidate(v, newPose->epoch);
       evicted += was;
+      if (was && scene_.ObjectOfTriangle(hierarchy_.GetVertex(v).baseTriangle) != kStaticObject) ++evictedOfObjects;
       if (was && std::binary_search(invalidation.urgent.begin(), invalidation.urgent.end(), v)) ++evictedUrgent;
     }
     // The indirect class: held back and tested (one context per baseline
@@ -1983,6 +2023,7 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
   samplesInvalidated_ += evicted;
   lastMoveInvalidated_ = evicted;
   samplesInvalidatedUrgent_ += evictedUrgent;
+  samplesInvalidatedOfObjects_ += evictedOfObjects;
   lastMoveInvalidatedUrgent_ = evictedUrgent;
   lastMoveCached_ = cachedBefore;
   lastMoveReshadedBase_ = cache_.Reshaded();

@@ -231,7 +231,9 @@ class SampleScheduler {
   /// Queues tests. A vertex already queued for a test takes the new request
   /// (a newer move's: it replaces the old in place); one in flight is
   /// tested again with it once answered (CompleteVerified), or with it
-  /// instead when the old test goes back to the queue (a renderer lost).
+  /// instead when the old test goes back to the queue (a renderer lost). A
+  /// request for an older cache generation than the vertex's queued, in
+  /// flight or waiting one is ignored (its answer could only be stale).
   /// Returns the number newly queued.
   size_t Verify(std::span<const VerifyRequest> requests);
   /// The answers have been acted on: forget these vertices (or queue the

@@ -123,6 +123,7 @@ struct InvalidatedStatic {
   /// Parallel to indirectOnly: each one's tolerance tau (luminance of
   /// irradiance), for a test of its actual change (VerifyRequest).
   std::vector<float> indirectOnlyTolerance;
+  std::vector<float> directTolerance;  // parallel to direct
 };
 /// `brightestReflected`: the brightest reflected radiance (luminance) of
 /// every cached sample, which bounds what the volume can block or reflect;
@@ -141,6 +142,7 @@ struct TestedVertex {
   VertexId vertex = kNoVertex;
   uint64_t baselineEpoch = 0;
   float tolerance = 0.0f;
+  bool direct = false;  // of the direct class (InvalidationRule::kTestAll)
 };
 
 /// What a move from `oldPose` to `newPose` invalidates.
@@ -154,6 +156,8 @@ struct Invalidation {
   /// Under InvalidationRule::kTestIndirect: the indirect-only class, not in
   /// `vertices`, sorted by baseline epoch then vertex: a renderer measures
   /// their change (docs/moving-objects.md "A test instead of a bound").
+  /// Under kTestAll the direct class too (first in each epoch), and not in
+  /// `urgent`.
   std::vector<TestedVertex> tested;
 };
 
@@ -162,8 +166,10 @@ struct Invalidation {
 /// every sample shaded at the final pose; --invalidate-all-on-move).
 /// kTestIndirect: as kTest, but the vertices invalidated only by the
 /// indirect-light bound are to be tested (Invalidation::tested) rather
-/// than invalidated.
-enum class InvalidationRule { kTest, kTestIndirect, kEverything };
+/// than invalidated. kTestAll: the direct class too (the shaft tests say
+/// where light may change; the test measures whether it did -- in an
+/// umbra at both places it did not).
+enum class InvalidationRule { kTest, kTestIndirect, kTestAll, kEverything };
 
 /// The poses of recent scene epochs, so that each cached sample can be
 /// judged against the pose it was shaded at (PlanInvalidation). Bounded

@@ -115,6 +115,10 @@ struct SmaOptions {
   /// |change| + moveTestZ sigma <= tau, shaded again otherwise.
   /// pool.verifyPaths 0: no test, the bound invalidates them.
   float moveTestZ = 3.0f;
+  /// The direct class (where the exact shaft tests say an area light's or
+  /// the sun's light may change) is tested too, before the indirect class,
+  /// instead of re-shaded at once.
+  bool moveTestDirect = false;
   /// Movement prediction for moving objects (issue 15; move_prediction.h):
   /// after each move, the next pose is predicted (the animated objects at
   /// their paths' next step) and what it will invalidate and someone needs

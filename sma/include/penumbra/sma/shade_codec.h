@@ -76,6 +76,9 @@ struct VerifyContext {
   std::shared_ptr<const ScenePose> baseline;
   std::shared_ptr<const ScenePose> target;
   std::vector<Bounds3> regionBoxes;  // 1 .. kMaxVerifyBoxes
+  /// Paired samples per test; 0: the scheduler's verifyPaths. (A retest of
+  /// a test its own noise failed asks for more: a context of its own.)
+  uint32_t paths = 0;
 };
 /// The renderer's limit on region boxes (renderer/shade_batch.h).
 inline constexpr size_t kMaxVerifyBoxes = 16;
@@ -101,6 +104,8 @@ struct VerifiedSample {
   float tolerance = 0.0f;
   uint64_t targetEpoch = 0;
   SampleRequest request;  // round 0: to ask for a reshade when the test fails
+  uint16_t testRound = 0;  // the round the test was asked under (VerifyRound)
+  std::shared_ptr<const VerifyContext> context;  // what it was tested against
   /// Kept when the change, z standard errors beyond it, is within the
   /// tolerance: |change| + z sigma <= tolerance (z = 3: a sample that truly
   /// changes by more than its tolerance passes less than 0.14 % of the time).
@@ -115,6 +120,9 @@ struct VerifiedSample {
 /// next move draws other random numbers.
 constexpr uint16_t VerifyRound(uint64_t targetEpoch) { return uint16_t(0x8000u | (targetEpoch & 0x7fffu)); }
 constexpr bool IsVerifyRound(uint16_t round) { return (round & 0x8000u) != 0; }
+/// The round of a retest (more paths, after a test its noise failed): other
+/// random numbers than the first test's.
+constexpr uint16_t VerifyRetestRound(uint64_t targetEpoch) { return uint16_t(VerifyRound(targetEpoch) ^ 0x4000u); }
 
 /// The boxes that hold every object placed differently at `baseline` and
 /// `target` (WorldBounds at each), for VerifyContext::regionBoxes; nothing
