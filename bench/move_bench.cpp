@@ -261,20 +261,25 @@ int Run(const Options& o) {
   int sent = 0;
   bool converged = false;
   double convergedAfterLastMs = -1;
+  wire::Delta lastDelta;
   auto lastHeartbeat = t0;
   while (!converged) {
     const auto now = Clock::now();
     if (now - t0 > 5min) {
       // What the SMA still waits for, to tell a stall from slowness.
       std::string counters;
-      for (const char* name : {"client_reshades_awaited", "client_refinement_pending", "tests_queued",
+      for (const char* name : {"client_converged", "client_reshades_awaited", "client_refinement_pending", "tests_queued",
                                "samples_queued_visible", "samples_queued_background", "samples_in_flight",
                                "scene_epoch", "client_scene_epoch"}) {
         auto value = CounterOf(*client, name);
         counters += fmt::format(" {}={}", name, value ? *value : -1.0);
       }
-      std::fprintf(stderr, "move_bench: no convergence within 5 minutes of the continuous motion;%s\n",
-                   counters.c_str());
+      std::fprintf(stderr,
+                   "move_bench: no convergence within 5 minutes of the continuous motion;%s; last delta: kind %d "
+                   "view %llu epoch %llu converged %d; last RESHADED epoch %llu\n",
+                   counters.c_str(), int(lastDelta.kind()), static_cast<unsigned long long>(lastDelta.view_id()),
+                   static_cast<unsigned long long>(lastDelta.scene_epoch()), int(lastDelta.converged()),
+                   static_cast<unsigned long long>(lastUpdatedEpoch));
       return 1;
     }
     if (sent < count && now >= t0 + std::chrono::duration_cast<Clock::duration>(period * sent)) {
@@ -301,6 +306,7 @@ int Run(const Options& o) {
     }
     if (e->has_delta()) {
       const wire::Delta& d = e->delta();
+      lastDelta.CopyFrom(d);
       // The SMA numbers its epochs one per applied move; moves it coalesced
       // (a newer one arrived before the older was applied) share one. So a
       // RESHADED delta at epoch e shows at least the (e - epoch0)-th move

@@ -63,10 +63,11 @@ std::shared_ptr<const std::string> EncodeShadeRequestFrame(uint64_t batchId, uin
 std::optional<std::vector<Bounds3>> VerifyRegionBoxes(const Scene& scene, const ScenePose& baseline,
                                                       const ScenePose& target) {
   std::vector<Bounds3> boxes;
+  // A pose that does not place every object cannot say where they are.
+  if (baseline.objectToWorld.size() < scene.objects.size() || target.objectToWorld.size() < scene.objects.size())
+    return std::nullopt;
   for (uint32_t o = 0; o < scene.objects.size(); ++o) {
-    if (o < baseline.objectToWorld.size() && o < target.objectToWorld.size() &&
-        baseline.objectToWorld[o] == target.objectToWorld[o])
-      continue;
+    if (baseline.objectToWorld[o] == target.objectToWorld[o]) continue;
     // Two boxes, not their union: the estimator samples each box's
     // silhouette, and a long thin move's union would be mostly empty.
     boxes.push_back(WorldBounds(scene, baseline, o));

@@ -126,7 +126,8 @@ constexpr uint16_t VerifyRetestRound(uint64_t targetEpoch) { return uint16_t(Ver
 
 /// The boxes that hold every object placed differently at `baseline` and
 /// `target` (WorldBounds at each), for VerifyContext::regionBoxes; nothing
-/// when no object moved or more than kMaxVerifyBoxes boxes would be needed.
+/// when no object moved, more than kMaxVerifyBoxes boxes would be needed,
+/// or a pose does not place every object of the scene.
 std::optional<std::vector<Bounds3>> VerifyRegionBoxes(const Scene& scene, const ScenePose& baseline,
                                                       const ScenePose& target);
 
