@@ -268,7 +268,9 @@ int Run(const Options& o) {
     if (now - t0 > 5min) {
       // What the SMA still waits for, to tell a stall from slowness.
       std::string counters;
-      for (const char* name : {"client_converged", "client_reshades_awaited", "client_refinement_pending", "tests_queued",
+      for (const char* name : {"client_converged", "client_stage1_done", "client_refinement_done", "client_improvement_done",
+                               "client_remap_wanted", "client_pending_triangles", "client_pending_samples",
+                               "client_improvements_pending", "client_reshades_awaited", "client_refinement_pending", "tests_queued",
                                "samples_queued_visible", "samples_queued_background", "samples_in_flight",
                                "scene_epoch", "client_scene_epoch"}) {
         auto value = CounterOf(*client, name);

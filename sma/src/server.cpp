@@ -1454,6 +1454,11 @@ void SmaServer::Impl::Session::OnStatsRequest(const wire::StatsRequest& request)
   AddCounter(reply, "client_pending_triangles", double(state_.PendingNodes()));
   AddCounter(reply, "client_pending_samples", double(state_.WaitingSamples()));
   AddCounter(reply, "client_converged", state_.Converged() ? 1.0 : 0.0);
+  // What convergence waits for (ViewSession::Converged), for a stall report.
+  AddCounter(reply, "client_stage1_done", state_.Stage1Done() ? 1.0 : 0.0);
+  AddCounter(reply, "client_refinement_done", state_.RefinementDone() ? 1.0 : 0.0);
+  AddCounter(reply, "client_improvement_done", state_.ImprovementDone() ? 1.0 : 0.0);
+  AddCounter(reply, "client_remap_wanted", state_.RemapWanted() ? 1.0 : 0.0);
   AddCounter(reply, "client_deltas_sent", double(deltasSent_));
   AddCounter(reply, "client_improvements_pending", double(state_.ImprovementsPending()));
   AddCounter(reply, "client_improvements_asked", double(improvementsAsked_));
