@@ -1016,7 +1016,17 @@ void SmaServer::Impl::Session::OnSamplesArrived(const std::vector<VertexId>& ver
     ScheduleRefresh();
     return;
   }
-  const std::vector<NodeId> ready = state_.TakeReady(arrived.candidates, server_.hierarchy_, server_.cache_);
+  std::vector<VertexId> awaitedAgain;
+  const std::vector<NodeId> ready =
+      state_.TakeReady(arrived.candidates, server_.hierarchy_, server_.cache_, &awaitedAgain);
+  if (!awaitedAgain.empty()) {
+    // Corners a move took back after they had arrived: asked again for
+    // this view (under the shared lock, like the view's own requests).
+    std::vector<SampleRequest> again;
+    again.reserve(awaitedAgain.size());
+    for (VertexId v : awaitedAgain) again.push_back(MakeSampleRequest(server_.hierarchy_, v));
+    server_.pool_->Request(again, Priority::kVisible, &interest_);
+  }
   if (Blocked()) {
     lock.unlock();
     WaitUntilUnblocked();

@@ -126,10 +126,26 @@ ViewSession::Arrived ViewSession::OnSamplesArrived(std::span<const VertexId> ver
 }
 
 std::vector<NodeId> ViewSession::TakeReady(const std::vector<NodeId>& candidates, const Hierarchy& hierarchy,
-                                           const SampleCache& cache) {
+                                           const SampleCache& cache, std::vector<VertexId>* newlyAwaited) {
   std::vector<NodeId> ready;
-  for (NodeId id : candidates)
-    if (pending_.contains(id) && CornersShaded(hierarchy.GetNode(id), cache)) ready.push_back(id);
+  for (NodeId id : candidates) {
+    if (!pending_.contains(id)) continue;
+    const Node& node = hierarchy.GetNode(id);
+    if (CornersShaded(node, cache)) {
+      ready.push_back(id);
+      continue;
+    }
+    for (VertexId v : node.v) {
+      if (cache.IsShaded(v)) continue;
+      std::vector<NodeId>& waiters = waiting_[v];
+      if (std::find(waiters.begin(), waiters.end(), id) != waiters.end()) continue;
+      if (waiters.empty()) {
+        ++stage1Total_;
+        if (newlyAwaited) newlyAwaited->push_back(v);
+      }
+      waiters.push_back(id);
+    }
+  }
   std::sort(ready.begin(), ready.end());
   for (NodeId id : ready) pending_.erase(id);
   return ready;

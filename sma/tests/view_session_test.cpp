@@ -3,6 +3,8 @@
 
 #include "penumbra/sma/view_session.h"
 
+#include <algorithm>
+
 #include <gtest/gtest.h>
 
 namespace penumbra::sma {
@@ -128,6 +130,54 @@ TEST(ViewSessionTest, GoesThroughItsPhasesToConvergence) {
   s.OnNewView(5, f.view, f.now);
   EXPECT_EQ(s.CurrentPhase(), Phase::kTracing);
   EXPECT_EQ(s.NextJob(false), JobStart::kNewView);
+}
+
+// A move invalidates (or holds back for a test) a corner that had already
+// arrived, then the node's last corner arrives: the node must wait for the
+// first corner again -- nothing else would ever complete it, since a re-map
+// that finds the same view plans nothing (a view stalled short of stage 1
+// with no sample awaited, seen in bench/move_bench's 10 moves/s phase).
+TEST(ViewSessionTest, ACornerAMoveTookBackIsAwaitedAgain) {
+  Fixture f;
+  ViewSession s(NoRefinement(), 1000, /*improvementOn=*/false);
+  s.OnHello();
+  s.OnNewView(1, f.view, f.now);
+  ASSERT_EQ(s.NextJob(false), JobStart::kNewView);
+  s.OnJobStarted(JobStart::kNewView, f.now);
+  ASSERT_EQ(s.OnJobDone(1, true).outcome, ViewSession::JobOutcome::kApply);
+  const std::vector<NodeId> roots = f.Roots();
+  s.BeginShading(roots, f.hierarchy, f.cache, true);
+  const Node& root = f.hierarchy.GetNode(roots[0]);
+  // Every corner of the scene but root's third arrives.
+  std::vector<ShadedSample> first;
+  std::vector<VertexId> firstIds;
+  for (VertexId v = 0; v < f.hierarchy.VertexCount(); ++v)
+    if (v != root.v[2]) {
+      first.push_back(ShadedSample{v, Rgb(0.1f), Rgb(1.0f)});
+      firstIds.push_back(v);
+    }
+  f.cache.Store(first);
+  auto arrived = s.OnSamplesArrived(firstIds, f.hierarchy.BaseVertexCount());
+  std::vector<VertexId> again;
+  auto ready = s.TakeReady(arrived.candidates, f.hierarchy, f.cache, &again);
+  EXPECT_TRUE(std::find(ready.begin(), ready.end(), roots[0]) == ready.end());
+  EXPECT_TRUE(again.empty()) << "only the third corner is missing, and it is awaited already";
+  // A move takes the first corner back; then the third corner arrives.
+  ASSERT_TRUE(f.cache.Invalidate(root.v[0], 1));
+  f.cache.Store(std::vector<ShadedSample>{ShadedSample{root.v[2], Rgb(0.1f), Rgb(1.0f), 0.0f, 1, 0, 1}});
+  arrived = s.OnSamplesArrived(std::vector<VertexId>{root.v[2]}, f.hierarchy.BaseVertexCount());
+  ready = s.TakeReady(arrived.candidates, f.hierarchy, f.cache, &again);
+  EXPECT_TRUE(std::find(ready.begin(), ready.end(), roots[0]) == ready.end());
+  EXPECT_EQ(again, std::vector<VertexId>{root.v[0]}) << "the corner taken back is asked for again";
+  EXPECT_FALSE(s.Stage1Done());
+  EXPECT_GE(s.WaitingSamples(), 1u) << "the node waits for a sample, not for nothing";
+  // Its reshade arrives: the node is ready and stage 1 ends.
+  f.cache.Store(std::vector<ShadedSample>{ShadedSample{root.v[0], Rgb(0.1f), Rgb(1.0f), 0.0f, 1, 0, 1}});
+  arrived = s.OnSamplesArrived(std::vector<VertexId>{root.v[0]}, f.hierarchy.BaseVertexCount());
+  again.clear();
+  ready = s.TakeReady(arrived.candidates, f.hierarchy, f.cache, &again);
+  EXPECT_TRUE(std::find(ready.begin(), ready.end(), roots[0]) != ready.end());
+  EXPECT_TRUE(again.empty());
 }
 
 TEST(ViewSessionTest, AStatusThatWasNotTheLastDeltaNeverSaysConverged) {

@@ -116,8 +116,16 @@ class ViewSession {
   Arrived OnSamplesArrived(std::span<const VertexId> vertices, size_t baseVertices);
   /// Of `candidates`, the pending nodes now complete, removed from pending,
   /// sorted. Caller holds the state lock (shared).
+  ///
+  /// A candidate still incomplete waits again for each corner that is not
+  /// shaded and not waited for: a corner that had arrived can have been
+  /// invalidated or held back for a test by a move since (moves come at
+  /// 10/s), and a re-map that finds the view unchanged plans nothing, so
+  /// without this the node would wait for no sample, forever. Those corners
+  /// are appended to `newlyAwaited` (when given) for the caller to ask for
+  /// (a request for a vertex under test or already alive costs nothing).
   std::vector<NodeId> TakeReady(const std::vector<NodeId>& candidates, const Hierarchy& hierarchy,
-                                const SampleCache& cache);
+                                const SampleCache& cache, std::vector<VertexId>* newlyAwaited = nullptr);
   bool Stage1Done() const {
     return hasVisible_ && appliedViewId_ == viewId_ && job_ == Job::kNone && waiting_.empty() && pending_.empty();
   }
