@@ -344,41 +344,36 @@ std::optional<uint32_t> SampleCache::Suspect(VertexId v, uint64_t epoch) {
   return generation;
 }
 
-bool SampleCache::Confirm(VertexId v, uint32_t generation) {
-  Slot* found = const_cast<Slot*>(Find(v));
-  if (!found) return false;
-  Slot& s = *found;
-  const uint32_t sequence = BeginWrite(s);
-  const bool ok = s.suspect.load(kRelaxed) != 0 && s.generation.load(kRelaxed) == generation;
-  if (ok) {
-    s.suspect.store(0, std::memory_order_release);
-    s.awaitingReshade.store(0, std::memory_order_release);
-    s.shaded.store(1, std::memory_order_release);
-  }
-  EndWrite(s, sequence);
-  if (ok) {
-    ++shadedCount_;
-    ++changes_;
-    ++confirmed_;
-  }
-  return ok;
-}
+bool SampleCache::Confirm(VertexId v, uint32_t generation) { return ResolveSuspect(v, generation, /*keep=*/true); }
+bool SampleCache::FailSuspect(VertexId v, uint32_t generation) { return ResolveSuspect(v, generation, false); }
 
-bool SampleCache::FailSuspect(VertexId v, uint32_t generation) {
+bool SampleCache::ResolveSuspect(VertexId v, uint32_t generation, bool keep) {
   Slot* found = const_cast<Slot*>(Find(v));
   if (!found) return false;
   Slot& s = *found;
   const uint32_t sequence = BeginWrite(s);
+  // Only the suspect sample of that very generation: anything written since
+  // owns the vertex now.
   const bool ok = s.suspect.load(kRelaxed) != 0 && s.generation.load(kRelaxed) == generation;
   if (ok) {
     s.suspect.store(0, std::memory_order_release);
-    WriteValues(s, ShadedSample{v, Rgb(0.0f), Rgb(0.0f), 0.0f, 0, 0, 0}, 0);
-    s.generation.fetch_add(1, std::memory_order_release);
+    if (keep) {
+      s.awaitingReshade.store(0, std::memory_order_release);
+      s.shaded.store(1, std::memory_order_release);
+    } else {  // stays AwaitingReshade, its values gone
+      WriteValues(s, ShadedSample{v, Rgb(0.0f), Rgb(0.0f), 0.0f, 0, 0, 0}, 0);
+      s.generation.fetch_add(1, std::memory_order_release);
+    }
   }
   EndWrite(s, sequence);
   if (ok) {
     ++changes_;
-    ++failedTests_;
+    if (keep) {
+      ++shadedCount_;
+      ++confirmed_;
+    } else {
+      ++failedTests_;
+    }
   }
   return ok;
 }

@@ -281,6 +281,7 @@ class SampleCache {
   static void EndWrite(Slot& s, uint32_t sequence) { s.sequence.store(sequence + 2, std::memory_order_release); }
   static void WriteValues(Slot& s, const ShadedSample& sample, uint16_t rounds);
   size_t Put(std::span<const ShadedSample> samples, bool keepRounds, std::vector<VertexId>* stale);  // Store, Restore
+  bool ResolveSuspect(VertexId v, uint32_t generation, bool keep);  // Confirm, FailSuspect
   template <typename F>
   auto ReadConsistent(VertexId v, F&& read) const -> decltype(read(std::declval<const Slot&>()));
 
