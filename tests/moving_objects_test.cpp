@@ -287,10 +287,17 @@ void CheckAMovedBoxConvergesToWhatAFreshStackComputes(const std::vector<std::str
   auto failed = client->Counter("tests_failed");
   ASSERT_TRUE(tested.ok() && kept.ok() && failed.ok());
   std::printf("the move's test: %.0f samples held back, %.0f kept, %.0f shaded again\n", *tested, *kept, *failed);
+  // Held vertices a test kept are not re-sent: the client shows that value.
+  auto keptHeld = client->Counter("client_kept_held");
+  ASSERT_TRUE(keptHeld.ok()) << keptHeld.error().message;
+  std::printf("held vertices kept by the test (not re-sent): %.0f; RESHADED vertex updates: %llu\n", *keptHeld,
+              static_cast<unsigned long long>(reshaded));
   if (expectTestsKept) {
     EXPECT_GT(*kept, 0.0) << "no sample was kept by a test: the comparison does not cover the test";
+    EXPECT_GT(*keptHeld, 0.0) << "no vertex the client holds was kept by a test";
   } else {
     EXPECT_EQ(*tested, 0.0);
+    EXPECT_EQ(*keptHeld, 0.0);
   }
   const auto after = SamplesByPlace(*client);
 

@@ -70,15 +70,21 @@ size_t ClientMirror::AppendChanges(std::span<const NodeId> removals, std::span<c
   return added;
 }
 
-size_t ClientMirror::AppendUpdates(std::span<const VertexId> vertices, const SampleCache& cache,
-                                   wire::Delta& delta) const {
+size_t ClientMirror::AppendUpdates(std::span<const VertexId> vertices, const SampleCache& cache, wire::Delta& delta,
+                                   std::vector<VertexId>* stillOwed) const {
   size_t n = 0;
   for (VertexId v : vertices) {
     if (!HoldsVertex(v)) continue;
     // A sample invalidated by a move since the update was owed: its reshade
-    // comes as its own update, never a black one now.
+    // comes as its own update, never a black one now. A suspect one comes
+    // back as it was if its test keeps it, and is then still owed.
     const std::optional<CachedSample> sample = cache.Read(v);
-    if (!sample) continue;
+    if (!sample) {
+      // (Read again: a test may have kept it since the first read, and its
+      // notice may already be on its way.)
+      if (stillOwed && (cache.IsSuspect(v) || cache.Read(v))) stillOwed->push_back(v);
+      continue;
+    }
     delta.add_updated_vertex_ids(v);
     AddVec3(delta.mutable_updated_vertex_radiance(), sample->radiance);
     AddVec3(delta.mutable_updated_vertex_irradiance(), sample->irradiance);

@@ -252,12 +252,15 @@ class SmaServer::Impl {
     // Asked for before the pool forgets the tests: the vertex stays alive.
     if (!reshade.empty()) pool_->Request(reshade, Priority::kBackground);
     if (!confirmed->empty())
-      for (auto& session : Sessions()) NotifyArrived(session, confirmed);
+      for (auto& session : Sessions()) NotifyArrived(session, confirmed, /*kept=*/true);
   }
 
   std::vector<std::shared_ptr<Session>> Sessions() { return skeleton_.Sessions(); }
   void RemoveSession(uint64_t id) { skeleton_.Remove(id); }
-  void NotifyArrived(const std::shared_ptr<Session>& session, std::shared_ptr<const std::vector<VertexId>> vertices);
+  // `kept`: samples a move's test kept (Confirm), whose values a client
+  // that holds them already shows.
+  void NotifyArrived(const std::shared_ptr<Session>& session, std::shared_ptr<const std::vector<VertexId>> vertices,
+                     bool kept = false);
   // `answered`: improvements that came back (some may have changed nothing);
   // `improved`: the vertices whose cached estimate changed.
   void NotifyImproved(const std::shared_ptr<Session>& session, std::shared_ptr<const std::vector<VertexId>> answered,
@@ -488,8 +491,9 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   /// The client's mirror's bytes as of its last change (any thread).
   size_t MirrorBytes() const { return mirrorBytes_.load(std::memory_order_relaxed); }
 
-  // Strand: samples were stored in the cache.
-  void OnSamplesArrived(const std::vector<VertexId>& vertices);
+  // Strand: samples were stored in the cache (`kept`: kept by a move's
+  // test, the values a client holding them shows).
+  void OnSamplesArrived(const std::vector<VertexId>& vertices, bool kept = false);
   // Strand: improvements came back; `improved` changed the cache.
   void OnSamplesImproved(const std::vector<VertexId>& answered, const std::vector<VertexId>& improved);
   /// Strand: a move was applied: MOVED to the client, held vertices it
@@ -625,6 +629,7 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   uint64_t epochSent_ = 0;
   std::unordered_set<VertexId> reshadesOwed_;
   uint64_t reshadesSent_ = 0;
+  uint64_t keptHeld_ = 0;  // held vertices a move's test kept: not re-sent
   uint64_t movesSent_ = 0;
   uint64_t improvementsAsked_ = 0;
 
@@ -647,9 +652,9 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
 };
 
 void SmaServer::Impl::NotifyArrived(const std::shared_ptr<Session>& session,
-                                    std::shared_ptr<const std::vector<VertexId>> vertices) {
+                                    std::shared_ptr<const std::vector<VertexId>> vertices, bool kept) {
   asio::post(session->Connection().Strand(),
-             [session, vertices = std::move(vertices)] { session->OnSamplesArrived(*vertices); });
+             [session, vertices = std::move(vertices), kept] { session->OnSamplesArrived(*vertices, kept); });
 }
 
 void SmaServer::Impl::NotifyImproved(const std::shared_ptr<Session>& session,
@@ -981,16 +986,24 @@ void SmaServer::Impl::Session::Flush() {
   }
 }
 
-void SmaServer::Impl::Session::OnSamplesArrived(const std::vector<VertexId>& vertices) {
+void SmaServer::Impl::Session::OnSamplesArrived(const std::vector<VertexId>& vertices, bool kept) {
   if (!state_.HasVisible() || !connection_->IsOpen()) return;
   const ViewSession::Arrived arrived = state_.OnSamplesArrived(vertices, server_.hierarchy_.BaseVertexCount());
   // A first estimate of a vertex the client already holds, which a move
   // invalidated (ValidFrom > 0), is its reshade: it goes as RESHADED. (A
   // vertex never invalidated can also arrive while held -- a duplicate
-  // answer after a requeue -- and is no news.)
+  // answer after a requeue -- and is no news.) A sample a test kept is the
+  // value the client kept showing: no news either, unless an update of it
+  // was owed and held back while it was suspect (SendUpdates).
   bool reshaded = false;
   for (VertexId v : vertices) {
-    if (!mirror_.HoldsVertex(v) || server_.cache_.ValidFrom(v) == 0) continue;
+    if (!mirror_.HoldsVertex(v)) continue;
+    if (kept) {
+      ++keptHeld_;
+      if (reshadesOwed_.contains(v) || updatesOwed_.contains(v)) reshaded = true;
+      continue;
+    }
+    if (server_.cache_.ValidFrom(v) == 0) continue;
     reshadesOwed_.insert(v);
     updatesOwed_.erase(v);
     reshaded = true;
@@ -1132,19 +1145,23 @@ void SmaServer::Impl::Session::SendUpdates() {
     std::vector<VertexId> owed(owedSet.begin(), owedSet.end());
     owedSet.clear();
     std::sort(owed.begin(), owed.end());
+    // Held back for a move's test: still owed (sent once the test keeps
+    // them; a failed one's reshade is owed again when it arrives).
+    std::vector<VertexId> stillOwed;
     const size_t chunk = std::max<size_t>(1, server_.options_.maxTrianglesPerDelta);
     for (size_t offset = 0; offset < owed.size(); offset += chunk) {
       wire::Envelope envelope;
       wire::Delta& delta = *envelope.mutable_delta();
       delta.set_kind(kind);
       const size_t n = mirror_.AppendUpdates(std::span(owed).subspan(offset, std::min(chunk, owed.size() - offset)),
-                                             server_.cache_, delta);
+                                             server_.cache_, delta, &stillOwed);
       if (n == 0) continue;
       delta.set_sequence(++sequence_);
       FillStatus(delta, /*last=*/lastKind && offset + chunk >= owed.size());
       outbox_.push_back(std::move(envelope));
       sent += n;
     }
+    owedSet.insert(stillOwed.begin(), stillOwed.end());
   };
   {
     std::shared_lock lock(server_.stateMutex_);
@@ -1474,6 +1491,7 @@ void SmaServer::Impl::Session::OnStatsRequest(const wire::StatsRequest& request)
   AddCounter(reply, "client_improvements_asked", double(improvementsAsked_));
   AddCounter(reply, "client_vertex_updates_sent", double(updatesSent_));
   AddCounter(reply, "client_reshades_sent", double(reshadesSent_));
+  AddCounter(reply, "client_kept_held", double(keptHeld_));
   AddCounter(reply, "client_reshades_awaited", double(state_.ReshadesAwaited()));
   AddCounter(reply, "client_moves_sent", double(movesSent_));
   AddCounter(reply, "client_scene_epoch", double(epochSent_));

@@ -116,6 +116,47 @@ TEST(ClientMirrorTest, UpdatesGoOnlyToVerticesTheClientHolds) {
   for (uint64_t v : update.updated_vertex_ids()) EXPECT_TRUE(mirror.HoldsVertex(VertexId(v)));
 }
 
+// A held vertex held back for a move's test (issue 14) is not sent while
+// suspect; the update owed for it stays owed, and goes once the test kept
+// the sample. One the test dropped is no longer owed (its reshade will be).
+TEST(ClientMirrorTest, AnUpdateOfASuspectVertexStaysOwedUntilItsTestKeepsIt) {
+  const Scene s = QuadScene();
+  Hierarchy h(s);
+  SampleCache cache;
+  cache.Reserve(h.VertexCount());
+  ShadeAll(h, cache);
+  ClientMirror mirror;
+  wire::Delta add;
+  const NodeId first = 0;
+  mirror.AppendChanges({}, std::span(&first, 1), h, cache, add);
+  ASSERT_EQ(add.vertex_ids_size(), 3);
+  const VertexId kept = VertexId(add.vertex_ids(0)), dropped = VertexId(add.vertex_ids(1)),
+                 plain = VertexId(add.vertex_ids(2));
+  const std::optional<uint32_t> keptGeneration = cache.Suspect(kept, 1);
+  const std::optional<uint32_t> droppedGeneration = cache.Suspect(dropped, 1);
+  ASSERT_TRUE(keptGeneration && droppedGeneration);
+
+  const std::vector<VertexId> owed{kept, dropped, plain};
+  wire::Delta whileSuspect;
+  std::vector<VertexId> stillOwed;
+  EXPECT_EQ(mirror.AppendUpdates(owed, cache, whileSuspect, &stillOwed), 1u);
+  ASSERT_EQ(whileSuspect.updated_vertex_ids_size(), 1);
+  EXPECT_EQ(VertexId(whileSuspect.updated_vertex_ids(0)), plain);
+  std::sort(stillOwed.begin(), stillOwed.end());
+  EXPECT_EQ(stillOwed, (std::vector<VertexId>{std::min(kept, dropped), std::max(kept, dropped)}));
+
+  ASSERT_TRUE(cache.Confirm(kept, *keptGeneration));
+  ASSERT_TRUE(cache.FailSuspect(dropped, *droppedGeneration));
+  wire::Delta afterTests;
+  stillOwed.clear();
+  EXPECT_EQ(mirror.AppendUpdates(owed, cache, afterTests, &stillOwed), 2u);
+  ASSERT_EQ(afterTests.updated_vertex_ids_size(), 2);
+  EXPECT_NE(VertexId(afterTests.updated_vertex_ids(0)), dropped);
+  EXPECT_NE(VertexId(afterTests.updated_vertex_ids(1)), dropped);
+  EXPECT_EQ(afterTests.updated_vertex_radiance(3 * 0), float(afterTests.updated_vertex_ids(0)));
+  EXPECT_TRUE(stillOwed.empty()) << "the dropped one's reshade is owed when it arrives, not now";
+}
+
 TEST(SampleCacheTest, StoresOnceAndGrows) {
   SampleCache cache;
   cache.Reserve(4);

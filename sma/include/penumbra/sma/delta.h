@@ -52,8 +52,12 @@ class ClientMirror {
   /// Appends to `delta` the cache's current radiance of every vertex of
   /// `vertices` the client holds (updated_vertex_*), skipping vertices with
   /// no sample now (invalidated by a move: their reshade is sent when it
-  /// arrives). Returns how many.
-  size_t AppendUpdates(std::span<const VertexId> vertices, const SampleCache& cache, wire::Delta& delta) const;
+  /// arrives). A held vertex skipped because its sample is suspect (held
+  /// back for a move's test, SampleCache::Suspect) is added to `stillOwed`
+  /// when given: if the test keeps the sample, nothing else will send it,
+  /// so whoever owes the update keeps owing it. Returns how many were added.
+  size_t AppendUpdates(std::span<const VertexId> vertices, const SampleCache& cache, wire::Delta& delta,
+                       std::vector<VertexId>* stillOwed = nullptr) const;
   /// Estimated heap bytes of what the mirror keeps (its two hash tables;
   /// memory_usage.h). Not synchronised: the owner's thread (the session's strand).
   size_t MemoryBytes() const;
