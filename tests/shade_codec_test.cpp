@@ -64,6 +64,9 @@ TEST_F(ShadeCodec, WhatTheSmaEncodesTheRendererDecodes) {
   ASSERT_TRUE(envelope.has_shade_request());
   EXPECT_EQ(envelope.shade_request().batch_id(), 42u);
   EXPECT_EQ(envelope.shade_request().paths_per_sample(), 16u);
+  EXPECT_FALSE(envelope.shade_request().urgent());
+  EXPECT_TRUE(FromFrame(*sma::EncodeShadeRequestFrame(43, 16, requests_, nullptr, /*urgent=*/true)).shade_request().urgent())
+      << "what a client waits for is marked so";
   auto inputs = DecodeShadeRequest(envelope.shade_request(), scene_, ShadeLimits{});
   ASSERT_TRUE(inputs) << inputs.error().message;
   ASSERT_EQ(inputs->size(), requests_.size());

@@ -215,6 +215,7 @@ class RendererServer::Impl::Session : public std::enable_shared_from_this<Sessio
       job->region = std::move(verification->region);
     }
     job->batchId = batchId;
+    job->urgent = request.urgent();
     job->paths = int(request.paths_per_sample());
     job->pose = std::move(*posed);
     job->inputs = std::move(*inputs);

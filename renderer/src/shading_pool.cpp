@@ -40,12 +40,23 @@ void ShadingPool::Submit(const std::shared_ptr<Source>& source, std::shared_ptr<
   job->remaining_ = n;
   if (n == 0) return;
   // Enough chunks to keep every worker busy and answer in several parts, but
-  // not so small that per-part overhead shows.
-  const size_t chunk = std::clamp<size_t>(n / (4 * workers_.size()), 1, 64);
+  // not so small that per-part overhead shows; and at most kChunkPaths paths,
+  // since a chunk being shaded is what an urgent job still waits for.
+  const int paths = job->paths > 0 ? job->paths : shader_.Settings().pathsPerSample;
+  const size_t mostSamples = std::clamp<size_t>(kChunkPaths / size_t(std::max(1, paths)), 1, 64);
+  const size_t chunk = std::clamp<size_t>(n / (4 * workers_.size()), 1, mostSamples);
   samplesQueued_ += n;
   {
     std::lock_guard lock(mutex_);
-    for (size_t begin = 0; begin < n; begin += chunk) source->chunks.push_back(Chunk{job, begin, std::min(n, begin + chunk)});
+    // An urgent job's chunks go behind the queued urgent chunks, ahead of
+    // the rest (the queue is urgent chunks first, then the others).
+    auto at = source->chunks.end();
+    if (job->urgent)
+      at = std::find_if(source->chunks.begin(), source->chunks.end(), [](const Chunk& c) { return !c.job->urgent; });
+    for (size_t begin = 0; begin < n; begin += chunk) {
+      at = source->chunks.insert(at, Chunk{job, begin, std::min(n, begin + chunk)});
+      ++at;
+    }
     if (!source->inReadyList) {
       source->inReadyList = true;
       ready_.push_back(source);

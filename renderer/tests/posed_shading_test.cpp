@@ -460,6 +460,50 @@ TEST(PosedShadingTest, AnObjectMovedFarAwayLeavesTheStaticShadingAsItWas) {
   EXPECT_TRUE(std::isfinite(out.irradiance.r) && out.irradiance.r >= 0.0f);
 }
 
+// A batch a client waits for (ShadeRequest::urgent) overtakes what its
+// connection has queued: with one worker busy on a long background batch
+// and a test batch queued behind it, an urgent batch submitted last is
+// answered before both; a second urgent one goes behind the first.
+TEST(PosedShadingTest, AnUrgentJobOvertakesTheQueuedChunksOfItsSource) {
+  const OccluderScene s = MakeOccluderScene();
+  const Shader shader(s.t.scene, *s.t.rays, DirectOnly());
+  const ShadeInput underLight = SampleAt(s.t.scene, Vec3(0.0f), kUp);
+  ShadingPool pool(shader, 1);
+  const auto source = pool.AddSource();
+  std::mutex mutex;
+  std::condition_variable done;
+  std::vector<uint64_t> finishedOrder;
+  const auto makeJob = [&](uint64_t id, int samples, bool urgent) {
+    auto job = std::make_shared<ShadeJob>();
+    job->batchId = id;
+    job->paths = 64;
+    job->urgent = urgent;
+    for (int i = 0; i < samples; ++i) {
+      ShadeInput in = underLight;
+      in.sampleId = id * 1000 + uint64_t(i);
+      job->inputs.push_back(in);
+    }
+    job->onPart = [&](const ShadeJob& j, size_t, size_t, const ShadeCounters&, size_t remaining) {
+      if (remaining != 0) return;
+      std::lock_guard lock(mutex);
+      finishedOrder.push_back(j.batchId);
+      done.notify_all();
+    };
+    return job;
+  };
+  // 1 worker: chunks of 64 samples; the background batch is 16 chunks.
+  pool.Submit(source, makeJob(1, 1024, false));
+  pool.Submit(source, makeJob(2, 256, false));
+  pool.Submit(source, makeJob(3, 64, true));
+  pool.Submit(source, makeJob(4, 64, true));
+  {
+    std::unique_lock lock(mutex);
+    ASSERT_TRUE(done.wait_for(lock, std::chrono::seconds(120), [&] { return finishedOrder.size() == 4; }));
+  }
+  EXPECT_EQ(finishedOrder, (std::vector<uint64_t>{3, 4, 1, 2}))
+      << "urgent jobs first, in their order; the others in theirs";
+}
+
 // Batches at different poses -- two SMAs, or one across a move -- share the
 // pool's workers, each shaded at its own pose, whatever the interleaving.
 TEST(PosedShadingTest, ThePoolShadesEachJobAtItsOwnPose) {

@@ -560,6 +560,14 @@ std::vector<std::pair<RendererId, std::string>> SampleScheduler::ExpireTimedOut(
 
 // --- Assembly -------------------------------------------------------------------
 
+uint32_t SampleScheduler::Reserved(const Renderer& r) const {
+  // A renderer's last free credit waits for samples a client waits for
+  // (when it has more than one): those would otherwise queue behind every
+  // test, prefetch and refinement batch the renderer already holds.
+  const bool last = r.capacity.maxBatchesInFlight > 1 && r.batches.size() + 1 == r.capacity.maxBatchesInFlight;
+  return last && queuedVisible_ == 0 ? 1 : 0;
+}
+
 bool SampleScheduler::Accepts(const Renderer& r, Clock::time_point now) const {
   return r.ready && !r.draining && r.batches.size() < r.capacity.maxBatchesInFlight && now >= r.quarantinedUntil;
 }
@@ -643,10 +651,10 @@ std::vector<AssignedBatch> SampleScheduler::Assemble() {
   while (AnyQueued()) {
     uint32_t freeCredits = 0;
     for (const auto& [id, r] : renderers_)
-      if (Accepts(r, now)) freeCredits += r.capacity.maxBatchesInFlight - uint32_t(r.batches.size());
+      if (Accepts(r, now)) freeCredits += r.capacity.maxBatchesInFlight - uint32_t(r.batches.size()) - Reserved(r);
     if (freeCredits == 0) return out;
     for (auto& [id, r] : renderers_) {
-      if (!Accepts(r, now)) continue;
+      if (!Accepts(r, now) || r.batches.size() + Reserved(r) >= r.capacity.maxBatchesInFlight) continue;
       // Size by the renderer's measured rate, but when little is queued share
       // it among every free credit so that all renderers work on it.
       const double byRate = r.rate > 0.0 ? r.rate * std::chrono::duration<double>(options_.targetBatchTime).count()
@@ -690,7 +698,8 @@ std::vector<AssignedBatch> SampleScheduler::Assemble() {
                              : firstEstimate && options_.firstPaths > 0 ? options_.firstPaths
                                                                         : options_.pathsPerSample;
       const uint64_t epoch = verify ? (verify->target ? verify->target->epoch : 0) : prepared ? preparedEpoch_ : epoch_;
-      AssignedBatch assigned{id, nextBatchId_++, epoch, paths, prepared, {}, verify};
+      const bool urgent = !verify && !prepared && priority == Priority::kVisible;
+      AssignedBatch assigned{id, nextBatchId_++, epoch, paths, prepared, urgent, {}, verify};
       Batch batch;
       batch.prepared = prepared;
       batch.verify = verify;

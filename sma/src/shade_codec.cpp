@@ -54,9 +54,10 @@ void FillShadeRequest(uint64_t batchId, uint32_t pathsPerSample, std::span<const
 
 std::shared_ptr<const std::string> EncodeShadeRequestFrame(uint64_t batchId, uint32_t pathsPerSample,
                                                            std::span<const SampleRequest> samples,
-                                                           const ScenePose* pose) {
+                                                           const ScenePose* pose, bool urgent) {
   wire::Envelope envelope;
   FillShadeRequest(batchId, pathsPerSample, samples, envelope.mutable_shade_request(), pose);
+  envelope.mutable_shade_request()->set_urgent(urgent);
   return std::make_shared<const std::string>(EncodeEnvelopeFrame(envelope));
 }
 

@@ -286,7 +286,7 @@ TEST(SampleScheduler, CreditsBoundBatchesInFlight) {
   o.minBatchSamples = 1;
   o.maxBatchSamples = 5;
   SampleScheduler s(o, clock.Function());
-  s.Request(Requests(0, 100), Priority::kBackground);
+  s.Request(Requests(0, 100), Priority::kVisible);
   s.RendererReady(1, RendererCapacity{2, 1000, 32});  // its own limit: 2 batches
   auto batches = s.Assemble();
   EXPECT_EQ(batches.size(), 2u);
@@ -295,6 +295,39 @@ TEST(SampleScheduler, CreditsBoundBatchesInFlight) {
   EXPECT_TRUE(s.Assemble().empty());
   s.Complete(s.OnReply(1, Answer(batches[0])).results);
   EXPECT_EQ(s.Assemble().size(), 1u) << "a credit back, a batch out";
+}
+
+// The last free credit of a renderer is kept for what a client waits for:
+// background work (tests, prefetch and refinement alike) never takes it, so
+// a visible request finds a credit at once and goes as an urgent batch.
+TEST(SampleScheduler, TheLastCreditWaitsForVisibleSamples) {
+  FakeClock clock;
+  SampleSchedulerOptions o = Options();
+  o.minBatchSamples = 1;
+  o.maxBatchSamples = 5;
+  SampleScheduler s(o, clock.Function());
+  s.Request(Requests(0, 100), Priority::kBackground);
+  s.RendererReady(1, RendererCapacity{3, 1000, 32});
+  auto background = s.Assemble();
+  EXPECT_EQ(background.size(), 2u) << "two of three credits";
+  for (const auto& b : background) EXPECT_FALSE(b.urgent);
+  EXPECT_TRUE(s.Assemble().empty()) << "the last one is kept";
+  s.Request(Requests(500, 3), Priority::kVisible);
+  auto visible = s.Assemble();
+  ASSERT_EQ(visible.size(), 1u);
+  EXPECT_TRUE(visible[0].urgent);
+  EXPECT_EQ(VerticesOf(visible), (std::set<VertexId>{500, 501, 502}));
+  EXPECT_TRUE(s.Assemble().empty()) << "every credit in flight";
+  s.Complete(s.OnReply(1, Answer(visible[0])).results);
+  EXPECT_TRUE(s.Assemble().empty()) << "its credit is the kept one again";
+  s.Complete(s.OnReply(1, Answer(background[0])).results);
+  EXPECT_EQ(s.Assemble().size(), 1u) << "a background credit back, a background batch out";
+
+  // A renderer with one credit keeps none.
+  SampleScheduler single(o, clock.Function());
+  single.Request(Requests(0, 10), Priority::kBackground);
+  single.RendererReady(1, kOneCredit);
+  EXPECT_EQ(single.Assemble().size(), 1u);
 }
 
 TEST(SampleScheduler, ALostRenderersWorkGoesToTheOthersFirst) {
@@ -816,6 +849,8 @@ TEST(SampleScheduler, TestsGoAfterPredictedBeforePreparedAndBackgroundOneContext
   EXPECT_EQ(VerticesOf({order[4]}), (std::set<VertexId>{30, 31})) << "prepared";
   EXPECT_EQ(VerticesOf({order[5]}), (std::set<VertexId>{0, 1, 2, 3})) << "background";
   for (int i : {0, 1, 4, 5}) EXPECT_EQ(order[size_t(i)].verify, nullptr) << i;
+  // Only what a client waits for overtakes the renderer's queue.
+  for (int i = 0; i < 6; ++i) EXPECT_EQ(order[size_t(i)].urgent, i == 0) << i;
   EXPECT_EQ(order[2].verify, first);
   EXPECT_EQ(order[3].verify, second);
   EXPECT_EQ(order[2].epoch, 6u) << "the context's target pose, not the current epoch";

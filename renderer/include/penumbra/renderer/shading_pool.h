@@ -2,6 +2,8 @@
 // ShadingPool: the renderer's worker threads. Batches (ShadeJobs) are split
 // into chunks; workers take chunks round-robin across sources (one source per
 // connection), so one connection's huge batch cannot starve another's.
+// Within a source chunks go in order, except that an urgent job's chunks
+// overtake the queued chunks of jobs that are not urgent.
 // Results leave in parts, as chunks finish, through the job's callback.
 //
 // Threads: Submit/Cancel/AddSource are thread-safe. Callbacks run on worker
@@ -30,6 +32,10 @@ struct ShadeJob {
 
   uint64_t batchId = 0;
   int paths = 0;  // 0: the shader's default
+  /// A client waits for it (ShadeRequest::urgent): its chunks go ahead of
+  /// its source's queued chunks of jobs that are not urgent (behind those
+  /// of earlier urgent jobs). Chunks being shaded are not interrupted.
+  bool urgent = false;
   /// The pose every sample is shaded at (from the shader's RayScene); null:
   /// the scene's initial pose. Held by the job, so a newer pose built
   /// meanwhile never changes what an older batch is shaded against.
@@ -84,6 +90,9 @@ class ShadingPool {
   Totals GetTotals() const;
 
  private:
+  // Paths per chunk at most (~10 ms of a worker on a real interior): how
+  // long an urgent job may wait for a worker to be free.
+  static constexpr size_t kChunkPaths = 2048;
   struct Chunk {
     std::shared_ptr<ShadeJob> job;
     size_t begin = 0;

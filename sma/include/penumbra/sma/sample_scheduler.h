@@ -24,6 +24,10 @@
 //    faster renderer gets its credits back sooner and gets more work; batch
 //    sizes follow each renderer's measured rate so a batch takes about
 //    `targetBatchTime`, shared among free credits when little is queued.
+//    A renderer's last free credit (of two or more) is kept for visible
+//    samples, which go as urgent batches (AssignedBatch::urgent) that the
+//    renderer shades ahead of what it has queued: a view's samples wait for
+//    at most the chunks being shaded, not for every batch in flight.
 //  * One requeue path (Requeue): whatever takes samples back from a renderer
 //    -- loss, timeout, bad reply, a refused batch -- puts them back at the
 //    front of their queue.
@@ -116,6 +120,9 @@ struct AssignedBatch {
   uint64_t epoch = 0;           // the scene epoch (pose) it is to be shaded at (SetEpoch)
   uint32_t pathsPerSample = 0;  // as sent (0: the renderer's default)
   bool prepared = false;        // shading ahead of a predicted move (Prepare): `epoch` is the predicted pose's
+  /// Visible priority: a client waits for it, so the renderer shades it
+  /// ahead of the batches it has queued (ShadeRequest::urgent).
+  bool urgent = false;
   std::vector<SampleRequest> samples;
   /// Set: a verification batch (Verify) testing `samples` against it;
   /// `epoch` is its target pose's.
@@ -342,6 +349,8 @@ class SampleScheduler {
   };
 
   bool Accepts(const Renderer& r, Clock::time_point now) const;
+  /// Credits of `r` kept free for visible samples now (0 or 1).
+  uint32_t Reserved(const Renderer& r) const;
   bool TakeNext(Priority priority, VertexId& out);
   bool TakeNextPrepared(VertexId& out);
   // The next queued test; with `context`, only one of that context.

@@ -59,10 +59,11 @@ constexpr uint64_t RoundOfWireId(uint64_t id) { return id >> 32; }
 void FillShadeRequest(uint64_t batchId, uint32_t pathsPerSample, std::span<const SampleRequest> samples,
                       wire::ShadeRequest* request, const ScenePose* pose = nullptr);
 /// The same batch as a whole frame, ready for net::Connection::SendFrame:
-/// built by the caller outside any lock.
+/// built by the caller outside any lock. `urgent`: a client waits for it
+/// (ShadeRequest::urgent; AssignedBatch::urgent).
 std::shared_ptr<const std::string> EncodeShadeRequestFrame(uint64_t batchId, uint32_t pathsPerSample,
                                                            std::span<const SampleRequest> samples,
-                                                           const ScenePose* pose = nullptr);
+                                                           const ScenePose* pose = nullptr, bool urgent = false);
 
 // --- Verification batches (issue 14, docs/moving-objects.md "A test instead
 // of a bound") ----------------------------------------------------------------
