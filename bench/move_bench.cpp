@@ -65,6 +65,8 @@ struct Options {
   std::string results;
   int moveTestPaths = 64;  // the SMA's --move-test-paths (0: the indirect bound invalidates)
   bool moveTestDirect = false;  // the SMA's --move-test-direct
+  std::string smaExe = PENUMBRA_SMA_EXE;  // another build's servers, for a before/after comparison
+  std::string rendererExe = PENUMBRA_RENDERER_EXE;
 };
 
 wire::Envelope MoveEnvelope(uint64_t requestId, uint32_t object, const RigidTransform& t) {
@@ -153,8 +155,8 @@ int Run(const Options& o) {
   SetupLogging("warn");
   SmaStackOptions so;
   so.scene = o.scene;
-  so.rendererExe = PENUMBRA_RENDERER_EXE;
-  so.smaExe = PENUMBRA_SMA_EXE;
+  so.rendererExe = o.rendererExe;
+  so.smaExe = o.smaExe;
   so.rendererThreads = 2;
   so.spp = o.spp;
   so.maxBounces = o.maxBounces;
@@ -255,6 +257,10 @@ int Run(const Options& o) {
   if (!epoch0 || !reshaded0) return 1;
   const RigidTransform centre = at;
   std::vector<Clock::time_point> sentAt;
+  std::vector<Vec3> sentTranslation;
+  // The move each epoch shows (its MOVED delta's transform of the object,
+  // matched to the nearest translation sent): lags are measured from it.
+  std::map<uint64_t, size_t> moveOfEpoch;
   std::vector<double> lags;
   uint64_t lastUpdatedEpoch = uint64_t(*epoch0);
   const auto t0 = Clock::now();
@@ -290,6 +296,7 @@ int Run(const Options& o) {
       t.translation += Vec3(float(0.1 * std::sin(angle)), 0.0f, float(0.1 * (std::cos(angle) - 1.0)));
       client->Wire().Send(MoveEnvelope(requestId++, objectId, t));
       sentAt.push_back(Clock::now());
+      sentTranslation.push_back(t.translation);
       lastHeartbeat = sentAt.back();
       ++sent;
       continue;
@@ -310,14 +317,24 @@ int Run(const Options& o) {
       const wire::Delta& d = e->delta();
       lastDelta.CopyFrom(d);
       // The SMA numbers its epochs one per applied move; moves it coalesced
-      // (a newer one arrived before the older was applied) share one. So a
-      // RESHADED delta at epoch e shows at least the (e - epoch0)-th move
-      // sent: its lag is measured from that move's sending -- an upper
-      // bound when moves were coalesced (the delta may show a later one).
+      // (a newer one arrived before the older was applied) share one. The
+      // MOVED delta says where the epoch put the object: the move sent
+      // nearest that place is the one it shows, and a RESHADED delta at
+      // epoch e (or later) answers it.
+      if (d.kind() == wire::DELTA_KIND_MOVED && !sentTranslation.empty())
+        for (int i = 0; i < d.moved_objects_size(); ++i) {
+          if (d.moved_objects(i) != objectId || d.moved_object_transforms_size() < 12 * (i + 1)) continue;
+          const float* m = d.moved_object_transforms().data() + 12 * i;
+          const Vec3 place(m[3], m[7], m[11]);
+          size_t nearest = 0;
+          for (size_t k = 1; k < sentTranslation.size(); ++k)
+            if (glm::length(sentTranslation[k] - place) < glm::length(sentTranslation[nearest] - place)) nearest = k;
+          moveOfEpoch[d.scene_epoch()] = nearest;
+        }
       if (d.kind() == wire::DELTA_KIND_RESHADED && d.scene_epoch() > lastUpdatedEpoch && !sentAt.empty()) {
         lastUpdatedEpoch = d.scene_epoch();
-        const size_t answered = std::min<size_t>(sentAt.size(), size_t(d.scene_epoch() - uint64_t(*epoch0)));
-        if (answered > 0) lags.push_back(Ms(Clock::now() - sentAt[answered - 1]));
+        if (auto it = moveOfEpoch.find(d.scene_epoch()); it != moveOfEpoch.end())
+          lags.push_back(Ms(Clock::now() - sentAt[it->second]));
       }
       if (sent == count && d.view_id() == 1 && d.converged() && d.scene_epoch() >= lastUpdatedEpoch &&
           !sentAt.empty()) {
@@ -368,6 +385,8 @@ int main(int argc, char** argv) {
                  "The SMA's --move-test-paths: paired samples of the test of the indirect class (0: no test)")
       ->check(CLI::Range(0, 65536));
   app.add_option("--move-test-direct", o.moveTestDirect, "The SMA's --move-test-direct");
+  app.add_option("--sma-exe", o.smaExe, "The SMA to run (another build's, to compare)");
+  app.add_option("--renderer-exe", o.rendererExe, "The renderer to run");
   CLI11_PARSE(app, argc, argv);
   return penumbra::Run(o);
 }
