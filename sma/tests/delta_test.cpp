@@ -96,16 +96,23 @@ TEST(SampleCacheTest, ABlackSampleIsNotKnownToBeAccurate) {
   EXPECT_NEAR(cache.RelativeError(0), 0.75f * 0.05f / (0.75f * 0.4f), 1e-5f);
 }
 
-TEST(ClientMirrorTest, UpdatesGoOnlyToVerticesTheClientHolds) {
+// A client that holds the first base triangle of a shaded quad.
+class HeldTriangleMirrorTest : public ::testing::Test {
+ protected:
+  HeldTriangleMirrorTest() {
+    cache.Reserve(h.VertexCount());
+    ShadeAll(h, cache);
+    const NodeId first = 0;
+    mirror.AppendChanges({}, std::span(&first, 1), h, cache, add);
+  }
   const Scene s = QuadScene();
-  Hierarchy h(s);
+  Hierarchy h{s};
   SampleCache cache;
-  cache.Reserve(h.VertexCount());
-  ShadeAll(h, cache);
   ClientMirror mirror;
-  wire::Delta add;
-  const NodeId first = 0;
-  mirror.AppendChanges({}, std::span(&first, 1), h, cache, add);
+  wire::Delta add;  // what the client was sent
+};
+
+TEST_F(HeldTriangleMirrorTest, UpdatesGoOnlyToVerticesTheClientHolds) {
   wire::Delta update;
   std::vector<VertexId> all;
   for (VertexId v = 0; v < h.VertexCount(); ++v) all.push_back(v);
@@ -119,16 +126,7 @@ TEST(ClientMirrorTest, UpdatesGoOnlyToVerticesTheClientHolds) {
 // A held vertex held back for a move's test (issue 14) is not sent while
 // suspect; the update owed for it stays owed, and goes once the test kept
 // the sample. One the test dropped is no longer owed (its reshade will be).
-TEST(ClientMirrorTest, AnUpdateOfASuspectVertexStaysOwedUntilItsTestKeepsIt) {
-  const Scene s = QuadScene();
-  Hierarchy h(s);
-  SampleCache cache;
-  cache.Reserve(h.VertexCount());
-  ShadeAll(h, cache);
-  ClientMirror mirror;
-  wire::Delta add;
-  const NodeId first = 0;
-  mirror.AppendChanges({}, std::span(&first, 1), h, cache, add);
+TEST_F(HeldTriangleMirrorTest, AnUpdateOfASuspectVertexStaysOwedUntilItsTestKeepsIt) {
   ASSERT_EQ(add.vertex_ids_size(), 3);
   const VertexId kept = VertexId(add.vertex_ids(0)), dropped = VertexId(add.vertex_ids(1)),
                  plain = VertexId(add.vertex_ids(2));
