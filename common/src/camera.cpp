@@ -71,6 +71,24 @@ CameraPose CameraPath::PoseAt(double t) const {
   pose.eye = glm::mix(a.pose.eye, b.pose.eye, s);
   pose.target = glm::mix(a.pose.target, b.pose.target, s);
   pose.up = glm::mix(a.pose.up, b.pose.up, s);
+  // Looking along up (or nearly: 10x the validation's margin): up from the
+  // keyframes' right vectors instead, which are perpendicular to their own
+  // views and so, near a crossing of the vertical, to this one's too. The
+  // street walk's path crossed it at 472.12 s and the SMA refused the view.
+  const Vec3 forward = glm::normalize(pose.target - pose.eye);
+  if (glm::length(glm::cross(forward, glm::normalize(pose.up))) < 1e-3f) {
+    for (const CameraPose* k : {&a.pose, &b.pose}) {
+      const Vec3 right = glm::cross(glm::normalize(k->target - k->eye), glm::normalize(k->up));
+      const Vec3 up = glm::cross(right, forward);
+      if (glm::length(up) > 1e-2f) {
+        pose.up = glm::normalize(up);
+        return pose;
+      }
+    }
+    // Both keyframes' right vectors lie along this view: any perpendicular.
+    const Vec3 axis = std::abs(forward.x) < 0.9f ? Vec3(1.0f, 0.0f, 0.0f) : Vec3(0.0f, 0.0f, 1.0f);
+    pose.up = glm::normalize(glm::cross(glm::cross(forward, axis), forward));
+  }
   return pose;
 }
 

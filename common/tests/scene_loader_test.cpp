@@ -403,6 +403,28 @@ TEST(SceneFileTest, FullSceneFileSetsEverything) {
   EXPECT_DOUBLE_EQ(dolly.DurationSeconds(), 2.0);
 }
 
+// A path that tilts from looking down one way to looking down the other
+// passes through looking straight down, along its up: every pose on it must
+// still be a valid view, whose up is perpendicular to it at the crossing.
+TEST(CameraPathTest, APathThroughTheVerticalStaysAValidView) {
+  CameraPath path;
+  path.keyframes.push_back({0.0, CameraPose{Vec3(0.0f, 10.0f, 0.0f), Vec3(1.0f, 0.0f, 0.0f), Vec3(0.0f, 1.0f, 0.0f)}});
+  path.keyframes.push_back({1.0, CameraPose{Vec3(0.0f, 10.0f, 0.0f), Vec3(-1.0f, 0.0f, 0.0f), Vec3(0.0f, 1.0f, 0.0f)}});
+  // And a segment whose up turns too, crossing the view direction twice.
+  path.keyframes.push_back({2.0, CameraPose{Vec3(0.0f, 10.0f, 0.0f), Vec3(0.0f, 20.0f, 0.0f), Vec3(1.0f, 0.0f, 0.0f)}});
+  for (int i = 0; i <= 2000; ++i) {
+    const double t = i / 1000.0;
+    const CameraView view = path.ViewAt(t);
+    ASSERT_TRUE(ValidateCameraView(view).ok()) << "t = " << t << ": " << ValidateCameraView(view).error().message;
+  }
+  const CameraPose down = path.PoseAt(0.5);
+  EXPECT_EQ(down.target, Vec3(0.0f, 0.0f, 0.0f)) << "straight down";
+  EXPECT_NEAR(glm::dot(glm::normalize(down.up), Vec3(0.0f, -1.0f, 0.0f)), 0.0f, 1e-6f);
+  EXPECT_NEAR(std::abs(down.up.x), 1.0f, 1e-6f) << "up along the way the camera was heading";
+  const CameraPose before = path.PoseAt(0.25);
+  EXPECT_EQ(before.up, Vec3(0.0f, 1.0f, 0.0f)) << "left alone away from the crossing";
+}
+
 TEST(SceneFileTest, CreaseAngleInTheFileOverridesTheOption) {
   ScratchDir dir;
   const std::string mesh = CornellBoxObj().string();

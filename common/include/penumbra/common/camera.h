@@ -77,6 +77,11 @@ struct CameraKeyframe {
 
 /// A camera path: keyframes in increasing time, poses interpolated linearly
 /// between them (eye, target and up each). A single keyframe is a still view.
+/// Where the interpolated view direction passes (nearly) through the
+/// interpolated up -- a path that tilts from looking down one way to looking
+/// down the other crosses the vertical -- up is taken perpendicular to the
+/// view, from the segment's first keyframe's right vector: every pose of a
+/// path is a valid view (ValidateCameraView), never a degenerate one.
 struct CameraPath {
   std::string name;
   float fovYDeg = 45.0f;
