@@ -280,11 +280,17 @@ TEST(SampleScheduler, AViewThatMovesOnDemotesToPredictedIfPredictedAndRequeueKee
   EXPECT_EQ(s.Counters().queuedPredicted, 0u);
 }
 
-TEST(SampleScheduler, CreditsBoundBatchesInFlight) {
-  FakeClock clock;
+// Batches of 1 to 5 samples: credits, not sizes, decide how many go out.
+SampleSchedulerOptions SmallBatchOptions() {
   SampleSchedulerOptions o = Options();
   o.minBatchSamples = 1;
   o.maxBatchSamples = 5;
+  return o;
+}
+
+TEST(SampleScheduler, CreditsBoundBatchesInFlight) {
+  FakeClock clock;
+  const SampleSchedulerOptions o = SmallBatchOptions();
   SampleScheduler s(o, clock.Function());
   s.Request(Requests(0, 100), Priority::kVisible);
   s.RendererReady(1, RendererCapacity{2, 1000, 32});  // its own limit: 2 batches
@@ -302,9 +308,7 @@ TEST(SampleScheduler, CreditsBoundBatchesInFlight) {
 // a visible request finds a credit at once and goes as an urgent batch.
 TEST(SampleScheduler, TheLastCreditWaitsForVisibleSamples) {
   FakeClock clock;
-  SampleSchedulerOptions o = Options();
-  o.minBatchSamples = 1;
-  o.maxBatchSamples = 5;
+  const SampleSchedulerOptions o = SmallBatchOptions();
   SampleScheduler s(o, clock.Function());
   s.Request(Requests(0, 100), Priority::kBackground);
   s.RendererReady(1, RendererCapacity{3, 1000, 32});
