@@ -84,8 +84,10 @@ for c in "${cases[@]}"; do
     --renderer "127.0.0.1:$(cat "$logs/r.port")" --criterion nld_os --log-level warn >"$logs/s.log" 2>&1 &
   spid=$!
   while [ ! -s "$logs/s.port" ]; do sleep 0.2; done
+  # --anisotropy 16: the texture filtering nearest the references' area average (the client's
+  # default on llvmpipe is isotropic, for speed; client/README.md "Texture filtering").
   "$build/client/penumbra-client" --connect "127.0.0.1:$(cat "$logs/s.port")" --headless --gl egl --camera "$camera" \
-    --size "$size" --supersample 4 --until-converged --timeout 1800 --screenshot "$out/$name-penumbra.exr" \
+    --size "$size" --supersample 4 --anisotropy 16 --until-converged --timeout 1800 --screenshot "$out/$name-penumbra.exr" \
     --stats "$out/$name-stats.jsonl" --log-level warn >"$logs/c.log" 2>&1 || { cat "$logs/c.log" >&2; exit 1; }
   kill "$spid" "$rpid"; wait "$spid" "$rpid" 2>/dev/null || true
   cell() {

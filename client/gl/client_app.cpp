@@ -1,6 +1,7 @@
 #include "gl/client_app.h"
 
 #include <algorithm>
+#include <cstdlib>
 #include <cmath>
 #include <cctype>
 #include <csignal>
@@ -23,6 +24,7 @@
 #include "penumbra/client/progress.h"
 #include "penumbra/client/projection.h"
 #include "penumbra/client/session.h"
+#include "penumbra/client/raster_load.h"
 #include "penumbra/client/stats_line.h"
 #include "penumbra/common/image_io.h"
 #include "penumbra/common/logging.h"
@@ -109,6 +111,8 @@ class ClientApp {
   std::optional<CameraView> CurrentView(Clock::time_point now) const;
   void UpdateAdaptation(double seconds);
   HeadlessObservation ObserveHeadless(Clock::time_point now) const;
+  Bounds3 DepthBounds() const;
+  void ExplainSlowFrame(double seconds, Clock::time_point now);
   void Render();
   void DrawHud();
   void UpdateRates(Clock::time_point now);
@@ -171,6 +175,7 @@ class ClientApp {
   bool screenshotRequested_ = false;
   std::string notice_;
   Clock::time_point noticeUntil_;
+  Clock::time_point nextSlowFrameLog_;
   std::optional<Clock::time_point> quitArmedAt_;
   bool permanentFailureLogged_ = false;
   ProgressRate stage1Rate_;
@@ -207,9 +212,12 @@ Status ClientApp::Init() {
     context_ = std::move(*context);
   }
   log_->info("OpenGL: {}", context_->Describe());
-  auto renderer = MeshRenderer::Create();
+  auto renderer = MeshRenderer::Create(options_.anisotropy);
   if (!renderer) return renderer.error();
   renderer_.emplace(std::move(*renderer));
+  log_->info("textures filtered {}", renderer_->Anisotropy() > 1.0f
+                                         ? fmt::format("with {:g}x anisotropy", renderer_->Anisotropy())
+                                         : std::string("isotropically (--anisotropy N to change)"));
   auto sky = SkyRenderer::Create();
   if (!sky) return sky.error();
   sky_.emplace(std::move(*sky));
@@ -249,6 +257,7 @@ int ClientApp::Run() {
     const auto now = Clock::now();
     const double seconds = Seconds(now - last).count();
     last = now;
+    ExplainSlowFrame(seconds, now);
     if (gStopSignal) {
       log_->info("stopping on signal {}", int(gStopSignal));
       return options_.headless ? 128 + int(gStopSignal) : 0;
@@ -644,10 +653,9 @@ HeadlessObservation ClientApp::ObserveHeadless(Clock::time_point now) const {
   return seen;
 }
 
-void ClientApp::Render() {
-  if (targets_.Size().x == 0) return;
+// Depth range: the scene as loaded, and wherever its objects are now.
+Bounds3 ClientApp::DepthBounds() const {
   const ClientScene* scene = model_.Scene();
-  // Depth range: the scene as loaded, and wherever its objects are now.
   Bounds3 bounds = scene ? scene->bounds : Bounds3{};
   if (scene)
     for (uint32_t id = 1; id <= scene->objects.size(); ++id) {
@@ -657,8 +665,37 @@ void ClientApp::Render() {
         bounds.Extend(b.max);
       }
     }
+  return bounds;
+}
+
+// A frame that took seconds (a headless client on a software rasteriser has
+// been seen to draw one frame a minute after a long walk, cause unknown):
+// says what the mesh draw asked of the rasteriser, so the log tells an
+// unusual mesh from a slow GL implementation. At most one line per 10 s.
+void ClientApp::ExplainSlowFrame(double seconds, Clock::time_point now) {
+  constexpr double kSlowFrameSeconds = 2.0;
+  if (seconds < kSlowFrameSeconds || frames_ == 0 || !sentView_ || !model_.Scene() || now < nextSlowFrameLog_) return;
+  nextSlowFrameLog_ = now + std::chrono::seconds(10);
+  const glm::ivec2 size = targets_.Size();
+  const RasterLoad load = MeasureRasterLoad(model_.Mesh(), WorldToClip(*sentView_, DepthBounds()), size.x, size.y);
+  const CameraPose& pose = sentView_->pose;
+  log_->warn("frame {} took {:.1f} s; view from ({:.3g} {:.3g} {:.3g}) to ({:.3g} {:.3g} {:.3g}), up ({:.3g} {:.3g} {:.3g}); {}",
+             frames_, seconds, pose.eye.x, pose.eye.y, pose.eye.z, pose.target.x, pose.target.y, pose.target.z,
+             pose.up.x, pose.up.y, pose.up.z, Describe(load, size.x, size.y));
+  if (std::getenv("PENUMBRA_CLIENT_TIME_SLOW_FRAMES")) {
+    targets_.BeginRadiance();
+    for (const auto& t : renderer_->TimeGroupDraws(WorldToClip(*sentView_, DepthBounds())))
+      log_->warn("  group of texture {} ({}x{}), {} slots: {:.3f} s drawn, {:.3f} s untextured, {:.3f} s isotropic",
+                 t.texture, t.textureWidth, t.textureHeight, t.slots, t.seconds, t.secondsUntextured,
+                 t.secondsIsotropic);
+  }
+}
+
+void ClientApp::Render() {
+  if (targets_.Size().x == 0) return;
+  const ClientScene* scene = model_.Scene();
   const std::optional<glm::mat4> worldToClip =
-      sentView_ && scene ? std::optional(WorldToClip(*sentView_, bounds)) : std::nullopt;
+      sentView_ && scene ? std::optional(WorldToClip(*sentView_, DepthBounds())) : std::nullopt;
   targets_.BeginRadiance();
   if (worldToClip && scene->sky) sky_->Draw(*worldToClip, *scene->sky);
   if (worldToClip) renderer_->DrawRadiance(*worldToClip);

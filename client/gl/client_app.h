@@ -42,6 +42,9 @@ struct ClientOptions {
   /// per pixel side, and write images box-filtered down to the view's size:
   /// the pixel filter of offline references (a box of one pixel).
   int supersample = 1;
+  /// Anisotropic texture filtering, 1-16; nullopt: 16 on a GPU, 1 on a
+  /// software rasteriser (texture_filtering.h says why).
+  std::optional<float> anisotropy;
   /// Headless: written when the run ends; .exr/.hdr hold linear radiance,
   /// .png/.jpg the tone-mapped image. Empty: none.
   std::filesystem::path screenshot;

@@ -1,8 +1,11 @@
 #include "gl/mesh_renderer.h"
 
 #include <algorithm>
+#include <chrono>
 
 #include <glm/gtc/type_ptr.hpp>
+
+#include "penumbra/client/texture_filtering.h"
 
 // The GL code sees the client core's domain types (ClientScene, the mesh
 // store, the session's events), never the wire's protobuf messages: this
@@ -102,12 +105,18 @@ void main() { outColour = uColour; }
 
 }  // namespace
 
-Expected<MeshRenderer> MeshRenderer::Create() {
+Expected<MeshRenderer> MeshRenderer::Create(std::optional<float> requestedAnisotropy) {
   auto radiance = BuildProgram("mesh radiance", kMeshVertexShader, kRadianceFragmentShader);
   if (!radiance) return radiance.error();
   auto wire = BuildProgram("mesh wireframe", kMeshVertexShader, kWireFragmentShader);
   if (!wire) return wire.error();
   MeshRenderer renderer(std::move(*radiance), std::move(*wire));
+  GLfloat maxAnisotropy = 1.0f;  // without the extension: isotropic only
+  if (epoxy_has_gl_extension("GL_EXT_texture_filter_anisotropic") ||
+      epoxy_has_gl_extension("GL_ARB_texture_filter_anisotropic"))
+    glGetFloatv(GL_MAX_TEXTURE_MAX_ANISOTROPY_EXT, &maxAnisotropy);
+  const auto* glRenderer = reinterpret_cast<const char*>(glGetString(GL_RENDERER));
+  renderer.anisotropy_ = ChooseAnisotropy(requestedAnisotropy, glRenderer ? glRenderer : "", maxAnisotropy);
   renderer.vertexBuffer_ = MakeBuffer();
   renderer.vertexTexture_ = MakeTexture();
   renderer.materialBuffer_ = MakeBuffer();
@@ -185,15 +194,13 @@ void MeshRenderer::UploadTexture(const ReceivedTexture& texture) {
   glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
   glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_REPEAT);
   glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_REPEAT);
-  // Anisotropic filtering where the implementation has it (Mesa does): the
+  // Anisotropic filtering (chosen at Create, texture_filtering.h): the
   // floors and walls of a walkthrough are seen at grazing angles, where
   // isotropic mipmapping blurs texture detail a camera would still resolve.
-  if (epoxy_has_gl_extension("GL_EXT_texture_filter_anisotropic") ||
-      epoxy_has_gl_extension("GL_ARB_texture_filter_anisotropic")) {
-    GLfloat maxAnisotropy = 1.0f;
-    glGetFloatv(GL_MAX_TEXTURE_MAX_ANISOTROPY_EXT, &maxAnisotropy);
-    glTexParameterf(GL_TEXTURE_2D, GL_TEXTURE_MAX_ANISOTROPY_EXT, std::min(maxAnisotropy, 16.0f));
-  }
+  group.anisotropy = anisotropy_;
+  if (anisotropy_ > 1.0f) glTexParameterf(GL_TEXTURE_2D, GL_TEXTURE_MAX_ANISOTROPY_EXT, anisotropy_);
+  group.albedoWidth = texture.width;
+  group.albedoHeight = texture.height;
   lastUploadBytes_ += texture.rgb8.size();
 }
 
@@ -252,7 +259,8 @@ void MeshRenderer::SyncGroup(TriangleGroup& group, GroupBuffers& gpu) {
   }
 }
 
-void MeshRenderer::DrawGroups(const Program& program, const glm::mat4& worldToClip, bool textures) const {
+void MeshRenderer::DrawGroups(const Program& program, const glm::mat4& worldToClip, bool textures,
+                              int onlyGroup) const {
   glUseProgram(program.id());
   glUniformMatrix4fv(glGetUniformLocation(program.id(), "uWorldToClip"), 1, GL_FALSE, glm::value_ptr(worldToClip));
   const GLint textured = glGetUniformLocation(program.id(), "uTextured");
@@ -263,8 +271,9 @@ void MeshRenderer::DrawGroups(const Program& program, const glm::mat4& worldToCl
   glActiveTexture(GL_TEXTURE0 + kObjectUnit);
   glBindTexture(GL_TEXTURE_BUFFER, objectTexture_.id());
   glActiveTexture(GL_TEXTURE0 + kAlbedoUnit);
-  for (const GroupBuffers& group : groups_) {
-    if (group.drawnSlots == 0) continue;
+  for (size_t g = 0; g < groups_.size(); ++g) {
+    const GroupBuffers& group = groups_[g];
+    if (group.drawnSlots == 0 || (onlyGroup >= 0 && size_t(onlyGroup) != g)) continue;
     const bool useTexture = textures && group.albedo.id() != 0;
     if (textured >= 0) glUniform1i(textured, useTexture ? 1 : 0);
     glBindTexture(GL_TEXTURE_2D, useTexture ? group.albedo.id() : 0);
@@ -281,6 +290,46 @@ void MeshRenderer::DrawRadiance(const glm::mat4& worldToClip) const {
   glDepthFunc(GL_LESS);
   DrawGroups(radiance_, worldToClip, /*textures=*/true);
   glDisable(GL_DEPTH_TEST);
+}
+
+std::vector<MeshRenderer::GroupDrawTime> MeshRenderer::TimeGroupDraws(const glm::mat4& worldToClip) {
+  std::vector<GroupDrawTime> times;
+  auto timed = [&](int g, bool textures) {
+    glFinish();
+    const auto start = std::chrono::steady_clock::now();
+    glEnable(GL_DEPTH_TEST);
+    glDepthFunc(GL_LESS);
+    DrawGroups(radiance_, worldToClip, textures, g);
+    glDisable(GL_DEPTH_TEST);
+    glFinish();
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  };
+  for (size_t g = 0; g < groups_.size(); ++g) {
+    GroupBuffers& group = groups_[g];
+    if (group.drawnSlots == 0) continue;
+    GroupDrawTime t;
+    t.texture = int32_t(g) - 1;
+    t.textureWidth = group.albedoWidth;
+    t.textureHeight = group.albedoHeight;
+    t.slots = group.drawnSlots;
+    t.seconds = timed(int(g), true);
+    t.secondsUntextured = timed(int(g), false);
+    if (group.albedo.id() && group.anisotropy > 1.0f) {
+      glActiveTexture(GL_TEXTURE0 + kAlbedoUnit);
+      glBindTexture(GL_TEXTURE_2D, group.albedo.id());
+      glTexParameterf(GL_TEXTURE_2D, GL_TEXTURE_MAX_ANISOTROPY_EXT, 1.0f);
+      t.secondsIsotropic = timed(int(g), true);
+      glActiveTexture(GL_TEXTURE0 + kAlbedoUnit);
+      glBindTexture(GL_TEXTURE_2D, group.albedo.id());
+      glTexParameterf(GL_TEXTURE_2D, GL_TEXTURE_MAX_ANISOTROPY_EXT, group.anisotropy);
+      glBindTexture(GL_TEXTURE_2D, 0);
+      glActiveTexture(GL_TEXTURE0);
+    } else {
+      t.secondsIsotropic = t.seconds;
+    }
+    times.push_back(t);
+  }
+  return times;
 }
 
 void MeshRenderer::DrawWireframe(const glm::mat4& worldToClip, const glm::vec4& colour) const {

@@ -23,6 +23,7 @@
 // Threads: render thread, with the context current.
 
 #include <cstdint>
+#include <optional>
 #include <vector>
 
 #include <glm/mat4x4.hpp>
@@ -35,7 +36,11 @@ namespace penumbra::client::gl {
 
 class MeshRenderer {
  public:
-  static Expected<MeshRenderer> Create();
+  /// `requestedAnisotropy`: --anisotropy, or nullopt for the default
+  /// (penumbra/client/texture_filtering.h: 16 on a GPU, 1 on llvmpipe).
+  static Expected<MeshRenderer> Create(std::optional<float> requestedAnisotropy = std::nullopt);
+  /// The GL_TEXTURE_MAX_ANISOTROPY textures are filtered with (1: isotropic).
+  float Anisotropy() const { return anisotropy_; }
 
   /// Brings the GPU copy up to date with `model`: materials and textures
   /// when the scene changes, textures received, and the dirty slot ranges
@@ -53,6 +58,17 @@ class MeshRenderer {
   /// Bytes sent to the GPU by the last Sync().
   size_t LastUploadBytes() const { return lastUploadBytes_; }
 
+  /// Diagnostics for a slow frame: how long each group's radiance draw takes
+  /// alone (into the bound framebuffer, waited for with glFinish), as drawn,
+  /// without its texture, and with its texture filtered isotropically.
+  struct GroupDrawTime {
+    int32_t texture = -1;
+    int textureWidth = 0, textureHeight = 0;
+    uint32_t slots = 0;
+    double seconds = 0.0, secondsUntextured = 0.0, secondsIsotropic = 0.0;
+  };
+  std::vector<GroupDrawTime> TimeGroupDraws(const glm::mat4& worldToClip);
+
  private:
   struct GroupBuffers {
     Buffer corners;
@@ -60,6 +76,8 @@ class MeshRenderer {
     uint32_t capacity = 0;      // triangle slots the buffer holds
     uint32_t drawnSlots = 0;    // the store's high-water mark at the last Sync
     Texture albedo;             // empty until the texture arrives
+    int albedoWidth = 0, albedoHeight = 0;
+    float anisotropy = 1.0f;    // the albedo's GL_TEXTURE_MAX_ANISOTROPY
   };
 
   MeshRenderer(Program radiance, Program wire) : radiance_(std::move(radiance)), wire_(std::move(wire)) {}
@@ -68,7 +86,7 @@ class MeshRenderer {
   void UploadObjectTransforms(const MeshStore& store);
   void SyncVertices(MeshStore& store);
   void SyncGroup(TriangleGroup& group, GroupBuffers& gpu);
-  void DrawGroups(const Program& program, const glm::mat4& worldToClip, bool textures) const;
+  void DrawGroups(const Program& program, const glm::mat4& worldToClip, bool textures, int onlyGroup = -1) const;
 
   Program radiance_;
   Program wire_;
@@ -80,6 +98,7 @@ class MeshRenderer {
   Buffer objectBuffer_;
   Texture objectTexture_;  // texture-buffer view of objectBuffer_: 3 texels per object
   std::vector<GroupBuffers> groups_;
+  float anisotropy_ = 1.0f;
   uint64_t sceneGeneration_ = 0;
   size_t lastUploadBytes_ = 0;
 };

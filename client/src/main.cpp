@@ -132,6 +132,10 @@ int main(int argc, char** argv) {
       app.add_option("--timeout", convergeTimeout, "Headless, --until-converged: fail after S seconds")
           ->check(CLI::Range(1, 86400))
           ->capture_default_str();
+  app.add_option("--anisotropy", options.anisotropy,
+                 "Anisotropic texture filtering, 1 (off) to 16; default 16 on a GPU, 1 on a software rasteriser "
+                 "(Mesa llvmpipe's takes seconds for some frames)")
+      ->check(CLI::Range(1.0f, 16.0f));
   auto* supersampleOption =
       app.add_option("--supersample", options.supersample,
                      "Headless: N x N samples per pixel (the SMA's visibility too), images box-filtered to the "

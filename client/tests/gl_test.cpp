@@ -4,6 +4,7 @@
 // including removals, slot reuse, upload sizes and textures; and the HUD
 // (Dear ImGui) in a GLFW window under a private Xvfb.
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
@@ -19,6 +20,7 @@
 #include "gl/tone_mapper.h"
 #include "penumbra/client/client_model.h"
 #include "penumbra/client/projection.h"
+#include "penumbra/client/texture_filtering.h"
 #include "penumbra/common/camera.h"
 #include "penumbra/common/scene.h"
 #include "support/delta_builder.h"
@@ -146,6 +148,21 @@ TEST_F(GlTest, SkyShowsSkyLightRadianceAlongEachPixelsRay) {
     }
   }
   EXPECT_TRUE(sawGround && sawZenithSide) << "the view should span the sky's range";
+}
+
+// Mesa's surfaceless EGL is llvmpipe here: isotropic filtering unless asked
+// (texture_filtering.h), and what is asked within the implementation's limit.
+TEST_F(GlTest, TexturesAreFilteredIsotropicallyOnASoftwareRasterizerUnlessAsked) {
+  const auto* name = reinterpret_cast<const char*>(glGetString(GL_RENDERER));
+  ASSERT_NE(name, nullptr);
+  auto byDefault = MeshRenderer::Create();
+  ASSERT_TRUE(byDefault.ok()) << byDefault.error().message;
+  EXPECT_EQ(byDefault->Anisotropy(), IsSoftwareRasterizer(name) ? 1.0f : 16.0f) << name;
+  auto asked = MeshRenderer::Create(4.0f);
+  ASSERT_TRUE(asked.ok()) << asked.error().message;
+  GLfloat limit = 1.0f;
+  if (epoxy_has_gl_extension("GL_EXT_texture_filter_anisotropic")) glGetFloatv(GL_MAX_TEXTURE_MAX_ANISOTROPY_EXT, &limit);
+  EXPECT_EQ(asked->Anisotropy(), std::min(4.0f, std::max(limit, 1.0f)));
 }
 
 class MeshRendererTest : public GlTest {
