@@ -25,7 +25,10 @@ out="${1:-$here/results}"
 build="$root/build"
 scene="${SCENE:-$root/scenes/street.json}"
 budgets="${BUDGETS:-0 256}"
-python=/usr/bin/python3  # Debian's, which has python3-matplotlib
+python=/usr/bin/python3  # Debian's, with python3-matplotlib for the plot
+# Checked before the walk, not after it: a run lasts over ten minutes.
+$python -c 'import matplotlib' 2>/dev/null ||
+  { echo "memory_walk: plot.py needs Debian's python3-matplotlib (apt-get install python3-matplotlib)" >&2; exit 2; }
 mkdir -p "$out"
 
 path_name="${CAMERA_PATH:-$($python -c 'import json,sys; print(next(iter(json.load(open(sys.argv[1]))["paths"])))' "$scene")}"
