@@ -1,6 +1,7 @@
 #include "penumbra/sma/collector.h"
 
 #include <algorithm>
+#include <optional>
 
 namespace penumbra::sma {
 
@@ -22,7 +23,7 @@ uint32_t MemoryCollector::LastUse(const Hierarchy& hierarchy, NodeId node) {
   return youngest;
 }
 
-void MemoryCollector::Scan(const Hierarchy& hierarchy) {
+void MemoryCollector::Scan(const Hierarchy& hierarchy, const SampleCache& cache) {
   candidates_.clear();
   next_ = 0;
   // Every collapsible node is the parent of a non-root node: visit each
@@ -34,26 +35,61 @@ void MemoryCollector::Scan(const Hierarchy& hierarchy) {
     const uint32_t lastUse = LastUse(hierarchy, parent);
     if (Old(hierarchy, lastUse)) candidates_.emplace_back(lastUse, parent);
   }
+  chunkCandidates_ = cache.OldChunks(0, VertexId(hierarchy.BaseVertexCount()), options_.minAgeTicks);
+  nextChunk_ = 0;
   const uint32_t now = hierarchy.Tick();
-  const auto older = [now](const auto& a, const auto& b) {
-    return now - a.first != now - b.first ? now - a.first > now - b.first : a.second < b.second;
+  const auto oldestFirst = [this, now](auto& list) {
+    const auto older = [now](const auto& a, const auto& b) {
+      return now - a.first != now - b.first ? now - a.first > now - b.first : a.second < b.second;
+    };
+    if (list.size() > options_.maxCandidates) {
+      std::nth_element(list.begin(), list.begin() + ptrdiff_t(options_.maxCandidates), list.end(), older);
+      list.resize(options_.maxCandidates);
+    }
+    std::sort(list.begin(), list.end(), older);
   };
-  if (candidates_.size() > options_.maxCandidates) {
-    std::nth_element(candidates_.begin(), candidates_.begin() + ptrdiff_t(options_.maxCandidates), candidates_.end(),
-                     older);
-    candidates_.resize(options_.maxCandidates);
-  }
-  std::sort(candidates_.begin(), candidates_.end(), older);
+  oldestFirst(candidates_);
+  oldestFirst(chunkCandidates_);
 }
 
 CollectStep MemoryCollector::Step(Hierarchy& hierarchy, SampleCache& cache, size_t bytesToFree,
-                                  const std::function<bool(const Hierarchy::CollapseGroup&)>& keep) {
+                                  const std::function<bool(const Hierarchy::CollapseGroup&)>& keep,
+                                  const std::function<bool(VertexId, VertexId)>& keepVertices) {
   CollectStep step;
+  const uint32_t now = hierarchy.Tick();
   // Bounded under the exclusive lock: at most maxGroupsPerStep collapses and
-  // four times as many groups looked at.
+  // drops, and four times as many candidates looked at.
   size_t attempts = 0;
-  while (next_ < candidates_.size() && step.groups < options_.maxGroupsPerStep && step.bytesFreed < bytesToFree &&
-         attempts++ < 4 * options_.maxGroupsPerStep) {
+  while (HasCandidates() && step.groups + step.chunksDropped < options_.maxGroupsPerStep &&
+         step.bytesFreed < bytesToFree && attempts++ < 4 * options_.maxGroupsPerStep) {
+    // The older of the two lists' heads (ticks wrap: compare ages).
+    const bool chunkFirst =
+        nextChunk_ < chunkCandidates_.size() &&
+        (next_ == candidates_.size() || now - chunkCandidates_[nextChunk_].first > now - candidates_[next_].first);
+    if (chunkFirst) {
+      const uint32_t chunk = chunkCandidates_[nextChunk_++].second;
+      const std::optional<uint32_t> lastUse = cache.ChunkLastUse(chunk);
+      if (!lastUse) continue;  // dropped, or made again and so young
+      if (!Old(hierarchy, *lastUse)) {
+        ++step.young;
+        continue;
+      }
+      const VertexId first = VertexId(chunk * SampleCache::kChunkVertices);
+      const VertexId end = VertexId(first + SampleCache::kChunkVertices);
+      if (keepVertices && keepVertices(first, end)) {
+        ++step.kept;
+        continue;
+      }
+      const std::optional<size_t> dropped = cache.DropChunk(chunk);
+      if (!dropped) {  // a move's state in it
+        ++step.kept;
+        continue;
+      }
+      ++step.chunksDropped;
+      step.samplesDropped += *dropped;
+      step.bytesFreed += SampleCache::ChunkBytes();
+      continue;
+    }
     const NodeId node = candidates_[next_++].second;
     // Splits and collections since the scan: it may be a leaf now, or a
     // reused id, or in use again.

@@ -2,7 +2,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <memory>
+#include <new>
 #include <thread>
+
+#include <sys/mman.h>
 
 #include <fmt/format.h>
 
@@ -43,8 +47,21 @@ void StoreRgb(std::atomic<float> (&c)[3], const Rgb& value) {
 }
 }  // namespace
 
-SampleCache::SampleCache() : directory_(new std::atomic<std::atomic<Slot*>*>[kTopEntries]()) {}
-SampleCache::~SampleCache() = default;
+namespace {
+// A chunk's slots: anonymous pages of their own, so that a drop can give
+// them back (MADV_DONTNEED) while they stay mapped and read as zeros.
+void* MapChunk(size_t bytes) {
+  void* memory = mmap(nullptr, bytes, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+  if (memory == MAP_FAILED) throw std::bad_alloc();
+  return memory;
+}
+}  // namespace
+
+SampleCache::SampleCache() : directory_(new std::atomic<Page*>[kTopEntries]()) {}
+
+SampleCache::~SampleCache() {
+  for (const auto& chunk : chunks_) munmap(chunk->slots, ChunkBytes());
+}
 
 void SampleCache::Reserve(size_t vertexCount) {
   if (vertexCount <= Size()) return;
@@ -55,36 +72,167 @@ void SampleCache::Reserve(size_t vertexCount) {
   size_.store(vertexCount, std::memory_order_release);
 }
 
-size_t SampleCache::MemoryBytes() const {
-  return kTopEntries * sizeof(std::atomic<std::atomic<Slot*>*>) +
-         pagesAllocated_.load(kRelaxed) * kPageEntries * sizeof(std::atomic<Slot*>) +
-         chunksAllocated_.load(kRelaxed) * kChunkSlots * sizeof(Slot);
+size_t SampleCache::ChunkBytes() {
+  static_assert(kChunkSlots * sizeof(Slot) % 4096 == 0, "a chunk's slots are whole pages");
+  return kChunkSlots * sizeof(Slot);
 }
 
-SampleCache::Slot& SampleCache::SlotFor(VertexId v) {
-  if (v >= Size()) Reserve(size_t(v) + 1);
-  if (const Slot* found = Find(v)) return const_cast<Slot&>(*found);
-  // The first write into this chunk (and maybe this page): made under the
-  // growth mutex, published with release so that a reader that finds a
-  // pointer sees what it points to initialised.
+size_t SampleCache::MemoryBytes() const {
+  // A dropped chunk's record: its size and a hash node's pointers and hash.
+  constexpr size_t kDroppedRecordBytes = sizeof(DroppedChunk) + sizeof(uint32_t) + 3 * sizeof(void*);
+  return kTopEntries * sizeof(std::atomic<Page*>) + pagesAllocated_.load(kRelaxed) * sizeof(Page) +
+         chunksMade_.load(kRelaxed) * sizeof(Chunk) + chunksInUse_.load(kRelaxed) * ChunkBytes() +
+         droppedRecords_.load(kRelaxed) * kDroppedRecordBytes;
+}
+
+SampleCache::Chunk* SampleCache::MakeChunk(VertexId v) {
   std::lock_guard lock(growthMutex_);
-  std::atomic<std::atomic<Slot*>*>& top = directory_[v >> kTopShift];
-  std::atomic<Slot*>* page = top.load(kRelaxed);
+  std::atomic<Page*>& top = directory_[v >> kTopShift];
+  Page* page = top.load(kRelaxed);
   if (!page) {
-    pages_.push_back(std::make_unique<std::atomic<Slot*>[]>(kPageEntries));
+    pages_.push_back(std::make_unique<Page>());
     page = pages_.back().get();
     top.store(page, std::memory_order_release);
     pagesAllocated_.fetch_add(1, kRelaxed);
   }
-  std::atomic<Slot*>& entry = page[(v >> kChunkBits) & (kPageEntries - 1)];
-  Slot* chunk = entry.load(kRelaxed);
-  if (!chunk) {
-    chunks_.push_back(std::make_unique<Slot[]>(kChunkSlots));
+  const size_t entryIndex = (v >> kChunkBits) & (kPageEntries - 1);
+  std::atomic<Chunk*>& entry = page->chunks[entryIndex];
+  if (Chunk* inUse = entry.load(kRelaxed)) return inUse;  // made meanwhile
+  Chunk* chunk = nullptr;
+  if (!freeChunks_.empty()) {
+    chunk = freeChunks_.back();  // its slots read zero: given back when it was dropped
+    freeChunks_.pop_back();
+  } else {
+    chunks_.push_back(std::make_unique<Chunk>());
     chunk = chunks_.back().get();
-    entry.store(chunk, std::memory_order_release);
-    chunksAllocated_.fetch_add(1, kRelaxed);
+    chunk->slots = static_cast<Slot*>(MapChunk(ChunkBytes()));
+    std::uninitialized_value_construct_n(chunk->slots, kChunkSlots);
+    chunksMade_.fetch_add(1, kRelaxed);
   }
-  return chunk[v & (kChunkSlots - 1)];
+  // Odd until published: a reader that still holds this record from its
+  // previous index looks up again.
+  PENUMBRA_CHECK(chunk->incarnation.load(kRelaxed) & 1u, "a chunk being made is not in use");
+  const uint32_t chunkIndex = uint32_t(v >> kChunkBits);
+  if (auto dropped = dropped_.find(chunkIndex); dropped != dropped_.end()) {
+    for (size_t i = 0; i < kChunkSlots; ++i) {
+      Slot& s = chunk->slots[i];
+      s.validFrom.store(dropped->second.validFrom, kRelaxed);
+      s.generation.store(dropped->second.generation + 1, kRelaxed);
+      s.dropped.store(dropped->second.shaded[i] ? 1 : 0, kRelaxed);
+    }
+    dropped_.erase(dropped);
+    droppedRecords_.store(dropped_.size(), kRelaxed);
+  }
+  chunk->index.store(chunkIndex, kRelaxed);
+  chunk->lastUse.store(Tick(), kRelaxed);
+  chunk->incarnation.store(chunk->incarnation.load(kRelaxed) + 1, std::memory_order_release);
+  // Release: a reader that finds the pointer sees the chunk as made.
+  entry.store(chunk, std::memory_order_release);
+  chunksInUse_.fetch_add(1, kRelaxed);
+  return chunk;
+}
+
+SampleCache::SlotWrite SampleCache::EnterSlot(VertexId v, bool make) {
+  if (make && v >= Size()) Reserve(size_t(v) + 1);
+  const uint32_t index = uint32_t(v >> kChunkBits);
+  for (;;) {
+    Chunk* chunk = const_cast<Chunk*>(FindChunk(v));
+    if (!chunk) {
+      if (!make) return SlotWrite(nullptr, nullptr);
+      chunk = MakeChunk(v);
+    }
+    // Dekker-style with DropChunk (which makes the incarnation odd, then
+    // reads the writers): sequentially consistent, so that either the drop
+    // sees this writer or this writer sees the drop.
+    chunk->writers.fetch_add(1, std::memory_order_seq_cst);
+    const uint64_t incarnation = chunk->incarnation.load(std::memory_order_seq_cst);
+    if (!(incarnation & 1u) && chunk->index.load(kRelaxed) == index)
+      return SlotWrite(chunk, &chunk->slots[v & (kChunkSlots - 1)]);
+    chunk->writers.fetch_sub(1, std::memory_order_release);
+    // A drop in progress holds the growth mutex to its end: wait for it,
+    // then look up again.
+    std::lock_guard wait(growthMutex_);
+  }
+}
+
+void SampleCache::Touch(VertexId v) const {
+  const Chunk* chunk = FindChunk(v);
+  if (!chunk) return;
+  // A stale record (dropped meanwhile) takes a harmless store: MakeChunk
+  // sets the last use of the chunk it makes.
+  const uint32_t now = Tick();
+  auto& lastUse = const_cast<std::atomic<uint32_t>&>(chunk->lastUse);
+  if (lastUse.load(kRelaxed) != now) lastUse.store(now, kRelaxed);
+}
+
+std::vector<std::pair<uint32_t, uint32_t>> SampleCache::OldChunks(VertexId first, VertexId end,
+                                                                  uint32_t minAgeTicks) const {
+  std::vector<std::pair<uint32_t, uint32_t>> old;
+  const size_t last = std::min<size_t>(end, Size());
+  const uint32_t now = Tick();
+  for (size_t c = (size_t(first) + kChunkSlots - 1) >> kChunkBits; (c + 1) << kChunkBits <= last; ++c) {
+    const Page* page = directory_[c >> kPageBits].load(std::memory_order_acquire);
+    if (!page) {
+      c |= kPageEntries - 1;  // the whole page is unused
+      continue;
+    }
+    const Chunk* chunk = page->chunks[c & (kPageEntries - 1)].load(std::memory_order_acquire);
+    if (!chunk) continue;
+    const uint32_t lastUse = chunk->lastUse.load(kRelaxed);
+    if (now - lastUse >= minAgeTicks) old.emplace_back(lastUse, uint32_t(c));  // unsigned: wraps with the tick
+  }
+  return old;
+}
+
+std::optional<uint32_t> SampleCache::ChunkLastUse(uint32_t chunk) const {
+  const Page* page = directory_[chunk >> kPageBits].load(std::memory_order_acquire);
+  if (!page) return std::nullopt;
+  const Chunk* found = page->chunks[chunk & (kPageEntries - 1)].load(std::memory_order_acquire);
+  if (!found) return std::nullopt;
+  return found->lastUse.load(kRelaxed);
+}
+
+std::optional<size_t> SampleCache::DropChunk(uint32_t chunkIndex) {
+  std::lock_guard lock(growthMutex_);
+  Page* page = directory_[chunkIndex >> kPageBits].load(kRelaxed);
+  if (!page) return std::nullopt;
+  const size_t entryIndex = chunkIndex & (kPageEntries - 1);
+  std::atomic<Chunk*>& entry = page->chunks[entryIndex];
+  Chunk* chunk = entry.load(kRelaxed);
+  if (!chunk) return std::nullopt;
+  // Only holders of the growth mutex change a chunk's incarnation: it is
+  // even here. Odd from now: readers wait, writers wait on this mutex.
+  const uint64_t incarnation = chunk->incarnation.load(kRelaxed);
+  chunk->incarnation.store(incarnation + 1, std::memory_order_seq_cst);
+  while (chunk->writers.load(std::memory_order_seq_cst) != 0) std::this_thread::yield();  // a few stores each
+  DroppedChunk record;
+  size_t shaded = 0;
+  for (size_t i = 0; i < kChunkSlots; ++i) {
+    const Slot& s = chunk->slots[i];
+    if (s.awaitingReshade.load(kRelaxed) || s.suspect.load(kRelaxed)) {
+      // A move's state must stay: the chunk is in use again, as it was.
+      chunk->incarnation.store(incarnation + 2, std::memory_order_release);
+      return std::nullopt;
+    }
+    // A sample dropped before and not shaded since still counts as dropped.
+    const bool had = s.shaded.load(kRelaxed) || s.dropped.load(kRelaxed);
+    shaded += s.shaded.load(kRelaxed) ? 1 : 0;
+    record.shaded[i] = had;
+    record.validFrom = std::max(record.validFrom, s.validFrom.load(kRelaxed));
+    record.generation = std::max(record.generation, s.generation.load(kRelaxed));  // the next chunk's start above it
+  }
+  dropped_[chunkIndex] = record;
+  droppedRecords_.store(dropped_.size(), kRelaxed);
+  entry.store(nullptr, std::memory_order_release);
+  // The pages go back to the system and read as zeros from now on: a
+  // never-shaded slot, which MakeChunk starts from.
+  PENUMBRA_CHECK(madvise(chunk->slots, ChunkBytes(), MADV_DONTNEED) == 0, "madvise(MADV_DONTNEED) of a cache chunk");
+  freeChunks_.push_back(chunk);
+  chunksInUse_.fetch_sub(1, kRelaxed);
+  chunksDropped_.fetch_add(1, kRelaxed);
+  shadedCount_ -= shaded;
+  changes_ += shaded;
+  return shaded;
 }
 
 uint32_t SampleCache::BeginWrite(Slot& s) {
@@ -113,18 +261,18 @@ void SampleCache::WriteValues(Slot& s, const ShadedSample& sample, uint16_t roun
 
 template <typename F>
 auto SampleCache::ReadConsistent(VertexId v, F&& read) const -> decltype(read(std::declval<const Slot&>())) {
-  const Slot* s = Find(v);
-  if (!s) return read(Slot{});  // an all-zero, unshaded slot
-  for (;;) {
-    const uint32_t before = s->sequence.load(std::memory_order_acquire);
-    if (before & 1u) {
-      std::this_thread::yield();
-      continue;
+  return ReadSlot(v, [&read](const Slot& s) {
+    for (;;) {
+      const uint32_t before = s.sequence.load(std::memory_order_acquire);
+      if (before & 1u) {
+        std::this_thread::yield();
+        continue;
+      }
+      auto value = read(s);
+      std::atomic_thread_fence(std::memory_order_acquire);
+      if (s.sequence.load(kRelaxed) == before) return value;
     }
-    auto value = read(*s);
-    std::atomic_thread_fence(std::memory_order_acquire);
-    if (s->sequence.load(kRelaxed) == before) return value;
-  }
+  });
 }
 
 std::optional<CachedSample> SampleCache::Read(VertexId v) const {
@@ -153,24 +301,23 @@ Rgb SampleCache::Irradiance(VertexId v) const {
   return ReadConsistent(v, [](const Slot& s) { return s.shaded.load(kRelaxed) ? LoadRgb(s.irradiance) : Rgb(0.0f); });
 }
 float SampleCache::IrradianceStdErr(VertexId v) const {
-  const Slot* s = Find(v);
-  return s && s->shaded.load(std::memory_order_acquire) ? s->irradianceStdErr.load(kRelaxed) : 0.0f;
+  return ReadSlot(v, [](const Slot& s) {
+    return s.shaded.load(std::memory_order_acquire) ? s.irradianceStdErr.load(kRelaxed) : 0.0f;
+  });
 }
 uint32_t SampleCache::Paths(VertexId v) const {
-  const Slot* s = Find(v);
-  return s && s->shaded.load(std::memory_order_acquire) ? s->paths.load(kRelaxed) : 0;
+  return ReadSlot(v, [](const Slot& s) { return s.shaded.load(std::memory_order_acquire) ? s.paths.load(kRelaxed) : 0u; });
 }
 uint16_t SampleCache::Rounds(VertexId v) const {
-  const Slot* s = Find(v);
-  return s && s->shaded.load(std::memory_order_acquire) ? s->rounds.load(kRelaxed) : 0;
+  return ReadSlot(v, [](const Slot& s) {
+    return s.shaded.load(std::memory_order_acquire) ? s.rounds.load(kRelaxed) : uint16_t(0);
+  });
 }
 uint32_t SampleCache::Generation(VertexId v) const {
-  const Slot* s = Find(v);
-  return s ? s->generation.load(std::memory_order_acquire) : 0;
+  return ReadSlot(v, [](const Slot& s) { return s.generation.load(std::memory_order_acquire); });
 }
 uint64_t SampleCache::ValidFrom(VertexId v) const {
-  const Slot* s = Find(v);
-  return s ? s->validFrom.load(std::memory_order_acquire) : 0;
+  return ReadSlot(v, [](const Slot& s) { return s.validFrom.load(std::memory_order_acquire); });
 }
 
 float SampleCache::RelativeError(VertexId v) const {
@@ -194,9 +341,9 @@ std::vector<VertexId> SampleCache::Improve(std::span<const ShadedSample> samples
   changed.reserve(samples.size());
   for (const ShadedSample& sample : samples) {
     if (sample.paths == 0) continue;
-    // A vertex whose chunk was never written is unshaded, never invalidated:
-    // an improvement has nothing to do there.
-    Slot* found = const_cast<Slot*>(Find(sample.vertex));
+    // A vertex with no chunk (never written, or dropped) is unshaded and
+    // awaits no reshade: an improvement has nothing to do there.
+    const SlotWrite found = EnterSlot(sample.vertex, /*make=*/false);
     if (!found) continue;
     Slot& s = *found;
     const uint32_t sequence = BeginWrite(s);
@@ -231,7 +378,8 @@ size_t SampleCache::Put(std::span<const ShadedSample> samples, bool keepRounds, 
   size_t added = 0;
   for (const ShadedSample& sample : samples) {
     if (sample.vertex == kNoVertex) continue;
-    Slot& s = SlotFor(sample.vertex);
+    const SlotWrite write = EnterSlot(sample.vertex, /*make=*/true);
+    Slot& s = *write;
     const uint32_t sequence = BeginWrite(s);
     // The epoch check is inside the slot's sequence, like Invalidate's
     // write of validFrom: whichever comes second sees the other.
@@ -240,6 +388,7 @@ size_t SampleCache::Put(std::span<const ShadedSample> samples, bool keepRounds, 
     } else if (!s.shaded.load(kRelaxed)) {
       WriteValues(s, sample, keepRounds ? sample.round : 0);
       if (s.awaitingReshade.exchange(0, kRelaxed)) ++reshaded_;
+      if (s.dropped.exchange(0, kRelaxed)) ++reshadedAfterDrop_;
       // A reshade replaces a sample held back for a test: the test's
       // answer, when it comes, finds the slot no longer suspect.
       s.suspect.store(0, kRelaxed);
@@ -261,8 +410,8 @@ size_t SampleCache::Store(std::span<const ShadedSample> samples, std::vector<Ver
 size_t SampleCache::Restore(std::span<const ShadedSample> samples) { return Put(samples, true, nullptr); }
 
 bool SampleCache::Evict(VertexId v) {
-  Slot* found = const_cast<Slot*>(Find(v));
-  if (!found) return false;  // never written: nothing to evict, and no chunk made for it
+  const SlotWrite found = EnterSlot(v, /*make=*/false);
+  if (!found) return false;  // no chunk: nothing to evict, and none made for it
   Slot& s = *found;
   const uint32_t sequence = BeginWrite(s);
   const bool wasShaded = s.shaded.load(kRelaxed) != 0;
@@ -282,8 +431,8 @@ bool SampleCache::Evict(VertexId v) {
 size_t SampleCache::SlotBytes() { return sizeof(Slot); }
 
 bool SampleCache::Forget(VertexId v) {
-  Slot* found = const_cast<Slot*>(Find(v));
-  if (!found) return false;  // never written: it reads unshaded already
+  const SlotWrite found = EnterSlot(v, /*make=*/false);
+  if (!found) return false;  // no chunk: it reads unshaded already
   Slot& s = *found;
   const uint32_t sequence = BeginWrite(s);
   const bool wasShaded = s.shaded.load(kRelaxed) != 0;
@@ -299,7 +448,8 @@ bool SampleCache::Forget(VertexId v) {
 }
 
 bool SampleCache::Invalidate(VertexId v, uint64_t epoch) {
-  Slot& s = SlotFor(v);
+  const SlotWrite write = EnterSlot(v, /*make=*/true);
+  Slot& s = *write;
   const uint32_t sequence = BeginWrite(s);
   if (s.validFrom.load(kRelaxed) < epoch) s.validFrom.store(epoch, std::memory_order_release);
   // A sample already shaded at this pose (dispatched after the move was
@@ -322,8 +472,8 @@ bool SampleCache::Invalidate(VertexId v, uint64_t epoch) {
 }
 
 std::optional<uint32_t> SampleCache::Suspect(VertexId v, uint64_t epoch) {
-  Slot* found = const_cast<Slot*>(Find(v));
-  if (!found) return std::nullopt;  // never written: nothing to test
+  const SlotWrite found = EnterSlot(v, /*make=*/false);
+  if (!found) return std::nullopt;  // no chunk: nothing to test
   Slot& s = *found;
   const uint32_t sequence = BeginWrite(s);
   if (s.validFrom.load(kRelaxed) < epoch) s.validFrom.store(epoch, std::memory_order_release);
@@ -348,7 +498,7 @@ bool SampleCache::Confirm(VertexId v, uint32_t generation) { return ResolveSuspe
 bool SampleCache::FailSuspect(VertexId v, uint32_t generation) { return ResolveSuspect(v, generation, false); }
 
 bool SampleCache::ResolveSuspect(VertexId v, uint32_t generation, bool keep) {
-  Slot* found = const_cast<Slot*>(Find(v));
+  const SlotWrite found = EnterSlot(v, /*make=*/false);
   if (!found) return false;
   Slot& s = *found;
   const uint32_t sequence = BeginWrite(s);

@@ -5,6 +5,7 @@
 #include <array>
 #include <map>
 #include <mutex>
+#include <numeric>
 #include <shared_mutex>
 #include <unordered_map>
 #include <unordered_set>
@@ -426,6 +427,13 @@ class SmaServer::Impl {
   // bounded step (exclusive lock), and posts itself again until the data is
   // down to the stop level or nothing old enough is left.
   void Collect(bool fresh);
+  // A view displayed, or a prediction asked for, `node`: it and the cache
+  // chunks of its corners are young again (the collector's ages). State
+  // lock shared or exclusive; atomics only.
+  void TouchForCollector(NodeId node) {
+    hierarchy_.Touch(node);
+    for (VertexId v : hierarchy_.GetNode(node).v) cache_.Touch(v);
+  }
   asio::steady_timer collectorTimer_{io_};
   Clock::time_point collectorStart_;
   MemoryCollector collector_;  // only the running collection job touches it
@@ -446,7 +454,8 @@ class SmaServer::Impl {
   std::atomic<uint64_t> collectedGroups_{0};
   std::atomic<uint64_t> collectedNodes_{0};
   std::atomic<uint64_t> collectedVertices_{0};
-  std::atomic<uint64_t> samplesEvicted_{0};     // freed vertices that had a sample
+  std::atomic<uint64_t> samplesEvicted_{0};     // freed vertices that had a sample, and dropped chunks' samples
+  std::atomic<uint64_t> sampleChunksDropped_{0};  // cache chunks of base-vertex samples dropped
   std::atomic<uint64_t> collectKept_{0};        // groups kept: held by a client or being shaded
   std::atomic<uint64_t> collectOverBudgetStuck_{0};  // collections that ended above the stop level
   std::atomic<size_t> memoryInUse_{0};          // as of the last check
@@ -485,6 +494,13 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
     for (NodeId n : group.freedNodes)
       if (mirror_.Holds(n)) return true;
     for (VertexId v : group.freedVertices)
+      if (mirror_.HoldsVertex(v)) return true;
+    return false;
+  }
+  /// Whether the client holds a vertex in [first, end) (a cache chunk the
+  /// collector would drop). Same threads as HoldsAnyOf.
+  bool HoldsAnyVertexIn(VertexId first, VertexId end) const {
+    for (VertexId v = first; v < end; ++v)
       if (mirror_.HoldsVertex(v)) return true;
     return false;
   }
@@ -818,7 +834,7 @@ void SmaServer::Impl::Session::StartJob() {
       } else {
         MapHitsToNodes(server.hierarchy_, *hits, &ChildrenShaded, &server.cache_, *visible, &server.shuttingDown_);
       }
-      for (NodeId node : visible->nodes) server.hierarchy_.Touch(node);  // the collector's ages
+      for (NodeId node : visible->nodes) server.TouchForCollector(node);
     }
     if (server.shuttingDown_) return;
     auto t2 = Clock::now();
@@ -1211,7 +1227,7 @@ void SmaServer::Impl::Session::MaybePredict() {
     std::shared_lock lock(server.stateMutex_);
     MapHitsToNodes(server.hierarchy_, hits, &ChildrenShaded, &server.cache_, visible, cancel.get());
     if (*cancel || server.shuttingDown_) return;
-    for (NodeId id : visible.nodes) server.hierarchy_.Touch(id);  // what a coming view needs ages from now
+    for (NodeId id : visible.nodes) server.TouchForCollector(id);  // what a coming view needs ages from now
     // The corners a view there would wait for; the pool skips those alive
     // or stored. Requested under the state lock like every request.
     std::vector<SampleRequest> requests;
@@ -1671,10 +1687,11 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
   AddCounter(reply, "collected_vertices", double(collectedVertices_.load()));
   AddCounter(reply, "collect_kept_groups", double(collectKept_.load()));
   AddCounter(reply, "samples_evicted", double(samplesEvicted_.load()));
+  AddCounter(reply, "sample_chunks_dropped", double(sampleChunksDropped_.load()));
   AddCounter(reply, "scene_records_released_bytes", double(recordsReleasedBytes_.load()));
   AddCounter(reply, "memory_trims", double(trims_.load()));
   AddCounter(reply, "memory_trimmed_bytes", double(trimmedBytes_.load()));
-  AddCounter(reply, "samples_reshaded_after_eviction", double(samplesRemade_.load()));
+  AddCounter(reply, "samples_reshaded_after_eviction", double(samplesRemade_.load() + cache_.ReshadedAfterDrop()));
   AddCounter(reply, "remaps_after_collection", double(remapsAfterCollection_.load()));
   AddCounter(reply, "view_remaps", double(viewRemaps_.load()));
   AddCounter(reply, "view_remaps_unchanged", double(viewRemapsUnchanged_.load()));
@@ -1792,7 +1809,7 @@ void SmaServer::Impl::LogStats() {
                          "{} re-made",
                          double(memoryInUse_.load()) / kMiB, double(options_.memoryBudgetBytes) / kMiB,
                          memoryInUse_.load() > options_.memoryBudgetBytes ? " (OVER)" : "", collections_.load(),
-                         collectedNodes_.load(), samplesEvicted_.load(), samplesRemade_.load());
+                         collectedNodes_.load(), samplesEvicted_.load(), samplesRemade_.load() + cache_.ReshadedAfterDrop());
   log_->info("stats: cache {} shaded, hit rate {:.1f}%; memory {:.1f} MiB{} (cache {:.1f}, hierarchy {:.1f}, "
              "clients {:.1f}; resident {:.1f}); {:.0f} requested/s, {:.0f} shaded/s, {} queued; "
              "renderers:{}; clients:{}; views: {}{}",
@@ -1816,7 +1833,8 @@ void SmaServer::Impl::ArmCollectorClock() {
   collectorTimer_.async_wait(asio::bind_executor(skeleton_.Control(), [this](const error_code& ec) {
     if (ec || shuttingDown_) return;
     const auto ticks = uint32_t((Clock::now() - collectorStart_) / kTick);
-    hierarchy_.SetTick(ticks);  // an atomic: no lock
+    hierarchy_.SetTick(ticks);  // atomics: no lock
+    cache_.SetTick(ticks);
     if (collector_.Enabled() && ticks % kCollectCheckTicks == 0 && !collecting_.exchange(true))
       jobs_.Post(kCollectorSession, JobClass::kRefinement, [this] { Collect(/*fresh=*/true); });
     ArmCollectorClock();
@@ -1856,7 +1874,7 @@ void SmaServer::Impl::Collect(bool fresh) {
     // freed nothing: then what is left is held, young or entangled with
     // what is held, and the next check (kCollectCheckTicks) looks again.
     if (!collector_.HasCandidates() && (fresh || collectedSinceScan_)) {
-      collector_.Scan(hierarchy_);  // O(nodes), views go on meanwhile
+      collector_.Scan(hierarchy_, cache_);  // O(nodes), views go on meanwhile
       collectedSinceScan_ = false;
     }
   }
@@ -1901,6 +1919,13 @@ void SmaServer::Impl::Collect(bool fresh) {
                              for (const auto& session : sessions)
                                if (session->HoldsAnyOf(group)) return true;
                              return pool_->AnyAlive(group.freedVertices);  // lock order: state, then pool
+                           },
+                           [&](VertexId first, VertexId stop) {
+                             for (const auto& session : sessions)
+                               if (session->HoldsAnyVertexIn(first, stop)) return true;
+                             std::vector<VertexId> vertices(stop - first);
+                             std::iota(vertices.begin(), vertices.end(), first);
+                             return pool_->AnyAlive(vertices);
                            });
   }
   collectedSinceScan_ = collectedSinceScan_ || step.groups > 0;
@@ -1909,9 +1934,12 @@ void SmaServer::Impl::Collect(bool fresh) {
   collectedNodes_ += step.nodesFreed;
   collectedVertices_ += step.verticesFreed;
   samplesEvicted_ += step.samplesDropped;
+  sampleChunksDropped_ += step.chunksDropped;
   collectKept_ += step.kept;
-  log_->debug("memory: collected {} groups ({} nodes, {} vertices, {} samples; {} kept, {} young), {:.1f} MiB",
-              step.groups, step.nodesFreed, step.verticesFreed, step.samplesDropped, step.kept, step.young,
+  log_->debug("memory: collected {} groups ({} nodes, {} vertices) and {} chunks of base-vertex samples "
+              "({} samples in all; {} kept, {} young), {:.1f} MiB",
+              step.groups, step.nodesFreed, step.verticesFreed, step.chunksDropped, step.samplesDropped, step.kept,
+              step.young,
               double(step.bytesFreed) / 1048576.0);
   jobs_.Post(kCollectorSession, JobClass::kRefinement, [this] { Collect(/*fresh=*/false); });
 }

@@ -190,7 +190,7 @@ TEST(CollectorTest, OldestGoFirstAndYoungOrKeptStay) {
   options.maxGroupsPerStep = 1;
   MemoryCollector collector(options);
   h.SetTick(260);  // the first region is 160 ticks old, the second 60
-  collector.Scan(h);
+  collector.Scan(h, cache);
   ASSERT_TRUE(collector.HasCandidates());
   // One group per step: the old region's deepest split goes first.
   CollectStep step = collector.Step(h, cache, ~size_t(0), nullptr);
@@ -206,7 +206,7 @@ TEST(CollectorTest, OldestGoFirstAndYoungOrKeptStay) {
   };
   collector = MemoryCollector(CollectorOptions{.minAgeTicks = 50});
   for (int pass = 0; pass < 10; ++pass) {
-    collector.Scan(h);
+    collector.Scan(h, cache);
     collector.Step(h, cache, ~size_t(0), keep);
   }
   EXPECT_FALSE(Refined(h, 2));
@@ -220,7 +220,7 @@ TEST(CollectorTest, OldestGoFirstAndYoungOrKeptStay) {
 
   // A touch makes a node young again: nothing is collected.
   h.ForEachLeaf(100, [&](NodeId id) { h.Touch(id); });
-  collector.Scan(h);
+  collector.Scan(h, cache);
   const CollectStep none = collector.Step(h, cache, ~size_t(0), nullptr);
   EXPECT_EQ(none.groups, 0u);
   EXPECT_TRUE(Refined(h, 100));
@@ -237,7 +237,7 @@ TEST(CollectorTest, DataInUseFallsAndFreedSlotsAreReused) {
   h.SetTick(1000);
   MemoryCollector collector(CollectorOptions{.budgetBytes = before, .minAgeTicks = 10});
   EXPECT_TRUE(collector.ShouldStart(before));
-  collector.Scan(h);
+  collector.Scan(h, cache);
   const CollectStep step = collector.Step(h, cache, ~size_t(0), nullptr);
   EXPECT_GT(step.groups, 0u);
   const size_t after = MemoryCollector::DataInUse(h, cache, 0);
@@ -246,7 +246,7 @@ TEST(CollectorTest, DataInUseFallsAndFreedSlotsAreReused) {
   // Everything collected (pass after pass: a scan finds the bottom level),
   // refining the same places again fits in the freed slots.
   for (int pass = 0; pass < 20 && h.LiveNodeCount() > h.RootCount(); ++pass) {
-    collector.Scan(h);
+    collector.Scan(h, cache);
     while (collector.HasCandidates()) collector.Step(h, cache, ~size_t(0), nullptr);
   }
   ASSERT_EQ(h.LiveNodeCount(), h.RootCount());
@@ -287,6 +287,61 @@ TEST(CollectorTest, SceneRecordsAreReleasedAndMadeAgainAsTheyWere) {
   ExpectWholeAndConforming(h, s, "after releasing the scene's records");
   RefineAround(h, 300, 2);  // refining goes on over released and remade records
   ExpectWholeAndConforming(h, s, "after refining again");
+}
+
+// Samples of base vertices go a cache chunk at a time, in age order with
+// the subtrees: the oldest first, never a chunk used within the minimum age
+// or one a client holds a vertex of (`keepVertices`).
+TEST(CollectorTest, BaseVertexSampleChunksAreDroppedOldestFirstUnlessHeld) {
+  Scene s = GridScene(40);  // 1681 points, two-sided: 3362 base vertices, chunks 0-2 wholly base
+  s.twoSided = true;
+  Hierarchy h(s);
+  SampleCache cache;
+  const auto setTick = [&](uint32_t t) {
+    h.SetTick(t);
+    cache.SetTick(t);
+  };
+  setTick(5);
+  RefineAround(h, 5, 2);  // older than any sample
+  setTick(10);
+  cache.Reserve(h.VertexCount());
+  std::vector<ShadedSample> samples;
+  for (VertexId v = 0; v < h.BaseVertexCount(); ++v) samples.push_back({v, Rgb(1.0f), Rgb(1.0f), 0.01f, 16, 0});
+  cache.Store(samples);
+  setTick(100);
+  constexpr VertexId kChunk = VertexId(SampleCache::kChunkVertices);
+  cache.Touch(kChunk + 3);  // chunk 1 was used just now
+  constexpr VertexId kHeld = 2 * kChunk + 100;  // a client holds a vertex of chunk 2
+  const auto keepVertices = [&](VertexId first, VertexId end) { return first <= kHeld && kHeld < end; };
+
+  MemoryCollector collector(CollectorOptions{.minAgeTicks = 50, .maxGroupsPerStep = 1});
+  collector.Scan(h, cache);
+  // The refined subtree is older: it goes first.
+  CollectStep step = collector.Step(h, cache, ~size_t(0), nullptr, keepVertices);
+  EXPECT_EQ(step.groups, 1u);
+  EXPECT_EQ(step.chunksDropped, 0u);
+  size_t chunks = 0, samplesDropped = 0, kept = 0, bytes = 0;
+  const size_t before = MemoryCollector::DataInUse(h, cache, 0);
+  while (collector.HasCandidates()) {
+    step = collector.Step(h, cache, ~size_t(0), nullptr, keepVertices);
+    chunks += step.chunksDropped;
+    kept += step.kept;
+    if (step.chunksDropped) {
+      samplesDropped += step.samplesDropped;
+      bytes += step.bytesFreed;
+    }
+  }
+  EXPECT_FALSE(Refined(h, 5));
+  EXPECT_EQ(chunks, 1u);  // chunk 0 only
+  EXPECT_EQ(kept, 1u);    // chunk 2
+  EXPECT_EQ(samplesDropped, size_t(kChunk));
+  EXPECT_EQ(bytes, SampleCache::ChunkBytes());
+  EXPECT_GE(before - MemoryCollector::DataInUse(h, cache, 0), SampleCache::ChunkBytes() - 512);
+  for (VertexId v = 0; v < h.BaseVertexCount(); ++v) ASSERT_EQ(cache.IsShaded(v), v >= kChunk) << v;
+  // Asked again, the dropped samples come back (and count as re-shaded).
+  cache.Store(std::span(samples).first(kChunk));
+  EXPECT_EQ(cache.ReshadedAfterDrop(), size_t(kChunk));
+  for (VertexId v = 0; v < h.BaseVertexCount(); ++v) ASSERT_TRUE(cache.IsShaded(v)) << v;
 }
 
 }  // namespace

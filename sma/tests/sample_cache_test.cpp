@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <cstdio>
 #include <cmath>
 #include <functional>
 #include <optional>
@@ -563,6 +564,173 @@ TEST(SampleCache, ConcurrentStoresAndInvalidationsLeaveNothingStale) {
     }
     EXPECT_EQ(cache.ValidFrom(v), kEpochs);
   }
+}
+
+
+// Dropping chunks (issue 15: samples no one holds are dropped).
+constexpr VertexId kChunk = VertexId(SampleCache::kChunkVertices);
+
+TEST(SampleCache, ADroppedChunkReadsUnshadedGivesItsMemoryBackAndIsReused) {
+  SampleCache cache;
+  cache.Reserve(3 * kChunk);
+  for (VertexId v = 0; v < 2 * kChunk; v += 7) cache.Store(std::vector{Sample(v, float(v))});
+  ASSERT_EQ(cache.ChunksInUse(), 2u);
+  const size_t bytes = cache.MemoryBytes();
+  const size_t shaded = cache.ShadedCount();
+  const size_t inFirst = (kChunk + 6) / 7;
+
+  const std::optional<size_t> dropped = cache.DropChunk(0);
+  ASSERT_TRUE(dropped);
+  EXPECT_EQ(*dropped, inFirst);
+  EXPECT_EQ(cache.ShadedCount(), shaded - inFirst);
+  EXPECT_EQ(cache.ChunksInUse(), 1u);
+  EXPECT_EQ(cache.ChunksDropped(), 1u);
+  // The chunk's slots are no longer counted (its record and what it passes
+  // on are, a few hundred bytes).
+  EXPECT_LE(cache.MemoryBytes(), bytes - SampleCache::ChunkBytes() + 512);
+  for (VertexId v = 0; v < kChunk; v += 7) {
+    ASSERT_FALSE(cache.IsShaded(v)) << v;
+    ASSERT_FALSE(cache.Read(v)) << v;
+  }
+  for (VertexId v = (kChunk + 6) / 7 * 7; v < 2 * kChunk; v += 7) {  // the other chunk is untouched
+    const auto sample = cache.Read(v);
+    ASSERT_TRUE(sample) << v;
+    ASSERT_EQ(sample->radiance.r, float(v));
+  }
+  EXPECT_FALSE(cache.DropChunk(0)) << "not in use";
+  EXPECT_FALSE(cache.DropChunk(2)) << "never made";
+
+  // A sample stored there again makes the chunk again from the dropped
+  // record: no new memory, and counted as a re-shade only for the vertices
+  // that had a sample.
+  cache.Store(std::vector{Sample(7, 70.0f), Sample(8, 80.0f)});
+  EXPECT_EQ(cache.ReshadedAfterDrop(), 1u);
+  EXPECT_EQ(cache.Read(7)->radiance.r, 70.0f);
+  EXPECT_EQ(cache.ChunksInUse(), 2u);
+  EXPECT_EQ(cache.MemoryBytes(), bytes);
+  // Improvements of dropped samples have nothing to improve.
+  EXPECT_TRUE(cache.Improve(std::vector{Sample(14, 1.0f, 1)}).empty());
+  EXPECT_FALSE(cache.IsShaded(14));
+}
+
+TEST(SampleCache, ADroppedChunkPassesOnValidFromAndGenerations) {
+  SampleCache cache;
+  cache.Reserve(kChunk);
+  cache.Store(std::vector{At(3, 1.0f, 1)});
+  EXPECT_TRUE(cache.Invalidate(3, 5));  // a move at epoch 5
+  cache.Store(std::vector{At(3, 5.0f, 5)});  // its reshade
+  const auto before = cache.Read(3);
+  ASSERT_TRUE(before);
+  ASSERT_TRUE(cache.DropChunk(0));
+  // A late reply shaded at the old pose is still refused after the drop.
+  std::vector<VertexId> stale;
+  EXPECT_EQ(cache.Store(std::vector{At(3, 1.0f, 4)}, &stale), 0u);
+  EXPECT_EQ(stale, std::vector<VertexId>{3});
+  EXPECT_EQ(cache.ValidFrom(3), 5u);
+  // A copy read before the drop never looks current again.
+  EXPECT_NE(cache.Generation(3), before->generation);
+  EXPECT_GT(cache.Generation(3), before->generation);
+  cache.Store(std::vector{At(3, 6.0f, 6)});
+  EXPECT_NE(cache.Read(3)->generation, before->generation);
+}
+
+TEST(SampleCache, AChunkHoldingAMovesStateIsNotDropped) {
+  SampleCache cache;
+  cache.Reserve(2 * kChunk);
+  cache.Store(std::vector{At(1, 1.0f, 1), At(kChunk + 1, 1.0f, 1)});
+  ASSERT_TRUE(cache.Invalidate(1, 2));  // awaiting its reshade
+  ASSERT_TRUE(cache.Suspect(kChunk + 1, 2));
+  EXPECT_FALSE(cache.DropChunk(0));
+  EXPECT_FALSE(cache.DropChunk(1));
+  EXPECT_TRUE(cache.AwaitingReshade(1));
+  EXPECT_TRUE(cache.IsSuspect(kChunk + 1));
+  EXPECT_EQ(cache.ChunksInUse(), 2u);
+  EXPECT_EQ(cache.ChunksDropped(), 0u);
+  // Once the move's work is done, the chunk may go.
+  cache.Store(std::vector{At(1, 2.0f, 2)});
+  EXPECT_TRUE(cache.DropChunk(0));
+}
+
+TEST(SampleCache, ChunksAgeFromTheirLastTouch) {
+  SampleCache cache;
+  cache.Reserve(4 * kChunk);
+  cache.SetTick(10);
+  for (VertexId c = 0; c < 3; ++c) cache.Store(std::vector{Sample(c * kChunk + 5, 1.0f)});
+  cache.SetTick(40);
+  cache.Touch(kChunk + 900);  // any vertex of chunk 1
+  cache.Touch(3 * kChunk + 1);  // no chunk: nothing
+  cache.SetTick(60);
+  using Old = std::vector<std::pair<uint32_t, uint32_t>>;
+  EXPECT_EQ(cache.OldChunks(0, 4 * kChunk, 30), (Old{{10, 0}, {10, 2}}));
+  EXPECT_EQ(cache.OldChunks(0, 4 * kChunk, 10), (Old{{10, 0}, {40, 1}, {10, 2}}));
+  // Only chunks wholly inside the range.
+  EXPECT_EQ(cache.OldChunks(1, 3 * kChunk - 1, 10), (Old{{40, 1}}));
+  EXPECT_EQ(cache.ChunkLastUse(1), 40u);
+  EXPECT_EQ(cache.ChunkLastUse(3), std::nullopt);
+  // A chunk made again is young.
+  ASSERT_TRUE(cache.DropChunk(0));
+  cache.Store(std::vector{Sample(5, 1.0f)});
+  EXPECT_EQ(cache.ChunkLastUse(0), 60u);
+}
+
+// Readers, writers and drops at once (meant for ThreadSanitizer and
+// AddressSanitizer too): a reader only ever sees vertex v's own sample, whole,
+// or none -- never a slot of a chunk reused for other vertices -- and the
+// counts add up at the end.
+TEST(SampleCache, ReadersAndWritersMeetDropsAndReusedChunksSafely) {
+  constexpr VertexId kChunks = 4;
+  constexpr VertexId kVertices = kChunks * kChunk;
+  SampleCache cache;
+  cache.Reserve(kVertices);
+  const auto valueOf = [](VertexId v) { return float(v) + 1.0f; };
+  std::atomic<bool> done{false};
+  std::atomic<uint64_t> drops{0}, wholeReads{0};
+  std::vector<std::thread> threads;
+  threads.emplace_back([&] {  // the renderers' replies
+    for (int round = 0; round < 600; ++round)
+      for (VertexId v = VertexId(round % 3); v < kVertices; v += 3) cache.Store(std::vector{Sample(v, valueOf(v))});
+    done = true;
+  });
+  threads.emplace_back([&] {  // improvements of whatever is there
+    while (!done)
+      for (VertexId v = 1; v < kVertices; v += 97) {
+        const uint16_t next = uint16_t(cache.Rounds(v) + 1);
+        cache.Improve(std::vector{Sample(v, valueOf(v), next)});
+      }
+  });
+  threads.emplace_back([&] {  // the collector
+    uint32_t c = 0;
+    while (!done) {
+      if (cache.DropChunk(c++ % kChunks)) ++drops;
+      std::this_thread::yield();
+    }
+  });
+  for (int r = 0; r < 2; ++r)
+    threads.emplace_back([&] {  // views
+      while (!done)
+        for (VertexId v = 0; v < kVertices; v += 5) {
+          cache.Touch(v);
+          if (const auto s = cache.Read(v)) {
+            ASSERT_TRUE(Whole(*s)) << v;
+            // Improvements mix equal values: the same up to rounding, while
+            // a neighbouring vertex's differs by 1 in at most 4097.
+            ASSERT_NEAR(s->radiance.r, valueOf(v), 1e-5f * valueOf(v))
+                << "vertex " << v << " read another vertex's sample";
+            ++wholeReads;
+          }
+          (void)cache.IsShaded(v);
+          (void)cache.Generation(v);
+        }
+    });
+  for (auto& t : threads) t.join();
+  EXPECT_GT(drops.load(), 0u);
+  EXPECT_GT(wholeReads.load(), 0u);
+  std::printf("%llu drops, %llu whole reads\n", (unsigned long long)drops.load(), (unsigned long long)wholeReads.load());
+  size_t shaded = 0;
+  for (VertexId v = 0; v < kVertices; ++v) shaded += cache.IsShaded(v) ? 1 : 0;
+  EXPECT_EQ(cache.ShadedCount(), shaded);
+  EXPECT_LE(cache.ChunksInUse(), size_t(kChunks));
+  EXPECT_EQ(cache.ChunksDropped(), drops.load());
 }
 
 }  // namespace

@@ -97,7 +97,7 @@ Status HeldMesh::Apply(const wire::Delta& d) {
   return Status::Ok();
 }
 
-size_t HeldMesh::CountTVertices() const {
+size_t HeldMesh::CountTVertices(uint64_t firstId) const {
   size_t count = 0;
   for (const auto& [id, corners] : triangles_) {
     for (int k = 0; k < 3; ++k) {
@@ -106,7 +106,8 @@ size_t HeldMesh::CountTVertices() const {
       const Vec3 ab = b - a;
       const float len2 = glm::dot(ab, ab);
       if (!(len2 > 0.0f)) continue;
-      for (const auto& [vid, v] : vertices_) {
+      for (auto it = vertices_.lower_bound(firstId); it != vertices_.end(); ++it) {
+        const Vertex& v = it->second;
         const float t = glm::dot(v.position - a, ab) / len2;
         if (t <= 1e-4f || t >= 1.0f - 1e-4f) continue;
         if (glm::length(v.position - (a + t * ab)) < 1e-5f * std::sqrt(len2)) ++count;

@@ -35,8 +35,12 @@ class HeldMesh {
   std::set<uint64_t> TriangleIds() const;
 
   /// Corners of held triangles lying strictly inside an edge of another held
-  /// triangle: T-vertices, which a conforming mesh has none of.
-  size_t CountTVertices() const;
+  /// triangle: T-vertices, which a conforming mesh has none of. Only
+  /// vertices of id `firstId` or more count: a real model's own mesh may
+  /// have T-junctions between its base vertices (Sponza has), and those the
+  /// SMA's refinement could make are at its midpoints, whose ids follow the
+  /// base vertices' (Hierarchy: "Ids").
+  size_t CountTVertices(uint64_t firstId = 0) const;
 
   uint64_t LastViewId() const { return viewId_; }
   /// The scene epoch of the last delta (never decreases).

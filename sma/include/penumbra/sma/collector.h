@@ -13,6 +13,13 @@
 // pressure: a walk whose working set exceeds the budget stays over it (the
 // SMA logs it) rather than thrash the view it is showing.
 //
+// Samples of base vertices. Their ids are never freed, so their samples go
+// with no collapse: the collector drops them a cache chunk (1 Ki vertices)
+// at a time (SampleCache::DropChunk), as old as the chunk's last use -- a
+// view or prediction that touched a node with a corner there -- and in the
+// same oldest-first order as the subtrees. A chunk any client holds a
+// vertex of, or a renderer is shading, stays (`keepVertices`).
+//
 // What is never collected (`keep`, the SMA's policy): a node a client holds
 // or a vertex it holds (no hole or T-vertex ever appears in a client's
 // mesh), and a vertex a renderer is shading (its reply would land in a
@@ -51,10 +58,11 @@ struct CollectStep {
   size_t groups = 0;          // groups collapsed
   size_t nodesFreed = 0;
   size_t verticesFreed = 0;
-  size_t samplesDropped = 0;  // freed vertices that had a sample
-  size_t kept = 0;            // groups `keep` refused (held by a client, or being shaded)
+  size_t samplesDropped = 0;  // freed vertices that had a sample, and samples of dropped chunks
+  size_t chunksDropped = 0;   // cache chunks of base vertices dropped
+  size_t kept = 0;            // groups and chunks kept (held by a client, or being shaded)
   size_t young = 0;           // candidates used since the scan, or whose group has a young member
-  size_t bytesFreed = 0;      // the hierarchy's live bytes and the cache slots freed
+  size_t bytesFreed = 0;      // the hierarchy's live bytes, the cache slots freed and chunks dropped
 };
 
 class MemoryCollector {
@@ -74,18 +82,22 @@ class MemoryCollector {
   /// the cache less the slots of freed vertices, and `clientBytes`.
   static size_t DataInUse(const Hierarchy& hierarchy, const SampleCache& cache, size_t clientBytes);
 
-  /// State lock shared: finds the collapsible nodes unused for minAgeTicks,
-  /// oldest first (at most maxCandidates). Replaces the previous list.
-  void Scan(const Hierarchy& hierarchy);
-  bool HasCandidates() const { return next_ < candidates_.size(); }
+  /// State lock shared: finds the collapsible nodes and the cache chunks of
+  /// base vertices unused for minAgeTicks, oldest first (at most
+  /// maxCandidates of each). Replaces the previous lists. The cache's clock
+  /// must be the hierarchy's (SampleCache::SetTick).
+  void Scan(const Hierarchy& hierarchy, const SampleCache& cache);
+  bool HasCandidates() const { return next_ < candidates_.size() || nextChunk_ < chunkCandidates_.size(); }
 
-  /// State lock exclusive: collapses candidates, oldest first, until
-  /// `bytesToFree` are freed or maxGroupsPerStep groups collapsed; skips a
-  /// candidate no longer collapsible or used since the scan, a group with a
-  /// young member, and a group `keep` says must stay. Each freed vertex is
-  /// forgotten in `cache`.
+  /// State lock exclusive: collapses candidates and drops chunks, oldest
+  /// first, until `bytesToFree` are freed or maxGroupsPerStep groups and
+  /// chunks are done; skips a candidate no longer collapsible (or no longer
+  /// in use) or used since the scan, a group with a young member, a group
+  /// `keep` says must stay and a chunk whose vertices [first, end)
+  /// `keepVertices` says must stay. Each freed vertex is forgotten in `cache`.
   CollectStep Step(Hierarchy& hierarchy, SampleCache& cache, size_t bytesToFree,
-                   const std::function<bool(const Hierarchy::CollapseGroup&)>& keep);
+                   const std::function<bool(const Hierarchy::CollapseGroup&)>& keep,
+                   const std::function<bool(VertexId first, VertexId end)>& keepVertices = nullptr);
 
   /// The tick a collapsible node was last used at: its youngest child's.
   static uint32_t LastUse(const Hierarchy& hierarchy, NodeId node);
@@ -98,6 +110,8 @@ class MemoryCollector {
   CollectorOptions options_;
   std::vector<std::pair<uint32_t, NodeId>> candidates_;  // (last use, node), oldest first
   size_t next_ = 0;
+  std::vector<std::pair<uint32_t, uint32_t>> chunkCandidates_;  // (last use, cache chunk), oldest first
+  size_t nextChunk_ = 0;
   Hierarchy::CollapseGroup group_;  // reused
 };
 

@@ -29,8 +29,30 @@
 //    generation. A reader holds values it copied, never a reference into a
 //    slot, so it is never left with a torn or freed sample; one that must
 //    know whether what it copied is still current compares
-//    CachedSample::generation with Generation(). Chunks are freed only with
-//    the cache.
+//    CachedSample::generation with Generation().
+//  * Dropping chunks (issue 15: samples no one holds are dropped). The ids
+//    of base vertices are never freed, so their samples are let go a chunk
+//    at a time: DropChunk() evicts every sample of a chunk and gives its
+//    pages back to the system (madvise), and the chunk record goes to a
+//    free list that the next chunk made reuses. Chunk memory is never
+//    unmapped while the cache lives (type-stable, like the kernel's
+//    SLAB_TYPESAFE_BY_RCU): a reader that found a chunk just before it was
+//    dropped still reads mapped memory (zeros), so readers need no
+//    reclamation scheme and take no lock and no read-modify-write. Each
+//    chunk carries an incarnation, a sequence lock one level up from the
+//    slots': odd while it is being dropped, dropped or being reused; a
+//    reader checks it is even and names the chunk index it looked up,
+//    before and after its read, and looks the chunk up again otherwise.
+//    Writers count themselves into the chunk (one atomic increment per
+//    write, which readers do not pay); a drop makes the incarnation odd,
+//    waits for the writers inside to leave (a few stores each) and holds
+//    the growth mutex throughout, so a writer that meets a drop waits on
+//    that mutex for it to end. What a dropped chunk's slots must pass on --
+//    their highest ValidFrom (epochs only rise) and generation (a copy a
+//    reader holds must never look current again) -- is kept per chunk
+//    index and given to the next chunk made there. Chunks have ages like
+//    the hierarchy's nodes (Touch, on the collector's clock, SetTick); the
+//    collector decides which to drop (collector.h).
 //  * Scene epochs (issue 14). Each slot keeps the epoch its sample was
 //    shaded at and the epoch it is valid from (`validFrom`): Invalidate(v, e)
 //    raises validFrom to e, and every write -- Store, Improve, Restore --
@@ -45,12 +67,16 @@
 //    radiance, its own copy) until the RESHADED update replaces it.
 
 #include <atomic>
+#include <bitset>
 #include <cstdint>
 #include <limits>
 #include <memory>
 #include <mutex>
 #include <optional>
 #include <span>
+#include <unordered_map>
+#include <thread>
+#include <utility>
 #include <vector>
 
 #include "penumbra/common/expected.h"
@@ -109,8 +135,7 @@ class SampleCache {
   size_t Size() const { return size_.load(std::memory_order_acquire); }
 
   bool IsShaded(VertexId v) const {
-    const Slot* s = Find(v);
-    return s && s->shaded.load(std::memory_order_acquire) != 0;
+    return ReadSlot(v, [](const Slot& s) { return s.shaded.load(std::memory_order_acquire) != 0; });
   }
   /// The whole sample of a shaded vertex, as one consistent copy; nothing
   /// for an unshaded one.
@@ -128,14 +153,12 @@ class SampleCache {
   /// Whether the vertex's sample was invalidated by a move and no valid one
   /// has been stored since (it is then unshaded, too).
   bool AwaitingReshade(VertexId v) const {
-    const Slot* s = Find(v);
-    return s && s->awaitingReshade.load(std::memory_order_acquire) != 0;
+    return ReadSlot(v, [](const Slot& s) { return s.awaitingReshade.load(std::memory_order_acquire) != 0; });
   }
   /// Whether the vertex's sample is held back awaiting a move's test
   /// (Suspect): then it is also unshaded and AwaitingReshade.
   bool IsSuspect(VertexId v) const {
-    const Slot* s = Find(v);
-    return s && s->suspect.load(std::memory_order_acquire) != 0;
+    return ReadSlot(v, [](const Slot& s) { return s.suspect.load(std::memory_order_acquire) != 0; });
   }
   /// The whole sample of a suspect vertex (as Read of a shaded one), for a
   /// later move to judge again; nothing when the vertex is not suspect.
@@ -221,9 +244,44 @@ class SampleCache {
   /// next vertex made: the collector counts it free).
   static size_t SlotBytes();
   size_t ShadedCount() const { return shadedCount_.load(std::memory_order_relaxed); }
-  /// Bytes the cache occupies: its chunk directory and the slot chunks
-  /// allocated so far (issue 15's memory accounting). Any thread.
+  /// Bytes the cache occupies: its chunk directory, the chunk records and
+  /// the slots of the chunks in use -- not those of dropped chunks, whose
+  /// pages went back to the system (issue 15's memory accounting). Any thread.
   size_t MemoryBytes() const;
+
+  // --- Dropping chunks (issue 15; the file comment says how) --------------
+  /// Vertices per chunk: what DropChunk lets go of at once. Chunk c holds
+  /// vertices [c * kChunkVertices, (c + 1) * kChunkVertices).
+  static constexpr size_t kChunkVertices = size_t(1) << 10;
+  /// Bytes of one chunk's slots (what a drop gives back).
+  static size_t ChunkBytes();
+  /// The collector's clock, in its ticks (SMA: Hierarchy::SetTick's). A
+  /// chunk made or touched takes the current tick as its last use.
+  void SetTick(uint32_t tick) { tick_.store(tick, std::memory_order_relaxed); }
+  uint32_t Tick() const { return tick_.load(std::memory_order_relaxed); }
+  /// A view displayed, or a prediction asked for, a node with this corner:
+  /// its chunk's last use is now. Nothing for a vertex with no chunk. Any
+  /// thread, no lock (one relaxed store when the tick moved).
+  void Touch(VertexId v) const;
+  /// The chunks in use that lie wholly within vertices [first, end) and
+  /// were last used `minAgeTicks` or more ago: (last use, chunk index).
+  std::vector<std::pair<uint32_t, uint32_t>> OldChunks(VertexId first, VertexId end, uint32_t minAgeTicks) const;
+  /// The tick chunk `chunk` was last used at; nothing if it is not in use.
+  std::optional<uint32_t> ChunkLastUse(uint32_t chunk) const;
+  /// Drops chunk `chunk`: its samples are evicted (unshaded, generations
+  /// bumped, ValidFrom kept) and its pages given back. Refused -- nothing
+  /// changes -- when it is not in use or a slot is AwaitingReshade or
+  /// suspect (a move's state, which must stay). Whoever calls it makes sure
+  /// no client holds and no renderer shades its vertices (the collector's
+  /// `keep`). Returns the samples dropped, or nothing if refused. Takes the
+  /// growth mutex; waits for the writers inside the chunk to leave.
+  std::optional<size_t> DropChunk(uint32_t chunk);
+  /// First estimates stored into vertices whose sample went with a dropped
+  /// chunk: the re-shading dropping cost (issue 15).
+  uint64_t ReshadedAfterDrop() const { return reshadedAfterDrop_.load(std::memory_order_relaxed); }
+  /// Chunks dropped since the cache was made, and chunks in use now.
+  uint64_t ChunksDropped() const { return chunksDropped_.load(std::memory_order_relaxed); }
+  size_t ChunksInUse() const { return chunksInUse_.load(std::memory_order_relaxed); }
   /// First estimates stored into vertices awaiting a reshade (a move
   /// invalidated their sample), since the cache was made.
   uint64_t Reshaded() const { return reshaded_.load(std::memory_order_relaxed); }
@@ -246,6 +304,7 @@ class SampleCache {
     std::atomic<uint32_t> sequence{0};  // odd while a writer is in the slot
     std::atomic<uint32_t> generation{0};
     std::atomic<uint8_t> shaded{0};
+    std::atomic<uint8_t> dropped{0};  // a sample of this vertex went with a dropped chunk (ReshadedAfterDrop)
     std::atomic<float> radiance[3];
     std::atomic<float> irradiance[3];
     std::atomic<float> irradianceStdErr{0.0f};
@@ -262,20 +321,80 @@ class SampleCache {
   // 4 Ki chunk pointers (covering 4 Mi vertices) made with its first chunk.
   static constexpr unsigned kChunkBits = 10;  // 1 Ki slots per chunk
   static constexpr size_t kChunkSlots = size_t(1) << kChunkBits;
+  static_assert(kChunkSlots == kChunkVertices);
   static constexpr unsigned kPageBits = 12;   // chunk pointers per directory page: 4 Ki
   static constexpr size_t kPageEntries = size_t(1) << kPageBits;
   static constexpr unsigned kTopShift = kChunkBits + kPageBits;
   static constexpr size_t kTopEntries = (size_t(std::numeric_limits<VertexId>::max()) >> kTopShift) + 1;
 
-  // Null for a vertex beyond Size() or whose chunk was never written.
-  const Slot* Find(VertexId v) const {
+  // A chunk's slots and what guards their reuse ("Dropping chunks").
+  struct Chunk {
+    std::atomic<uint64_t> incarnation{1};  // even: serves `index`; odd: being dropped, dropped or being made
+    std::atomic<uint32_t> index{0};        // the chunk index (v >> kChunkBits) it serves
+    std::atomic<uint32_t> writers{0};      // writers inside its slots now
+    std::atomic<uint32_t> lastUse{0};      // tick of its last Touch, or of its making
+    Slot* slots = nullptr;                 // kChunkSlots, mapped until the cache goes
+  };
+  // What a dropped chunk's slots pass on to the next chunk of its index.
+  struct DroppedChunk {
+    uint64_t validFrom = 0;          // the highest ValidFrom of its slots
+    uint32_t generation = 0;         // the highest generation of its slots
+    std::bitset<kChunkSlots> shaded;  // the slots that had a sample
+  };
+  struct Page {
+    std::atomic<Chunk*> chunks[kPageEntries];  // null: no chunk in use
+  };
+
+  // The chunk in use for `v`'s index when looked up (it may be being
+  // dropped: ReadSlot checks); null for a vertex beyond Size() or whose
+  // chunk was never written or was dropped.
+  const Chunk* FindChunk(VertexId v) const {
     if (v >= Size()) return nullptr;
-    const std::atomic<Slot*>* page = directory_[v >> kTopShift].load(std::memory_order_acquire);
-    if (!page) return nullptr;
-    const Slot* chunk = page[(v >> kChunkBits) & (kPageEntries - 1)].load(std::memory_order_acquire);
-    return chunk ? &chunk[v & (kChunkSlots - 1)] : nullptr;
+    const Page* page = directory_[v >> kTopShift].load(std::memory_order_acquire);
+    return page ? page->chunks[(v >> kChunkBits) & (kPageEntries - 1)].load(std::memory_order_acquire) : nullptr;
   }
-  Slot& SlotFor(VertexId v);  // grows the cache and allocates the slot's chunk when needed
+  // read(slot) on `v`'s slot -- or on an all-zero, unshaded slot when it has
+  // no chunk -- retried until the chunk's incarnation was even, named `v`'s
+  // chunk index and did not change across the read (the file comment).
+  // `read` must only load from the slot and be repeatable.
+  template <typename F>
+  auto ReadSlot(VertexId v, F&& read) const -> decltype(read(std::declval<const Slot&>())) {
+    const uint32_t index = uint32_t(v >> kChunkBits);
+    for (;;) {
+      const Chunk* chunk = FindChunk(v);
+      if (!chunk) return read(Slot{});
+      const uint64_t incarnation = chunk->incarnation.load(std::memory_order_acquire);
+      if (incarnation & 1u) {  // a drop in progress (the directory entry goes) or a chunk made meanwhile
+        std::this_thread::yield();
+        continue;
+      }
+      if (chunk->index.load(std::memory_order_relaxed) != index) continue;  // reused since the look-up
+      auto value = read(chunk->slots[v & (kChunkSlots - 1)]);
+      std::atomic_thread_fence(std::memory_order_acquire);
+      if (chunk->incarnation.load(std::memory_order_relaxed) == incarnation) return value;
+    }
+  }
+  // A writer inside one slot: counted into its chunk, so that no drop
+  // begins until it leaves (the destructor).
+  class SlotWrite {
+   public:
+    SlotWrite(Chunk* chunk, Slot* slot) : chunk_(chunk), slot_(slot) {}
+    SlotWrite(const SlotWrite&) = delete;
+    SlotWrite& operator=(const SlotWrite&) = delete;
+    ~SlotWrite() {
+      if (chunk_) chunk_->writers.fetch_sub(1, std::memory_order_release);
+    }
+    explicit operator bool() const { return slot_ != nullptr; }
+    Slot& operator*() const { return *slot_; }
+
+   private:
+    Chunk* chunk_;
+    Slot* slot_;
+  };
+  // Enters `v`'s slot to write it; with `make`, grows the cache and makes
+  // the chunk when needed, else an empty SlotWrite when there is no chunk.
+  SlotWrite EnterSlot(VertexId v, bool make);
+  Chunk* MakeChunk(VertexId v);  // under growthMutex_; the chunk in use if there is one
   // Writer side of a slot's sequence lock (writers of one slot serialize on it).
   static uint32_t BeginWrite(Slot& s);
   static void EndWrite(Slot& s, uint32_t sequence) { s.sequence.store(sequence + 2, std::memory_order_release); }
@@ -285,13 +404,20 @@ class SampleCache {
   template <typename F>
   auto ReadConsistent(VertexId v, F&& read) const -> decltype(read(std::declval<const Slot&>()));
 
-  std::unique_ptr<std::atomic<std::atomic<Slot*>*>[]> directory_;  // kTopEntries pages, null until made
-  std::vector<std::unique_ptr<std::atomic<Slot*>[]>> pages_;        // owned; under growthMutex_
-  std::mutex growthMutex_;  // Reserve only
-  std::vector<std::unique_ptr<Slot[]>> chunks_;  // owned, in allocation order; under growthMutex_
+  std::unique_ptr<std::atomic<Page*>[]> directory_;  // kTopEntries pages, null until made
+  std::mutex growthMutex_;  // Reserve, making and dropping chunks
+  std::vector<std::unique_ptr<Page>> pages_;      // owned; under growthMutex_
+  std::vector<std::unique_ptr<Chunk>> chunks_;    // every chunk made (slots unmapped with the cache); under growthMutex_
+  std::vector<Chunk*> freeChunks_;                // dropped, to be reused; under growthMutex_
+  std::unordered_map<uint32_t, DroppedChunk> dropped_;  // by chunk index, until made again; under growthMutex_
+  std::atomic<size_t> droppedRecords_{0};               // dropped_.size() for MemoryBytes
+  std::atomic<uint64_t> reshadedAfterDrop_{0};
   std::atomic<size_t> size_{0};
-  std::atomic<size_t> chunksAllocated_{0};  // chunks_.size(), pages_.size() for MemoryBytes (no lock)
+  std::atomic<size_t> chunksMade_{0};  // chunks_.size(), pages_.size() for MemoryBytes (no lock)
+  std::atomic<size_t> chunksInUse_{0};
   std::atomic<size_t> pagesAllocated_{0};
+  std::atomic<uint64_t> chunksDropped_{0};
+  std::atomic<uint32_t> tick_{0};
   std::atomic<size_t> shadedCount_{0};
   std::atomic<uint64_t> changes_{0};
   std::atomic<uint64_t> reshaded_{0};
