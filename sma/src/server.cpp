@@ -1928,8 +1928,9 @@ void SmaServer::Impl::Collect(bool fresh) {
                              return pool_->AnyAlive(vertices);
                            });
   }
-  collectedSinceScan_ = collectedSinceScan_ || step.groups > 0;
-  freedSinceTrim_ += step.bytesFreed;
+  collectedSinceScan_ = collectedSinceScan_ || step.groups > 0 || step.chunksDropped > 0;
+  // A dropped chunk's pages went back already (madvise): no trim for them.
+  freedSinceTrim_ += step.bytesFreed - step.chunksDropped * SampleCache::ChunkBytes();
   collectedGroups_ += step.groups;
   collectedNodes_ += step.nodesFreed;
   collectedVertices_ += step.verticesFreed;
