@@ -238,10 +238,11 @@ TEST_F(SmaMemoryTest, SamplesOfBaseVerticesNoOneHoldsAreDroppedAndComeBack) {
   SmaTestClient& client = *client_;
   // No T-vertex count here: Sponza's own mesh has T-junctions, and even
   // counting only the SMA's midpoints, 2-3 lie on a held edge on views
-  // where nothing was collected yet (where a long base edge meets two
-  // shorter ones, a split's midpoint is on a neighbour's edge it has no
-  // topological tie to). The Cornell-box walks above check the collector
-  // leaves none; the holes and extra pixels are checked here.
+  // where nothing was collected yet -- not chased here (suspected: where
+  // the scene's mesh has a T-junction, a long base edge along two shorter
+  // ones, a split's midpoint lies on a neighbour's edge that no point edge
+  // ties it to). The Cornell-box walks above check that the collector
+  // leaves none; holes and extra pixels are checked here.
   firstMidpointId_ = std::numeric_limits<uint64_t>::max();
   Visit("atrium", 1);
   const size_t atriumTriangles = client.Mesh().Triangles().size();
