@@ -9,6 +9,7 @@
 #include <fmt/format.h>
 
 #include "penumbra/common/connection.h"
+#include "penumbra/common/duration.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/messages.h"
 #include "penumbra/common/scene.h"
@@ -424,7 +425,7 @@ class SmaSession::Impl : public std::enable_shared_from_this<Impl> {
     const bool forLatest = delta.view_id() == lastSentViewId_;
     if (forLatest && awaitingFirstDelta_) {
       awaitingFirstDelta_ = false;
-      const double ms = std::chrono::duration<double, std::milli>(Clock::now() - lastViewSentAt_).count();
+      const double ms = Milliseconds(Clock::now() - lastViewSentAt_);
       std::lock_guard lock(mutex_);
       status_.viewToFirstDeltaMs = ms;
     }

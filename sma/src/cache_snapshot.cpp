@@ -14,6 +14,7 @@
 #include <spdlog/spdlog.h>
 
 #include "penumbra/common/check.h"
+#include "penumbra/common/duration.h"
 #include "penumbra/common/hash.h"
 #include "penumbra/common/logging.h"
 
@@ -25,7 +26,6 @@ static_assert(std::endian::native == std::endian::little, "cache snapshots assum
 namespace {
 
 using Clock = std::chrono::steady_clock;
-double Ms(Clock::duration d) { return std::chrono::duration<double, std::milli>(d).count(); }
 
 constexpr char kMagic[8] = {'P', 'N', 'B', 'R', 'S', 'M', 'A', 'C'};
 constexpr size_t kHeaderHashOffset = 56;
@@ -395,7 +395,7 @@ std::optional<RestoredCache> CacheSnapshotter::Restore(const Scene& scene, const
                file_.string(), restored.error().message);
     return std::nullopt;
   }
-  const double ms = Ms(Clock::now() - started);
+  const double ms = Milliseconds(Clock::now() - started);
   log_->info("cache: restored {} samples and {} splits ({} nodes, {} vertices) of scene identity {:016x} from {} "
              "({} bytes) in {:.1f} ms",
              restored->samples.size(), restored->splits, restored->hierarchy.NodeCount(),
@@ -465,8 +465,8 @@ bool CacheSnapshotter::SnapshotIfChanged() {
   stats_.lastBytes = bytes.size();
   stats_.lastSamples = data.samples.size();
   stats_.lastSplits = data.splits.size();
-  stats_.lastCaptureMs = Ms(captured - started);
-  stats_.lastWriteMs = Ms(done - captured);
+  stats_.lastCaptureMs = Milliseconds(captured - started);
+  stats_.lastWriteMs = Milliseconds(done - captured);
   log_->info("cache: snapshot of {} samples and {} splits written to {}: {} bytes; copied in {:.1f} ms, encoded and "
              "written in {:.1f} ms",
              data.samples.size(), data.splits.size(), file_.string(), bytes.size(), stats_.lastCaptureMs,

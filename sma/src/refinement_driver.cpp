@@ -2,6 +2,8 @@
 
 #include <mutex>
 
+#include "penumbra/common/duration.h"
+
 namespace penumbra::sma {
 
 RefinementDriver::RefinementDriver(RefinementParams params, uint64_t maxSamplesPerView)
@@ -67,7 +69,7 @@ RefinementStep RefinementDriver::RunStep(std::shared_ptr<Refiner> refiner, const
     }
     context.cache.Reserve(context.hierarchy.VertexCount());
     if (context.request && !step.created.empty()) context.request(step.created);
-    step.exclusiveMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - locked).count();
+    step.exclusiveMs = Milliseconds(std::chrono::steady_clock::now() - locked);
   }
   refiner->CountRequested(step.created.size());
   step.chosen = chosen.size();

@@ -13,6 +13,7 @@
 #include <fmt/format.h>
 
 #include "penumbra/common/auth.h"
+#include "penumbra/common/duration.h"
 #include "penumbra/common/embree_scene.h"
 #include "penumbra/common/logging.h"
 #include "penumbra/common/metrics.h"
@@ -43,7 +44,6 @@ namespace {
 using Clock = std::chrono::steady_clock;
 using boost::system::error_code;
 
-double Ms(Clock::duration d) { return std::chrono::duration<double, std::milli>(d).count(); }
 
 // Descend into a node's children once every vertex its split added is
 // shaded: a parent is replaced by its children only when they can be drawn.
@@ -802,14 +802,14 @@ void SmaServer::Impl::Session::StartJob() {
   // A refresh starts from the applied mapping of the same hits.
   std::shared_ptr<const VisibleSet> previous = newView ? nullptr : visible_;
   const auto posted = Clock::now();
-  const double beforePostMs = Ms(posted - state_.ViewReceived());
+  const double beforePostMs = Milliseconds(posted - state_.ViewReceived());
   JobsFor(view).Post(id_, newView ? JobClass::kNewView : JobClass::kRefresh,
                      [self, view, id, hits, previous, newView, posted, beforePostMs]() mutable {
     Impl& server = self->server_;
     JobTimings t;
     auto t0 = Clock::now();
     t.beforePostMs = beforePostMs;
-    t.queuedMs = Ms(t0 - posted);
+    t.queuedMs = Milliseconds(t0 - posted);
     // A re-map of hits traced before a move traces again: the object may
     // now hide or reveal triangles.
     const std::shared_ptr<const PosedEmbreeScene> posed = server.CurrentPosed();
@@ -838,8 +838,8 @@ void SmaServer::Impl::Session::StartJob() {
     }
     if (server.shuttingDown_) return;
     auto t2 = Clock::now();
-    t.traceMs = newView ? Ms(t1 - t0) : 0.0;
-    t.mapMs = Ms(t2 - t1);
+    t.traceMs = newView ? Milliseconds(t1 - t0) : 0.0;
+    t.mapMs = Milliseconds(t2 - t1);
     t.done = Clock::now();
     asio::post(self->connection_->Strand(),
                [self, id, newView, hits, visible, t] { self->OnJobDone(id, newView, hits, visible, t); });
@@ -862,17 +862,17 @@ void SmaServer::Impl::Session::OnJobDone(uint64_t viewId, bool newView, std::sha
   // same view (no trace, a re-map) would overwrite its trace time with 0.
   if (newView) lastTimings_ = timings;
   const auto planStart = Clock::now();
-  const double strandWaitMs = Ms(planStart - timings.done);
+  const double strandWaitMs = Milliseconds(planStart - timings.done);
   ApplyVisibility(newView);
   if (done.firstForView) {
-    lastFirstDeltaMs_ = Ms(Clock::now() - state_.ViewReceived());
+    lastFirstDeltaMs_ = Milliseconds(Clock::now() - state_.ViewReceived());
     server_.RecordView(timings.traceMs, timings.mapMs, lastFirstDeltaMs_);
     // Where a view's first delta waited: for a job thread (queued), for the
     // session's strand on the I/O thread (strand wait), or worked.
     log_->debug("{}: view {}: before its job {:.1f} ms, queued {:.1f} ms, trace {:.1f} ms, map {:.1f} ms, strand wait {:.1f} ms, "
                 "plan+send {:.1f} ms, view->first delta {:.1f} ms; {} visible, {} held, {} pending ({} samples)",
                 connection_->Id(), viewId, timings.beforePostMs, timings.queuedMs, timings.traceMs, timings.mapMs, strandWaitMs,
-                Ms(Clock::now() - planStart), lastFirstDeltaMs_, visible_->nodes.size(), mirror_.TriangleCount(), state_.PendingNodes(),
+                Milliseconds(Clock::now() - planStart), lastFirstDeltaMs_, visible_->nodes.size(), mirror_.TriangleCount(), state_.PendingNodes(),
                 state_.WaitingSamples());
   }
   UpdateReservation();
@@ -1961,7 +1961,7 @@ void SmaServer::Impl::TrimFreedHeap() {
   const auto before = metrics::ResidentMemoryBytes();
   const auto start = Clock::now();
   malloc_trim(0);
-  const double ms = std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+  const double ms = Milliseconds(Clock::now() - start);
   const auto after = metrics::ResidentMemoryBytes();
   ++trims_;
   if (before && after && *after < *before) trimmedBytes_ += *before - *after;
@@ -2089,7 +2089,7 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
   lastMoveInvalidatedUrgent_ = evictedUrgent;
   lastMoveCached_ = cachedBefore;
   lastMoveReshadedBase_ = cache_.Reshaded();
-  const double ms = Ms(Clock::now() - start);
+  const double ms = Milliseconds(Clock::now() - start);
   lastMoveApplyMs_ = ms;
   // 4. Tell every session: MOVED, held vertices asked again, views re-traced.
   auto notice = std::make_shared<MoveNotice>();
@@ -2158,7 +2158,7 @@ void SmaServer::Impl::PrepareMove(std::shared_ptr<const ScenePose> predicted) {
   }
   if (!preparation_.Begin(predicted, generation)) return;
   pool_->Prepare(requests, predicted);
-  lastPrepareMs_ = Ms(Clock::now() - start);
+  lastPrepareMs_ = Milliseconds(Clock::now() - start);
   log_->debug("scene epoch {} predicted: {} samples prepared in {:.1f} ms", predicted->epoch, requests.size(),
               lastPrepareMs_.load());
 }

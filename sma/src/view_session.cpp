@@ -3,12 +3,9 @@
 #include <algorithm>
 
 #include "penumbra/common/check.h"
+#include "penumbra/common/duration.h"
 
 namespace penumbra::sma {
-
-namespace {
-double Ms(ViewSession::Clock::duration d) { return std::chrono::duration<double, std::milli>(d).count(); }
-}  // namespace
 
 ViewSession::ViewSession(RefinementParams params, uint64_t maxRefinementSamplesPerView, bool improvementOn)
     : driver_(params, maxRefinementSamplesPerView), improvementOn_(improvementOn) {}
@@ -153,7 +150,7 @@ std::vector<NodeId> ViewSession::TakeReady(const std::vector<NodeId>& candidates
 
 std::optional<double> ViewSession::NoteStage1(Clock::time_point now) {
   if (stage1Ms_ >= 0.0 || !Stage1Done()) return std::nullopt;
-  stage1Ms_ = Ms(now - viewReceived_);
+  stage1Ms_ = Milliseconds(now - viewReceived_);
   return stage1Ms_;
 }
 
@@ -269,7 +266,7 @@ std::optional<double> ViewSession::FillStatus(wire::Delta& delta, bool last, siz
   sentConverged_ = converged;
   sentRefining_ = delta.refining();
   if (!converged || stage2Ms_ >= 0.0) return std::nullopt;
-  stage2Ms_ = Ms(now - viewReceived_);
+  stage2Ms_ = Milliseconds(now - viewReceived_);
   return stage2Ms_;
 }
 
