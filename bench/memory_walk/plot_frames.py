@@ -10,16 +10,13 @@ import json
 import statistics
 import sys
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+import figure
 
 
 def main():
     if len(sys.argv) < 3:
         sys.exit(__doc__)
-    fig, ax = plt.subplots(figsize=(10, 4.5))
+    fig, ax = figure.new()
     for arg in sys.argv[2:]:
         label, path = arg.split("=", 1)
         times = [json.loads(line)["time_s"] for line in open(path) if line.strip()]
@@ -32,14 +29,7 @@ def main():
               f"{sum(g >= 2.0 for g in gaps)} frames >= 2 s (longest {max(gaps):.1f} s)")
         ax.plot(times[1:], gaps, label=label, linewidth=0.7, drawstyle="steps-pre")  # each interval over its span
     ax.set_yscale("log")
-    ax.set_xlabel("client time (s)")
-    ax.set_ylabel("frame interval (s)")
-    ax.set_title("Headless client frame times over the street walk (Mesa llvmpipe)")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(sys.argv[1], dpi=100)
-    print(f"plot: {sys.argv[1]}")
+    figure.save(fig, ax, sys.argv[1], "client time (s)", "frame interval (s)", "Headless client frame times over the street walk (Mesa llvmpipe)", grid_which="both")
 
 
 if __name__ == "__main__":

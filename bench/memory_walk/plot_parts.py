@@ -10,9 +10,7 @@ samples shaded and evicted, and re-shaded after eviction."""
 import csv
 import sys
 
-import matplotlib
-
-matplotlib.use("Agg")
+import figure  # first: it selects the Agg backend
 import matplotlib.pyplot as plt  # noqa: E402
 
 MIB = 1024.0 * 1024.0
@@ -26,7 +24,7 @@ def number(row, key):
 def main():
     if len(sys.argv) < 3:
         sys.exit(__doc__)
-    fig, ax = plt.subplots(figsize=(10, 4.5))
+    fig, ax = figure.new()
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for i, arg in enumerate(sys.argv[2:]):
         label, path = arg.split("=", 1)
@@ -46,14 +44,7 @@ def main():
         colour = colours[i % len(colours)]
         ax.plot(t, cache, color=colour, label=f"{label}: sample cache")
         ax.plot(t, hierarchy, color=colour, linestyle="--", label=f"{label}: hierarchy")
-    ax.set_xlabel("walk time (s)")
-    ax.set_ylabel("MiB")
-    ax.set_title("The SMA's data by part over the street walk")
-    ax.grid(True, alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(sys.argv[1], dpi=100)
-    print(f"plot: {sys.argv[1]}")
+    figure.save(fig, ax, sys.argv[1], "walk time (s)", "MiB", "The SMA's data by part over the street walk")
 
 
 if __name__ == "__main__":
