@@ -65,6 +65,8 @@ struct Options {
   std::string results;
   int moveTestPaths = 64;  // the SMA's --move-test-paths (0: the indirect bound invalidates)
   bool moveTestDirect = false;  // the SMA's --move-test-direct
+  std::string movePrediction = "on";  // the SMA's --move-prediction (a steady drag's next place shaded ahead)
+  std::string smaLogLevel = "warn";   // its log: bench-sma.log in the SMA's temporary folder
   std::string smaExe = PENUMBRA_SMA_EXE;  // another build's servers, for a before/after comparison
   std::string rendererExe = PENUMBRA_RENDERER_EXE;
 };
@@ -161,7 +163,8 @@ int Run(const Options& o) {
   so.spp = o.spp;
   so.maxBounces = o.maxBounces;
   so.smaArgs = {"--move-test-paths", std::to_string(o.moveTestPaths), "--move-test-direct",
-                o.moveTestDirect ? "true" : "false"};
+                o.moveTestDirect ? "true" : "false", "--move-prediction", o.movePrediction,
+                "--log-level", o.smaLogLevel};
   auto stack = StartSmaStack(so);
   if (!stack) {
     std::fprintf(stderr, "move_bench: %s\n", stack.error().message.c_str());
@@ -192,9 +195,10 @@ int Run(const Options& o) {
   }
   const CameraView view = *preset;
   std::printf("# move_bench: %s, object %s, camera %s, %dx%d, renderer --spp %d --max-bounces %d, "
-              "SMA --move-test-paths %d --move-test-direct %s; load %s\n",
+              "SMA --move-test-paths %d --move-test-direct %s --move-prediction %s; load %s\n",
               o.scene.filename().string().c_str(), o.object.c_str(), o.camera.c_str(), o.width, o.height, o.spp,
-              o.maxBounces, o.moveTestPaths, o.moveTestDirect ? "true" : "false", LoadAverage().c_str());
+              o.maxBounces, o.moveTestPaths, o.moveTestDirect ? "true" : "false", o.movePrediction.c_str(),
+              LoadAverage().c_str());
   auto first = TimeView(*client, view, 1);
   if (!first) {
     std::fprintf(stderr, "move_bench: %s\n", first.error().message.c_str());
@@ -244,7 +248,8 @@ int Run(const Options& o) {
                    f->reshaded, f->urgent, f->requested, rr, ru, rq, f->firstUpdateMs, f->convergedMs, f->tested,
                    f->kept);
   }
-  std::printf("median: full/reshaded %.1fx, full/urgent %.1fx, full/requested %.1fx, static part %.1fx, first update "
+  if (o.moves > 0)
+    std::printf("median: full/reshaded %.1fx, full/urgent %.1fx, full/requested %.1fx, static part %.1fx, first update "
               "%.0f ms, converged %.0f ms\n",
               Percentile(reshadeRatios, 50), Percentile(urgentRatios, 50), Percentile(requestRatios, 50),
               Percentile(staticRatios, 50), Percentile(firstUpdates, 50), Percentile(convergeTimes, 50));
@@ -350,7 +355,21 @@ int Run(const Options& o) {
   auto epoch1 = CounterOf(*client, "scene_epoch");
   auto reshaded1 = CounterOf(*client, "samples_reshaded_after_move");
   if (!epoch1 || !reshaded1) return 1;
-  std::printf("\ncontinuous: %d moves at %.0f/s sent; the SMA applied %.0f epochs (%.0f coalesced); "
+  // Epochs whose first update came before the next move was sent.
+  const double periodMs = 1000.0 / o.rate;
+  const auto inTime = std::count_if(lags.begin(), lags.end(), [&](double lag) { return lag < periodMs; });
+  const auto counter = [&](const char* name) {
+    auto value = CounterOf(*client, name);
+    return value ? *value : -1.0;
+  };
+  std::printf("\ncontinuous: shadow lag p90 %.0f ms; %ld of %.0f epochs updated before the next move; "
+              "move prediction: %.0f predicted, %.0f hit, %.0f moves snapped; prepared samples: %.0f asked, %.0f arrived, "
+              "%.0f stored, %.0f dropped\n",
+              Percentile(lags, 90), long(inTime), *epoch1 - *epoch0, counter("move_predictions"),
+              counter("move_predictions_hit"), counter("moves_snapped"),
+              counter("samples_prepared"), counter("samples_prepared_arrived"), counter("samples_prepared_stored"),
+              counter("samples_prepared_dropped"));
+  std::printf("continuous: %d moves at %.0f/s sent; the SMA applied %.0f epochs (%.0f coalesced); "
               "shadow lag (move -> first RESHADED at its epoch) p50 %.0f ms, p99 %.0f ms over %zu epochs; "
               "re-shaded %.0f samples; converged %.0f ms after the last move\n",
               count, o.rate, *epoch1 - *epoch0, double(count) - (*epoch1 - *epoch0), Percentile(lags, 50),
@@ -372,7 +391,8 @@ int main(int argc, char** argv) {
   app.add_option("--scene", o.scene);
   app.add_option("--object", o.object);
   app.add_option("--camera", o.camera);
-  app.add_option("--moves", o.moves)->check(CLI::Range(1, 1000));
+  app.add_option("--moves", o.moves, "Moves each waited on until converged (0: only the continuous motion)")
+      ->check(CLI::Range(0, 1000));
   app.add_option("--step", o.step)->check(CLI::Range(0.0001, 10.0));
   app.add_option("--rate", o.rate)->check(CLI::Range(0.1, 100.0));
   app.add_option("--seconds", o.seconds)->check(CLI::Range(0.1, 600.0));
@@ -385,6 +405,9 @@ int main(int argc, char** argv) {
                  "The SMA's --move-test-paths: paired samples of the test of the indirect class (0: no test)")
       ->check(CLI::Range(0, 65536));
   app.add_option("--move-test-direct", o.moveTestDirect, "The SMA's --move-test-direct");
+  app.add_option("--move-prediction", o.movePrediction, "The SMA's --move-prediction")
+      ->check(CLI::IsMember({"on", "off"}));
+  app.add_option("--sma-log-level", o.smaLogLevel, "The SMA's --log-level (its log: bench-sma.log in its folder)");
   app.add_option("--sma-exe", o.smaExe, "The SMA to run (another build's, to compare)");
   app.add_option("--renderer-exe", o.rendererExe, "The renderer to run");
   CLI11_PARSE(app, argc, argv);

@@ -94,13 +94,6 @@ std::optional<MoveThrottle::Pending> MoveThrottle::Due(Clock::time_point now, bo
   return std::exchange(pending_, std::nullopt);
 }
 
-bool NearlyEqual(const RigidTransform& a, const RigidTransform& b, float tolerance) {
-  const auto ma = a.ToRowMajor(), mb = b.ToRowMajor();
-  for (size_t i = 0; i < ma.size(); ++i)
-    if (!(std::abs(ma[i] - mb[i]) <= tolerance)) return false;
-  return true;
-}
-
 void MoveTracker::Sent(uint32_t object, const RigidTransform& t, uint64_t requestId, Clock::time_point now) {
   pending_[object] = Entry{t, requestId, now};
   ++sentCount_;

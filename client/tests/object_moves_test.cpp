@@ -205,17 +205,5 @@ TEST(MoveTrackerTest, AMoveNeverConfirmedIsGivenUpAfterTheTimeout) {
   EXPECT_TRUE(tracker.Empty());
 }
 
-TEST(NearlyEqualTest, ComparesEveryEntryWithinTheTolerance) {
-  const RigidTransform a = RigidTransform::FromAxisAngle(Vec3(0, 0, 1), 0.5f, Vec3(1, 2, 3));
-  RigidTransform b = a;
-  EXPECT_TRUE(NearlyEqual(a, b, 0.0f));
-  b.translation.z += 0.01f;
-  EXPECT_FALSE(NearlyEqual(a, b, 1e-3f));
-  EXPECT_TRUE(NearlyEqual(a, b, 0.02f));
-  b = a;
-  b.rotation[1][0] = std::nanf("");
-  EXPECT_FALSE(NearlyEqual(a, b, 1.0f));
-}
-
 }  // namespace
 }  // namespace penumbra::client

@@ -71,6 +71,13 @@ RigidTransform Interpolate(const RigidTransform& a, const RigidTransform& b, flo
   return RigidTransform{glm::mat3_cast(glm::slerp(qa, qb, s)), a.translation + s * (b.translation - a.translation)};
 }
 
+bool NearlyEqual(const RigidTransform& a, const RigidTransform& b, float tolerance) {
+  const auto ma = a.ToRowMajor(), mb = b.ToRowMajor();
+  for (size_t i = 0; i < ma.size(); ++i)
+    if (!(std::abs(ma[i] - mb[i]) <= tolerance)) return false;
+  return true;
+}
+
 std::string Describe(const RigidTransform& t) {
   const glm::quat q = glm::normalize(glm::quat_cast(t.rotation));
   const float angle = glm::degrees(glm::angle(q));

@@ -133,6 +133,18 @@ TEST(RigidTransformTest, ApplyBoundsEnclosesTheTurnedBox) {
   EXPECT_TRUE(t.ApplyBounds(Bounds3{}).Empty());
 }
 
+TEST(RigidTransformTest, NearlyEqualComparesEveryEntryWithinTheTolerance) {
+  const RigidTransform a = RigidTransform::FromAxisAngle(Vec3(0, 0, 1), 0.5f, Vec3(1, 2, 3));
+  RigidTransform b = a;
+  EXPECT_TRUE(NearlyEqual(a, b, 0.0f));
+  b.translation.z += 0.01f;
+  EXPECT_FALSE(NearlyEqual(a, b, 1e-3f));
+  EXPECT_TRUE(NearlyEqual(a, b, 0.02f));
+  b = a;
+  b.rotation[1][0] = std::nanf("");
+  EXPECT_FALSE(NearlyEqual(a, b, 1.0f));
+}
+
 TEST(RigidTransformTest, DescribeNamesTranslationAndAngle) {
   const std::string text = Describe(RigidTransform::FromAxisAngle(Vec3(0, 0, 1), glm::radians(90.0f), Vec3(1, 2, 3)));
   EXPECT_NE(text.find("translate (1, 2, 3)"), std::string::npos) << text;

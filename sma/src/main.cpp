@@ -177,8 +177,14 @@ int main(int argc, char** argv) {
   std::string movePrediction = options.movePrediction ? "on" : "off";
   app.add_option("--move-prediction", movePrediction,
                  "Movement prediction for moving objects: after each move, shade ahead at the next pose (the animated "
-                 "objects' next step) what that move will invalidate, and use it if the move lands there (on|off)")
+                 "objects' next step, a steady drag's next place) what that move will invalidate, and use it if "
+                 "the move lands there (on|off)")
       ->check(CLI::IsMember({"on", "off"}));
+  app.add_option("--move-snap", options.moveSnap,
+                 "With --move-prediction: a client's move that lands within this distance (scene units; every "
+                 "corner of the object and every transform entry) of the place predicted for it is applied at that "
+                 "place, so the samples shaded ahead there are used; 0: never")
+      ->check(CLI::Range(0.0f, kMoveConfirmTolerance))->capture_default_str();
   // Camera movement prediction (issue 15; sma/README.md, "Movement prediction")
   std::string prediction = options.predictionOn ? "on" : "off";
   double predictionHorizon = options.prediction.horizon.count();

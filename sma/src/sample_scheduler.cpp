@@ -662,9 +662,12 @@ std::vector<AssignedBatch> SampleScheduler::Assemble() {
       const size_t fairShare = size_t((queuedTotal_ + queuedPrepared_ + queuedVerify_ + freeCredits - 1) / freeCredits);
       const size_t size = std::clamp<size_t>(std::min<size_t>(size_t(byRate), fairShare), options_.minBatchSamples,
                                              std::max(options_.minBatchSamples, r.capacity.maxBatchSamples));
-      // One priority per batch, the most urgent one queued.
-      // Prepared samples (a predicted move's) after visible and predicted ones.
-      // Tests after those, before prepared samples.
+      // One priority per batch, the most urgent one queued: visible and
+      // predicted samples, then prepared ones (the next move's urgent class:
+      // a few hundred first estimates that show its shadow the moment it
+      // lands), then tests (the current move's held-back indirect class,
+      // thousands at a time, which would otherwise keep a renderer busy
+      // until the next move came and leave nothing prepared).
       VertexId v = kNoVertex;
       Priority priority = Priority::kVisible;
       bool prepared = false;
@@ -679,11 +682,12 @@ std::vector<AssignedBatch> SampleScheduler::Assemble() {
         return false;
       };
       if (!takeFirst({Priority::kVisible, Priority::kPredicted})) {
-        if (TakeNextVerify(nullptr, v)) {
-          verify = verify_.at(v).request.context;
-        } else {
-          prepared = TakeNextPrepared(v);
-          if (!prepared) takeFirst({Priority::kBackground, Priority::kImprove});
+        prepared = TakeNextPrepared(v);
+        if (!prepared) {
+          if (TakeNextVerify(nullptr, v))
+            verify = verify_.at(v).request.context;
+          else
+            takeFirst({Priority::kBackground, Priority::kImprove});
         }
       }
       // Every queued entry sits in one of the queues.

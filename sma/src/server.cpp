@@ -395,6 +395,7 @@ class SmaServer::Impl {
   std::shared_ptr<const PosedEmbreeScene> posed_;
   MoveCoalescer moveQueue_;
   std::atomic<uint64_t> moves_{0};             // moves applied (scene epochs after 0)
+  std::atomic<uint64_t> movesSnapped_{0};      // clients' moves placed at their prediction (SnapToPrediction)
   std::atomic<uint64_t> samplesInvalidated_{0};  // cached samples evicted by moves
   std::atomic<uint64_t> samplesInvalidatedOfObjects_{0};  // of which on movable objects
   std::atomic<uint64_t> samplesTested_{0};
@@ -1657,6 +1658,7 @@ void SmaServer::Impl::AddGlobalCounters(wire::StatsReply* reply) {
     AddCounter(reply, "move_predictions", double(p.predictions));
     AddCounter(reply, "move_predictions_hit", double(p.hits));
     AddCounter(reply, "move_predictions_missed", double(p.misses));
+    AddCounter(reply, "moves_snapped", double(movesSnapped_.load()));
     AddCounter(reply, "samples_prepared_arrived", double(p.samplesArrived));
     AddCounter(reply, "samples_prepared_dropped", double(p.samplesDropped));
     AddCounter(reply, "samples_prepared_stored", double(preparedStored_.load()));
@@ -1992,7 +1994,28 @@ void SmaServer::Impl::ApplyMoves() {
 void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
   const auto start = Clock::now();
   const std::shared_ptr<const ScenePose> oldPose = CurrentPose();  // only this job replaces it
-  std::optional<ScenePose> next = NextPose(*oldPose, moves);
+  // A client's move that lands within --move-snap of the place prepared for
+  // it is applied there (move_prediction.h, "Snapping"): the samples shaded
+  // ahead at that place are then exactly right.
+  std::vector<ObjectMove> placed(moves.begin(), moves.end());
+  if (options_.movePrediction && options_.moveSnap > 0.0f) {
+    const std::shared_ptr<const ScenePose> predicted = preparation_.Predicted();
+    if (predicted && predicted->epoch == oldPose->epoch + 1) {
+      for (ObjectMove& move : placed) {
+        if (auto snapped = SnapToPrediction(move, *oldPose, *predicted, scene_, options_.moveSnap)) {
+          movesSnapped_ += !(snapped->objectToWorld == move.objectToWorld);
+          move = *snapped;
+        } else if (move.object < scene_.objects.size() &&
+                   !(predicted->objectToWorld[move.object] == oldPose->objectToWorld[move.object])) {
+          // A drag's guess missed (it turned, sped up, or was not steady).
+          log_->debug("move of object {} lands {:.3f} mm from its predicted place: not snapped", move.object,
+                      1e3 * LargestDisplacement(move.objectToWorld, predicted->objectToWorld[move.object],
+                                                scene_.objects[move.object].objectBounds));
+        }
+      }
+    }
+  }
+  std::optional<ScenePose> next = NextPose(*oldPose, placed);
   if (!next) return;  // nothing changes place: no new epoch
   auto newPose = std::make_shared<const ScenePose>(std::move(*next));
   auto posed = tracer_->AtPose(*newPose);
@@ -2108,7 +2131,10 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
               "samples evicted, {} held back for a test, {} prepared samples stored; applied in {:.1f} ms",
               newPose->epoch, notice->movedObjects.size(), invalidation.vertices.size(),
               invalidation.objectVertices, evicted, cachedBefore, tests.size(), arrived->size(), ms);
-  if (options_.movePrediction) PredictNextMove(*newPose);
+  if (options_.movePrediction) {
+    movePredictor_.Applied(*oldPose, newPose->epoch, moves, Clock::now());
+    PredictNextMove(*newPose);
+  }
 }
 
 void SmaServer::Impl::PredictNextMove(const ScenePose& applied) {

@@ -803,10 +803,12 @@ wire::ShadeReply AnswerAtItsEpoch(const AssignedBatch& batch) {
 }
 
 // Tests decide whether a vertex a client holds must be shaded again, so they
-// go after what views need now or soon and before prepared shading and
-// refinement; a batch tests against one move's context only, at its target
-// pose, with the test's paths.
-TEST(SampleScheduler, TestsGoAfterPredictedBeforePreparedAndBackgroundOneContextPerBatch) {
+// go after what views need now or soon and the next move's prepared shading
+// (a few hundred first estimates, which thousands of tests queued ahead
+// would leave undone until that move came) and before refinement; a batch
+// tests against one move's context only, at its target pose, with the
+// test's paths.
+TEST(SampleScheduler, TestsGoAfterPredictedAndPreparedBeforeBackgroundOneContextPerBatch) {
   FakeClock clock;
   SampleSchedulerOptions o = Options();
   o.verifyPaths = 24;
@@ -848,25 +850,26 @@ TEST(SampleScheduler, TestsGoAfterPredictedBeforePreparedAndBackgroundOneContext
   EXPECT_TRUE(s.Assemble().empty());
   EXPECT_EQ(VerticesOf({order[0]}), (std::set<VertexId>{200, 201})) << "visible";
   EXPECT_EQ(VerticesOf({order[1]}), (std::set<VertexId>{100, 101, 102, 103})) << "predicted";
-  EXPECT_EQ(VerticesOf({order[2]}), (std::set<VertexId>{10, 11, 12})) << "the first move's tests";
-  EXPECT_EQ(VerticesOf({order[3]}), (std::set<VertexId>{20, 21})) << "the second move's, in a batch of their own";
-  EXPECT_EQ(VerticesOf({order[4]}), (std::set<VertexId>{30, 31})) << "prepared";
+  EXPECT_EQ(VerticesOf({order[2]}), (std::set<VertexId>{30, 31})) << "prepared";
+  EXPECT_EQ(VerticesOf({order[3]}), (std::set<VertexId>{10, 11, 12})) << "the first move's tests";
+  EXPECT_EQ(VerticesOf({order[4]}), (std::set<VertexId>{20, 21})) << "the second move's, in a batch of their own";
   EXPECT_EQ(VerticesOf({order[5]}), (std::set<VertexId>{0, 1, 2, 3})) << "background";
-  for (int i : {0, 1, 4, 5}) EXPECT_EQ(order[size_t(i)].verify, nullptr) << i;
+  for (int i : {0, 1, 2, 5}) EXPECT_EQ(order[size_t(i)].verify, nullptr) << i;
   // Only what a client waits for overtakes the renderer's queue.
   for (int i = 0; i < 6; ++i) EXPECT_EQ(order[size_t(i)].urgent, i == 0) << i;
-  EXPECT_EQ(order[2].verify, first);
-  EXPECT_EQ(order[3].verify, second);
-  EXPECT_EQ(order[2].epoch, 6u) << "the context's target pose, not the current epoch";
-  EXPECT_EQ(order[3].epoch, 7u);
-  for (int i : {2, 3}) {
+  EXPECT_EQ(order[3].verify, first);
+  EXPECT_EQ(order[4].verify, second);
+  EXPECT_EQ(order[3].epoch, 6u) << "the context's target pose, not the current epoch";
+  EXPECT_EQ(order[4].epoch, 7u);
+  for (int i : {3, 4}) {
     const AssignedBatch& b = order[size_t(i)];
     ASSERT_NE(b.verify, nullptr) << i;
     EXPECT_FALSE(b.prepared);
     EXPECT_EQ(b.pathsPerSample, 24u) << "the test's paths";
     for (const SampleRequest& r : b.samples) EXPECT_EQ(r.round, VerifyRound(b.verify->target->epoch));
   }
-  EXPECT_EQ(order[4].epoch, 8u);
+  EXPECT_TRUE(order[2].prepared);
+  EXPECT_EQ(order[2].epoch, 8u);
   EXPECT_EQ(order[5].epoch, 7u);
   EXPECT_EQ(order[5].pathsPerSample, 100u);
   EXPECT_EQ(s.Counters().verified, 5u);

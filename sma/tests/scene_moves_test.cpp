@@ -393,7 +393,8 @@ TEST(SceneMoves, AdjacencyNeverCrossesFromAnObjectToTheStaticPart) {
 }
 
 // Movement prediction (issue 15): an animated object's next step is
-// predicted from the step clock; objects clients move are not.
+// predicted from the step clock; objects clients move only while dragged
+// (below).
 TEST(MovePredictor, TheNextAnimationStepIsPredictedExactlyAndNothingElseMoves) {
   const Scene scene = FloorWithObjects();
   const MovePredictor predictor(scene, 10.0);
@@ -421,6 +422,152 @@ TEST(MovePredictor, TheNextAnimationStepIsPredictedExactlyAndNothingElseMoves) {
   ScenePose end = resting.AtStep(ScenePose::Initial(once), 12);
   EXPECT_FALSE(resting.Predict(end, 12));
   EXPECT_FALSE(MovePredictor(scene, 0.0).Predict(current, 3)) << "no animation clock";
+}
+
+// The box dragged by a client: `places` applied one epoch each, 33 ms apart
+// (30 moves/s), through a predictor; returns the pose after the last.
+ScenePose Drag(MovePredictor& predictor, ScenePose pose, const std::vector<RigidTransform>& places,
+               MovePredictor::Clock::time_point& at) {
+  for (const RigidTransform& place : places) {
+    ScenePose next = pose;
+    next.epoch = pose.epoch + 1;
+    next.objectToWorld[0] = place;
+    at += std::chrono::milliseconds(33);
+    const ObjectMove sent{0, place};
+    predictor.Applied(pose, next.epoch, std::span(&sent, 1), at);
+    pose = next;
+  }
+  return pose;
+}
+
+RigidTransform BoxAt(const Vec3& translation, float turnRad = 0.0f) {
+  return RigidTransform::FromAxisAngle(Vec3(0, 1, 0), turnRad, translation);
+}
+
+// A steady drag's next place continues it: a straight line and a steady
+// turn at first order, a circle at second order (the order that would
+// have predicted the last place better), so the next move lands within
+// kMoveConfirmTolerance of the guess.
+TEST(MovePredictor, SteadyDragsAreExtrapolatedAndEndedByAPause) {
+  const Scene scene = FloorWithObjects();
+  ScenePose start = ScenePose::Initial(scene);
+  MovePredictor::Clock::time_point at{};
+
+  {  // a straight line, 1 cm per move, turning 2 degrees per move as it goes
+    MovePredictor predictor(scene, 0.0);
+    EXPECT_FALSE(predictor.Predict(start, 0)) << "nothing dragged yet";
+    std::vector<RigidTransform> line;
+    for (int k = 1; k <= 4; ++k) line.push_back(BoxAt(Vec3(0.01f * k, 1.0f, 0.0f), 0.035f * k));
+    const ScenePose now = Drag(predictor, start, line, at);
+    auto next = predictor.Predict(now, 0);
+    ASSERT_TRUE(next);
+    EXPECT_EQ(next->epoch, now.epoch + 1);
+    EXPECT_LT(LargestDisplacement(next->objectToWorld[0], BoxAt(Vec3(0.05f, 1.0f, 0.0f), 0.035f * 5),
+                                  scene.objects[0].objectBounds),
+              1e-5f);
+    EXPECT_EQ(next->objectToWorld[1], now.objectToWorld[1]) << "the spinner's clock is off: it stays";
+  }
+  {  // a 10 cm circle in 50 moves: first order misses by r*theta^2 = 1.6 mm
+    MovePredictor predictor(scene, 0.0);
+    const auto onCircle = [](int k) {
+      const double a = 2.0 * 3.14159265358979 * k / 50.0;
+      return BoxAt(Vec3(float(0.1 * std::sin(a)), 1.0f, float(0.1 * (std::cos(a) - 1.0))));
+    };
+    std::vector<RigidTransform> circle;
+    for (int k = 1; k <= 6; ++k) circle.push_back(onCircle(k));
+    const ScenePose now = Drag(predictor, start, circle, at);
+    auto next = predictor.Predict(now, 0);
+    ASSERT_TRUE(next);
+    const float miss = LargestDisplacement(next->objectToWorld[0], onCircle(7), scene.objects[0].objectBounds);
+    const float firstOrderMiss = LargestDisplacement(ExtrapolatePlace(std::vector{circle[4], circle[5]}, false),
+                                                     onCircle(7), scene.objects[0].objectBounds);
+    EXPECT_GT(firstOrderMiss, 1.2e-3f);
+    EXPECT_LT(miss, 3e-4f) << "second order: r*theta^3";
+    EXPECT_TRUE(SnapToPrediction(ObjectMove{0, onCircle(7)}, now, *next, scene, kMoveConfirmTolerance));
+
+    // The whole circle, each move snapped to its prediction when within the
+    // tolerance (as the SMA applies them): every move after the third snaps
+    // -- the guesses continue the places sent, not the snapped ones, whose
+    // small errors would grow at second order.
+    {
+      MovePredictor live(scene, 0.0);
+      ScenePose pose = start;
+      int snaps = 0;
+      for (int k = 1; k <= 50; ++k) {
+        const ObjectMove sent{0, onCircle(k)};
+        ObjectMove applied = sent;
+        if (auto guess = live.Predict(pose, 0))
+          if (auto snapped = SnapToPrediction(sent, pose, *guess, scene, kMoveConfirmTolerance)) {
+            applied = *snapped;
+            snaps += k > 3;
+          }
+        at += std::chrono::milliseconds(100);
+        live.Applied(pose, pose.epoch + 1, std::span(&sent, 1), at);
+        pose.epoch += 1;
+        pose.objectToWorld[0] = applied.objectToWorld;
+      }
+      EXPECT_EQ(snaps, 47);
+    }
+
+    // Another epoch (the spinner, another object) came after the drag's
+    // last place: the drag is not guessed to go on by itself.
+    ScenePose later = now;
+    later.epoch += 1;
+    EXPECT_FALSE(predictor.Predict(later, 0));
+    // A pause longer than kDragGap: the next place starts a new drag from
+    // where the box rested -- first order from two places.
+    at += MovePredictor::kDragGap + std::chrono::milliseconds(1);
+    ScenePose resumed = now;
+    resumed.epoch += 1;
+    resumed.objectToWorld[0] = BoxAt(now.objectToWorld[0].translation + Vec3(0.0f, 0.0f, 0.02f));
+    const ObjectMove sent{0, resumed.objectToWorld[0]};
+    predictor.Applied(now, resumed.epoch, std::span(&sent, 1), at);
+    auto guess = predictor.Predict(resumed, 0);
+    ASSERT_TRUE(guess);
+    EXPECT_NEAR(guess->objectToWorld[0].translation.z, resumed.objectToWorld[0].translation.z + 0.02f, 1e-6f);
+    EXPECT_NEAR(guess->objectToWorld[0].translation.x, resumed.objectToWorld[0].translation.x, 1e-6f);
+  }
+  {  // with the animation clock on: the spinner's next step and the drag's next place together
+    MovePredictor predictor(scene, 10.0);
+    ScenePose stepped = predictor.AtStep(start, 2);
+    std::vector<RigidTransform> line{BoxAt(Vec3(0.01f, 1.0f, 0.0f)), BoxAt(Vec3(0.02f, 1.0f, 0.0f))};
+    ScenePose now = Drag(predictor, stepped, line, at);
+    auto next = predictor.Predict(now, 2);
+    ASSERT_TRUE(next);
+    EXPECT_EQ(next->objectToWorld[1], scene.objects[1].animation->At(0.3));
+    EXPECT_NEAR(next->objectToWorld[0].translation.x, 0.03f, 1e-6f);
+  }
+}
+
+// A move within the tolerance of its predicted place is applied there;
+// farther, at rest, or of an animated object it is not.
+TEST(MovePredictor, SnapToPredictionOnlyWithinTheToleranceOfAPredictedMove) {
+  const Scene scene = FloorWithObjects();
+  const ScenePose current = ScenePose::Initial(scene);
+  ScenePose predicted = current;
+  predicted.epoch = 1;
+  predicted.objectToWorld[0] = BoxAt(Vec3(0.05f, 1.0f, 0.0f));
+  const float tolerance = kMoveConfirmTolerance;
+
+  const ObjectMove near{0, BoxAt(Vec3(0.0504f, 1.0f, 0.0003f))};
+  auto snapped = SnapToPrediction(near, current, predicted, scene, tolerance);
+  ASSERT_TRUE(snapped);
+  EXPECT_EQ(snapped->object, 0u);
+  EXPECT_EQ(snapped->objectToWorld, predicted.objectToWorld[0]);
+  EXPECT_FALSE(SnapToPrediction(near, current, predicted, scene, 0.0f)) << "snapping off";
+  EXPECT_FALSE(SnapToPrediction(ObjectMove{0, BoxAt(Vec3(0.052f, 1.0f, 0.0f))}, current, predicted, scene, tolerance))
+      << "2 mm away";
+  // 0.8 mm along x and a turn of 0.5 mrad: every transform entry is within
+  // 1e-3, but one corner of the box (0.71 m from its origin) moves ~1.08 mm.
+  const ObjectMove turned{0, BoxAt(Vec3(0.0508f, 1.0f, 0.0f), 0.5e-3f)};
+  EXPECT_TRUE(NearlyEqual(turned.objectToWorld, predicted.objectToWorld[0], tolerance));
+  EXPECT_FALSE(SnapToPrediction(turned, current, predicted, scene, tolerance)) << "a corner moves too far";
+  // Predicted to rest: a slow drag's first small move is not taken back.
+  EXPECT_FALSE(SnapToPrediction(ObjectMove{0, BoxAt(Vec3(0.0f, 1.0f, 0.0005f))}, current, current, scene, tolerance));
+  // The spinner is the clock's: never a client's move to snap.
+  ScenePose spun = predicted;
+  spun.objectToWorld[1].translation.y += 0.1f;
+  EXPECT_FALSE(SnapToPrediction(ObjectMove{1, spun.objectToWorld[1]}, current, spun, scene, tolerance));
 }
 
 std::vector<ShadedSample> SamplesAt(uint64_t epoch, VertexId first, VertexId count) {

@@ -109,9 +109,9 @@ class MoveThrottle {
 
 /// Moves this client sent and the SMA has not yet confirmed or refused.
 /// Confirmation is by value: the SMA may coalesce several moves into one
-/// MOVED, and re-orthonormalises rotations, so an object is settled when its
-/// confirmed transform is within kMoveConfirmTolerance of the last one sent.
-inline constexpr float kMoveConfirmTolerance = 1e-3f;
+/// MOVED, re-orthonormalises rotations and may place a steady drag's move at
+/// its prediction, so an object is settled when its confirmed transform is
+/// within kMoveConfirmTolerance (rigid_transform.h) of the last one sent.
 /// A move neither confirmed nor refused this long after it was sent is
 /// given up on (another client's move of the same object may have won the
 /// SMA's coalescing, so ours never comes back as sent).
@@ -146,9 +146,5 @@ class MoveTracker {
   std::map<uint32_t, Entry> pending_;
   uint64_t sentCount_ = 0;
 };
-
-/// Whether two transforms place things within `tolerance` of each other
-/// (every matrix entry and translation component).
-bool NearlyEqual(const RigidTransform& a, const RigidTransform& b, float tolerance);
 
 }  // namespace penumbra::client

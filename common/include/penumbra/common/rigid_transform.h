@@ -53,6 +53,17 @@ struct RigidTransform {
 /// linearly, rotation by quaternion slerp (the shortest way round).
 RigidTransform Interpolate(const RigidTransform& a, const RigidTransform& b, float s);
 
+/// Whether two transforms place things within `tolerance` of each other
+/// (every matrix entry and translation component; NaN is never near).
+bool NearlyEqual(const RigidTransform& a, const RigidTransform& b, float tolerance);
+
+/// How far a client's move and the SMA's MOVED may differ and still be the
+/// same move: the client holds a move it sent as pending until a MOVED puts
+/// the object within this of it (NearlyEqual) -- the SMA may coalesce moves
+/// and re-orthonormalises rotations --, and the SMA places a client's move at
+/// its prediction only within it (sma/move_prediction.h). Scene units.
+inline constexpr float kMoveConfirmTolerance = 1e-3f;
+
 /// "translate (x, y, z), rotate a deg about (ax, ay, az)" for logs and errors.
 std::string Describe(const RigidTransform& t);
 

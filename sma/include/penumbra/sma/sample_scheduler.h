@@ -36,7 +36,9 @@
 //  * Prepared shading (issue 15, moving objects): first estimates at a
 //    *predicted* scene pose, one not current yet (Prepare), kept apart from
 //    the requests above -- a vertex may be alive in both -- and assembled
-//    after visible and predicted samples, before background ones. Their
+//    after visible and predicted samples, before tests and background ones
+//    (the next move's urgent class, a few hundred first estimates: behind
+//    a move's thousands of tests they would not be done before it came). Their
 //    batches carry the predicted epoch and their results come back apart
 //    (ReplyOutcome::prepared): nothing about them reaches the cache unless
 //    the move they were prepared for happens as predicted (move_prediction.h).
@@ -44,7 +46,7 @@
 //    verification requests (Verify) ask a renderer for the change a move
 //    made to static samples held back in the cache (SampleCache::Suspect),
 //    kept apart like prepared shading -- a vertex may be alive in both --
-//    and assembled after visible and predicted samples, before prepared and
+//    and assembled after visible, predicted and prepared samples, before
 //    background ones (a test decides whether a vertex a client holds must
 //    be shaded again, and costs a fraction of shading it). A batch tests
 //    against one VerifyContext only. Their answers come back apart

@@ -34,6 +34,7 @@
 #include "penumbra/common/endpoint.h"
 #include "penumbra/common/expected.h"
 #include "penumbra/common/metrics.h"
+#include "penumbra/common/rigid_transform.h"
 #include "penumbra/common/scene.h"
 #include "penumbra/sma/camera_prediction.h"
 #include "penumbra/sma/client_limits.h"
@@ -121,10 +122,15 @@ struct SmaOptions {
   bool moveTestDirect = false;
   /// Movement prediction for moving objects (issue 15; move_prediction.h):
   /// after each move, the next pose is predicted (the animated objects at
-  /// their paths' next step) and what it will invalidate and someone needs
-  /// is shaded at it ahead of time (after views' and predicted samples,
-  /// before refinement's); used if the move lands exactly there.
+  /// their paths' next step, dragged ones extrapolated) and what it will
+  /// invalidate and someone needs is shaded at it ahead of time (after
+  /// views' and predicted samples, before refinement's); used if the move
+  /// lands exactly there.
   bool movePrediction = true;
+  /// A client's move within this (scene units) of its predicted place is
+  /// applied there (SnapToPrediction); 0: never. At most
+  /// kMoveConfirmTolerance, within which the client confirms its move.
+  float moveSnap = kMoveConfirmTolerance;
   /// Camera movement prediction (issue 15; camera_prediction.h). Once a
   /// client's new view is applied (its visibility), the view its camera is expected to
   /// show `prediction.horizon` later (widened by `prediction.widen`) is
