@@ -107,6 +107,13 @@ ViewSession::Arrived ViewSession::OnSamplesArrived(std::span<const VertexId> ver
   for (VertexId v : vertices) {
     driver_.OnSampleArrived(v);
     reshadesAwaited_.erase(v);
+    // A new sample of a vertex whose improvement this session asked for
+    // ends the wait as an improvement would: the pool keeps one request per
+    // vertex, so an improvement asked while a first estimate was alive (a
+    // reshade, a prepared sample stored before its visible request came
+    // back) is answered by that estimate, never as IMPROVED -- and the view
+    // would never converge. The next lap asks again if it is still noisy.
+    improvePending_.erase(v);
     auto it = waiting_.find(v);
     if (it == waiting_.end()) {
       // A midpoint this client was not waiting for may complete the children

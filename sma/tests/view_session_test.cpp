@@ -379,6 +379,24 @@ TEST(ViewSessionTest, ImprovementKeepsABatchInFlightAndEnds) {
   EXPECT_EQ(s.CurrentPhase(), Phase::kRefining);
 }
 
+// The pool keeps one request per vertex: an improvement asked while a first
+// estimate of the vertex was alive comes back as that estimate (an arrival),
+// which must end the wait too, or the view never converges.
+TEST(ViewSessionTest, AnArrivalEndsAnImprovementsWait) {
+  Fixture f;
+  ViewSession s(NoRefinement(), 1000, /*improvementOn=*/true);
+  f.ToShading(s);
+  f.ToStage2(s);
+  ASSERT_EQ(s.NextImprovement(false, 4), ViewSession::ImproveStart::kLook);
+  EXPECT_FALSE(s.OnImprovementsAsked(std::vector<VertexId>{5}, 10, 10));
+  EXPECT_TRUE(s.ImprovementPending(5));
+  s.OnSamplesArrived(std::vector<VertexId>{5}, 1000);
+  EXPECT_FALSE(s.ImprovementPending(5));
+  ASSERT_EQ(s.NextImprovement(false, 4), ViewSession::ImproveStart::kLook);
+  EXPECT_TRUE(s.OnImprovementsAsked({}, 10, 10));
+  EXPECT_EQ(s.CurrentPhase(), Phase::kConverged);
+}
+
 TEST(ViewSessionTest, ArrivingMidpointsAskForARemap) {
   Fixture f;
   ViewSession s(RefinementParams{}, 1000, false);
