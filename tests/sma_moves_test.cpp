@@ -329,6 +329,22 @@ size_t CountDiffering(const std::map<uint64_t, Rgb>& reference, const std::map<u
   return differing;
 }
 
+// The reference image: a fresh stack (SMA `args`) that moved the box once,
+// to `sent` (announced as `arrived`), then converged the front view;
+// `radiance` gets each held vertex's value.
+void ImageAfterOneMove(const std::string& tag, const std::vector<std::string>& args, const std::array<float, 12>& sent,
+                       const std::array<float, 12>& arrived, std::map<uint64_t, Rgb>* radiance) {
+  Service renderer = StartRenderer("renderer-" + tag);
+  Service sma = StartSma({renderer.Address()}, "sma-" + tag, kScene, args);
+  SmaTestClient c = Connect(sma, "mover");
+  ASSERT_TRUE(c.Wire().Send(MoveEnvelope(1, 1, std::vector<float>(sent.begin(), sent.end()))));
+  ASSERT_TRUE(WaitMovedTo(c, arrived).ok()) << sma.process.LogTail();
+  const CameraView view = ViewFromPreset(c.Info().cameras(0), kWidth, kHeight);
+  ASSERT_TRUE(c.SendView(view, 1));
+  ASSERT_TRUE(c.WaitConverged(1, 60s).ok()) << sma.process.LogTail();
+  for (const auto& [id, v] : c.Mesh().Vertices()) (*radiance)[id] = v.radiance;
+}
+
 // Stale samples never win: a client that watched the box dragged through 30
 // places (moves coalesced, replies for old poses in flight all along) ends
 // with exactly the image of a fresh stack that moved the box there once.
@@ -389,17 +405,8 @@ TEST_F(SmaMovesTest, ADragEndsWithTheImageOfASingleMoveThere) {
       RecordProperty(counter, fmt::format("{}", *c.Counter(counter)));
     for (const auto& [id, v] : c.Mesh().Vertices()) dragged[id] = v.radiance;
   }
-  {
-    Service renderer = StartRenderer("renderer-once");
-    Service sma = StartSma({renderer.Address()}, "sma-once", kScene, {"--first-paths", "1024", "--paths", "1024", "--invalidate-all-on-move"});
-    SmaTestClient c = Connect(sma, "mover");
-    ASSERT_TRUE(c.Wire().Send(MoveEnvelope(1, 1, std::vector<float>(endFloats.begin(), endFloats.end()))));
-    ASSERT_TRUE(WaitMovedTo(c, arrived).ok()) << sma.process.LogTail();
-    const CameraView view = ViewFromPreset(c.Info().cameras(0), kWidth, kHeight);
-    ASSERT_TRUE(c.SendView(view, 1));
-    ASSERT_TRUE(c.WaitConverged(1, 60s).ok()) << sma.process.LogTail();
-    for (const auto& [id, v] : c.Mesh().Vertices()) moved[id] = v.radiance;
-  }
+  ASSERT_NO_FATAL_FAILURE(ImageAfterOneMove("once", {"--first-paths", "1024", "--paths", "1024", "--invalidate-all-on-move"},
+                                            endFloats, arrived, &moved));
   ASSERT_FALSE(moved.empty());
   EXPECT_EQ(dragged.size(), moved.size()) << "the same triangles are visible at the same pose";
   const size_t differing = CountDiffering(moved, dragged);
@@ -472,17 +479,7 @@ TEST_F(SmaMovesTest, ASteadyDragIsPreparedAheadAndEndsWhereItWasAnnounced) {
   EXPECT_GE(counters["move_predictions_hit"], 6.0);
   EXPECT_GE(counters["moves_snapped"], 6.0) << "a steady line is guessed within 1 mm";
   EXPECT_GT(counters["samples_prepared_stored"], 0.0) << "and prepared samples were shown";
-  {
-    Service renderer = StartRenderer("renderer-steady-once");
-    Service sma = StartSma({renderer.Address()}, "sma-steady-once", kScene, args);
-    SmaTestClient c = Connect(sma, "mover");
-    ASSERT_TRUE(c.Wire().Send(MoveEnvelope(1, 1, std::vector<float>(announced.begin(), announced.end()))));
-    ASSERT_TRUE(WaitMovedTo(c, announced).ok()) << sma.process.LogTail();
-    const CameraView view = ViewFromPreset(c.Info().cameras(0), kWidth, kHeight);
-    ASSERT_TRUE(c.SendView(view, 1));
-    ASSERT_TRUE(c.WaitConverged(1, 60s).ok()) << sma.process.LogTail();
-    for (const auto& [id, v] : c.Mesh().Vertices()) moved[id] = v.radiance;
-  }
+  ASSERT_NO_FATAL_FAILURE(ImageAfterOneMove("steady-once", args, announced, announced, &moved));
   ASSERT_FALSE(moved.empty());
   EXPECT_EQ(dragged.size(), moved.size()) << "the same triangles are visible at the same pose";
   const size_t differing = CountDiffering(moved, dragged);
