@@ -935,10 +935,10 @@ TEST(SmaRefinementTest, NldIsConvergesOnTheBreakfastRoom) {
       std::filesystem::path(PENUMBRA_SOURCE_DIR).parent_path() / "shared/scenes/breakfast-room";
   if (!std::filesystem::exists(mesh)) GTEST_SKIP() << mesh << " is absent (clone ../shared beside the repository)";
   Service renderer = MustStart(PENUMBRA_RENDERER_EXE,
-                               {"--scene", scene, "--threads", "2", "--spp", "128"}, "br-renderer");
+                               {"--scene", scene, "--threads", "2", "--spp", "16", "--max-bounces", "2"}, "br-renderer");
   Service sma = MustStart(PENUMBRA_SMA_EXE,
                           {"--scene", scene, "--renderer", renderer.Address(), "--criterion", "nld_is", "--noise-z",
-                           "0", "--pixel-fraction", "0.25"},
+                           "0", "--pixel-fraction", "0.25", "--paths", "16", "--improve-paths", "0"},
                           "br-sma");
   auto c = SmaTestClient::Connect(sma.port);
   ASSERT_TRUE(c.ok()) << c.error().message;
