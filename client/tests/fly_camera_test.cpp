@@ -5,14 +5,11 @@
 
 #include <gtest/gtest.h>
 
+#include "expect_near.h"
+
 namespace penumbra::client {
 namespace {
 
-void ExpectNear(const Vec3& a, const Vec3& b, float tolerance = 1e-5f) {
-  EXPECT_NEAR(a.x, b.x, tolerance);
-  EXPECT_NEAR(a.y, b.y, tolerance);
-  EXPECT_NEAR(a.z, b.z, tolerance);
-}
 
 TEST(FlyCameraTest, KeepsThePoseItWasGiven) {
   FlyCamera camera;

@@ -10,7 +10,7 @@ namespace {
 
 using namespace std::chrono_literals;
 
-HudState Connected() {
+HudState ConnectedHud() {
   HudState s;
   s.scene = "cornell-box";
   s.connected = true;
@@ -19,7 +19,7 @@ HudState Connected() {
 }
 
 TEST(HudTextTest, NoRendererConnectedSaysHowManySamplesWait) {
-  HudState s = Connected();
+  HudState s = ConnectedHud();
   s.progress.renderersConnected = 0;
   s.pendingSamples = 1234;
   s.progress.stage1Total = 1234;
@@ -30,11 +30,11 @@ TEST(HudTextTest, NoRendererConnectedSaysHowManySamplesWait) {
 }
 
 TEST(HudTextTest, BeforeTheFirstDeltaItSaysWhatIsGoingOnInsteadOfZeroCounts) {
-  HudState s = Connected();
+  HudState s = ConnectedHud();
   s.scene.clear();
   EXPECT_EQ(DescribeProgress(s).stage, "Waiting for the scene's description from the SMA");
   EXPECT_FALSE(DescribeProgress(s).showBar);
-  s = Connected();
+  s = ConnectedHud();
   HudProgressText text = DescribeProgress(s);
   EXPECT_EQ(text.stage, "Finding the visible triangles: the SMA traces the view");
   EXPECT_FALSE(text.showBar) << "no '0 of 0 samples'";
@@ -47,7 +47,7 @@ TEST(HudTextTest, BeforeTheFirstDeltaItSaysWhatIsGoingOnInsteadOfZeroCounts) {
 }
 
 TEST(HudTextTest, Stage1ShowsCountsRateAndTimeLeftWithUnits) {
-  HudState s = Connected();
+  HudState s = ConnectedHud();
   s.progress.renderersConnected = 2;
   s.pendingSamples = 3000;
   s.progress.stage1Total = 4000;
@@ -65,7 +65,7 @@ TEST(HudTextTest, Stage1ShowsCountsRateAndTimeLeftWithUnits) {
 }
 
 TEST(HudTextTest, RefinementIsOpenEndedAndConvergenceIsFinal) {
-  HudState s = Connected();
+  HudState s = ConnectedHud();
   s.progress.renderersConnected = 1;
   s.refining = true;
   s.progress.refinementTotal = 200;
@@ -83,7 +83,7 @@ TEST(HudTextTest, RefinementIsOpenEndedAndConvergenceIsFinal) {
 }
 
 TEST(HudTextTest, AnSmaThatDoesNotSayGivesNoRendererLine) {
-  HudState s = Connected();
+  HudState s = ConnectedHud();
   s.pendingSamples = 10;  // progress.renderersConnected unset: an older SMA
   const HudProgressText text = DescribeProgress(s);
   EXPECT_TRUE(text.warning.empty());
@@ -91,7 +91,7 @@ TEST(HudTextTest, AnSmaThatDoesNotSayGivesNoRendererLine) {
 }
 
 TEST(HudTextTest, EveryFigureCarriesItsUnit) {
-  HudState s = Connected();
+  HudState s = ConnectedHud();
   s.triangles = 12345;
   s.vertices = 6789;
   s.framesPerSecond = 59.7;

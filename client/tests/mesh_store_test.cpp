@@ -10,6 +10,8 @@
 
 #include <gtest/gtest.h>
 
+#include "expect_near.h"
+
 #include "support/delta_builder.h"
 
 namespace penumbra::client {
@@ -260,12 +262,6 @@ TEST_F(MeshStoreTest, HeldLuminanceIsMeasureLuminanceOfTheHeldVertices) {
 }
 
 // --- Movable objects (issue 14) ---------------------------------------------
-
-void ExpectNear(const Vec3& got, const Vec3& expected) {
-  EXPECT_NEAR(got.x, expected.x, 1e-5f);
-  EXPECT_NEAR(got.y, expected.y, 1e-5f);
-  EXPECT_NEAR(got.z, expected.z, 1e-5f);
-}
 
 void AddTransform(wire::Delta& d, uint32_t object, const RigidTransform& t) {
   d.add_moved_objects(object);

@@ -10,6 +10,8 @@
 
 #include <gtest/gtest.h>
 
+#include "expect_near.h"
+
 #include "support/delta_builder.h"
 
 namespace penumbra::client {
@@ -25,11 +27,6 @@ Bounds3 Box(const Vec3& lo, const Vec3& hi) {
   return b;
 }
 
-void ExpectNear(const Vec3& got, const Vec3& expected, float tolerance = 1e-5f) {
-  EXPECT_NEAR(got.x, expected.x, tolerance);
-  EXPECT_NEAR(got.y, expected.y, tolerance);
-  EXPECT_NEAR(got.z, expected.z, tolerance);
-}
 
 TEST(ObjectPickingTest, RayBoxDistanceEntersMissesAndStartsInside) {
   const Bounds3 box = Box(Vec3(-1, -1, -6), Vec3(1, 1, -4));

@@ -14,11 +14,10 @@
 namespace penumbra {
 namespace {
 
+using testing::kLinearOfSrgb128;
 using testing::ScratchDir;
 using testing::TestData;
 
-// Linear value whose sRGB encoding is exactly 128/255.
-constexpr float kLinearOfSrgb128 = 0.2158605f;
 
 // A 57-byte PNG declaring 8192 x 8191 pixels (just under kMaxImagePixels)
 // used to cost 1.6 GiB before its error: the decoded bytes are bounded too,

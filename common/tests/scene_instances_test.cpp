@@ -17,10 +17,10 @@ namespace penumbra {
 namespace {
 
 namespace fs = std::filesystem;
+using testing::CornellBoxObj;
 using testing::ScratchDir;
 using testing::SourceDir;
 
-fs::path CornellBoxObj() { return SourceDir() / "scenes/cornell-box/CornellBox-Original.obj"; }
 
 // A scene file in `dir` whose main mesh is the Cornell box and whose
 // "instances" value is `instances` (JSON text).

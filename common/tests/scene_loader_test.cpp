@@ -24,11 +24,14 @@ namespace penumbra {
 namespace {
 
 namespace fs = std::filesystem;
+using testing::CornellBoxObj;
+using testing::ExpectNear;
+using testing::kLinearOfSrgb128;
 using testing::ScratchDir;
+using testing::SharedScene;
 using testing::SourceDir;
 using testing::TestData;
 
-constexpr float kLinearOfSrgb128 = 0.2158605f;
 
 const Material* FindMaterial(const Scene& scene, std::string_view name) {
   for (const Material& m : scene.materials)
@@ -54,10 +57,6 @@ std::optional<std::array<float, 2>> Barycentrics(const Scene& scene, uint32_t t,
   const float b2 = (d11 * glm::dot(d, e2) - d12 * glm::dot(d, e1)) / denom;
   if (b1 < 0.0f || b2 < 0.0f || b1 + b2 > 1.0f) return std::nullopt;
   return std::array<float, 2>{b1, b2};
-}
-
-void ExpectNear(const Vec3& actual, const Vec3& expected, float tolerance, const std::string& what = "") {
-  for (int i = 0; i < 3; ++i) EXPECT_NEAR(actual[i], expected[i], tolerance) << what << " component " << i;
 }
 
 std::string ReadFile(const fs::path& path) {
@@ -169,7 +168,6 @@ void ExpectPathIsClear(const Scene& scene, const RayCaster& caster, const Camera
 
 // --- The repository's Cornell box: OBJ quirks, crease splitting -----------
 
-fs::path CornellBoxObj() { return SourceDir() / "scenes/cornell-box/CornellBox-Original.obj"; }
 
 TEST(SceneLoaderTest, CornellBoxObjWithCrlfTabsAndNegativeIndicesLoads) {
   auto scene = LoadScene(CornellBoxObj());
@@ -793,7 +791,6 @@ TEST(SceneLoaderTest, AMeshWithoutAnyLightLoadsAndSaysItHasNone) {
 
 // --- The shared real-world scenes (../shared/scenes beside the source tree) ---
 
-fs::path SharedScene(std::string_view relative) { return SourceDir() / "../shared/scenes" / relative; }
 
 #define SKIP_WITHOUT_SHARED_SCENE(relative)                                                          \
   if (!fs::exists(SharedScene(relative)))                                                            \

@@ -22,7 +22,9 @@ namespace penumbra {
 namespace {
 
 namespace fs = std::filesystem;
+using testing::ExpectNear;
 using testing::ScratchDir;
+using testing::SharedScene;
 using testing::SourceDir;
 using testing::TestData;
 
@@ -100,10 +102,6 @@ fs::path WriteScene(const ScratchDir& dir, const std::string& objects) {
   dir.Write("cube.obj", kCubeObj);
   dir.Write("cube.mtl", kCubeMtl);
   return dir.Write("scene.json", R"({"mesh": "parts.obj", "objects": )" + objects + "}");
-}
-
-void ExpectNear(const Vec3& actual, const Vec3& expected, float tolerance, const std::string& what = "") {
-  for (int i = 0; i < 3; ++i) EXPECT_NEAR(actual[i], expected[i], tolerance) << what << " component " << i;
 }
 
 using WorldTriangle = std::array<Vec3, 3>;
@@ -657,7 +655,6 @@ TEST(RepositoryObjectScenesTest, CornellBoxAnimatedLoopsItsBoxThroughFreeSpace) 
   }
 }
 
-fs::path SharedScene(std::string_view relative) { return SourceDir() / "../shared/scenes" / relative; }
 
 TEST(RepositoryObjectScenesTest, BreakfastRoomChairIsAMovableGroupOfThreePartsThatShadowsSunlitFloor) {
   if (!fs::exists(SharedScene("breakfast-room/breakfast-room.obj")))

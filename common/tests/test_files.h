@@ -1,6 +1,6 @@
 #pragma once
-// Helpers for tests that read and write files: the committed fixtures and a
-// scratch directory per test.
+// Helpers for tests that read and write files: the committed fixtures, the
+// scenes, a scratch directory per test, and the checks they share.
 
 #include <algorithm>
 #include <cstdint>
@@ -13,6 +13,8 @@
 #include <sys/resource.h>
 #include <unistd.h>
 
+#include "penumbra/common/math.h"
+
 namespace penumbra::testing {
 
 /// common/tests/data in the source tree.
@@ -22,6 +24,22 @@ inline std::filesystem::path TestData(std::string_view name) {
 
 /// The repository root (where scenes/ lives).
 inline std::filesystem::path SourceDir() { return std::filesystem::path(PENUMBRA_SOURCE_DIR); }
+
+/// The Cornell box mesh shipped in the repository.
+inline std::filesystem::path CornellBoxObj() { return SourceDir() / "scenes/cornell-box/CornellBox-Original.obj"; }
+
+/// A file of ../shared/scenes (beside the repository; tests skip without it).
+inline std::filesystem::path SharedScene(std::string_view relative) {
+  return SourceDir() / "../shared/scenes" / relative;
+}
+
+/// Linear value whose sRGB encoding is exactly 128/255 (the fixtures' grey).
+inline constexpr float kLinearOfSrgb128 = 0.2158605f;
+
+/// Each component of `actual` within `tolerance` of `expected`'s.
+inline void ExpectNear(const Vec3& actual, const Vec3& expected, float tolerance, const std::string& what = "") {
+  for (int i = 0; i < 3; ++i) EXPECT_NEAR(actual[i], expected[i], tolerance) << what << " component " << i;
+}
 
 /// A fresh directory for the running test, removed when the object dies.
 class ScratchDir {

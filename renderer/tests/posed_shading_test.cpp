@@ -32,9 +32,10 @@ using testing::Finish;
 using testing::ParallelRectangleIrradiance;
 using testing::MakeMaterial;
 using testing::SampleAt;
+using testing::DirectOnly;
+using testing::kUp;
 using testing::TestScene;
 
-constexpr Vec3 kUp(0.0f, 1.0f, 0.0f);
 constexpr float kInfinity = std::numeric_limits<float>::infinity();
 
 RigidTransform Translation(const Vec3& t) { return RigidTransform{glm::mat3(1.0f), t}; }
@@ -62,12 +63,6 @@ OccluderScene MakeOccluderScene(float floorAlbedo = 0.0f, float occluderAlbedo =
   b.BeginObject(occluder);
   AddHorizontalSquare(b, Vec3(0.0f), 1.0f, black, true);
   s.t = Finish(b);
-  return s;
-}
-
-ShadingSettings DirectOnly() {
-  ShadingSettings s;
-  s.maxBounces = 0;
   return s;
 }
 

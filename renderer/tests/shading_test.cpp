@@ -27,15 +27,10 @@ using testing::EstimateOutput;
 using testing::Finish;
 using testing::MakeMaterial;
 using testing::SampleAt;
+using testing::DirectOnly;
+using testing::kUp;
 using testing::TestScene;
 
-constexpr Vec3 kUp(0.0f, 1.0f, 0.0f);
-
-ShadingSettings DirectOnly() {
-  ShadingSettings s;
-  s.maxBounces = 0;
-  return s;
-}
 
 // --- White furnace ------------------------------------------------------------
 

@@ -62,6 +62,15 @@ inline void AddHorizontalSquare(SceneBuilder& b, const Vec3& centre, float side,
     b.AddQuad(corner, ex, ez, material);
 }
 
+inline constexpr Vec3 kUp(0.0f, 1.0f, 0.0f);
+
+/// Shading with no bounce: emission and direct light only.
+inline ShadingSettings DirectOnly() {
+  ShadingSettings s;
+  s.maxBounces = 0;
+  return s;
+}
+
 /// A built scene with its ray scene, kept together for a test's lifetime.
 struct TestScene {
   Scene scene;

@@ -8,6 +8,7 @@
 
 #include <gtest/gtest.h>
 
+#include "hierarchy_test_scenes.h"
 #include "penumbra/common/hash.h"
 
 namespace penumbra::sma {
@@ -31,12 +32,6 @@ Scene RoomScene(bool twoSided = true, float floorShift = 0.0f) {
   s.twoSided = twoSided;
   EXPECT_TRUE(b.BuildInto(s).ok());
   return s;
-}
-
-std::vector<NodeId> Leaves(const Hierarchy& h) {
-  std::vector<NodeId> out;
-  h.ForEachLeaf(kNoNode, [&](NodeId id) { out.push_back(id); });
-  return out;
 }
 
 // Refines `rounds` random leaves with varied options (so that both 1 -> 4 and

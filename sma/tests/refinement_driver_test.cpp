@@ -8,25 +8,10 @@
 
 #include <gtest/gtest.h>
 
+#include "shadow_grid_scene.h"
+
 namespace penumbra::sma {
 namespace {
-
-constexpr float kShadowEdgeX = 3.3f;  // lit for x < 3.3, in shadow beyond
-constexpr int kGrid = 6;
-constexpr int kImage = 96;
-
-Scene GridScene() {
-  SceneBuilder b;
-  Material m;
-  m.albedo = Rgb(0.5f);
-  const uint32_t mat = b.AddMaterial(m);
-  for (int i = 0; i < kGrid; ++i)
-    for (int j = 0; j < kGrid; ++j) b.AddQuad(Vec3(float(i), 0, float(j)), Vec3(0, 0, 1), Vec3(1, 0, 0), mat);
-  Scene s;
-  s.twoSided = false;
-  EXPECT_TRUE(b.BuildInto(s).ok());
-  return s;
-}
 
 bool ChildrenShaded(const Node& n, const void* c) {
   for (VertexId m : n.mid)

@@ -5,25 +5,10 @@
 
 #include <gtest/gtest.h>
 
+#include "shadow_grid_scene.h"
+
 namespace penumbra::sma {
 namespace {
-
-constexpr float kShadowEdgeX = 3.3f;  // lit for x < 3.3, in shadow beyond: crosses cells, touches no vertex
-constexpr int kGrid = 6;
-constexpr int kImage = 96;
-
-Scene GridScene() {
-  SceneBuilder b;
-  Material m;
-  m.albedo = Rgb(0.5f);
-  const uint32_t mat = b.AddMaterial(m);
-  for (int i = 0; i < kGrid; ++i)
-    for (int j = 0; j < kGrid; ++j) b.AddQuad(Vec3(float(i), 0, float(j)), Vec3(0, 0, 1), Vec3(1, 0, 0), mat);
-  Scene s;
-  s.twoSided = false;  // one surface per triangle; two-sided hierarchies have tests of their own
-  EXPECT_TRUE(b.BuildInto(s).ok());
-  return s;
-}
 
 // Shades every unshaded vertex: irradiance 1 left of the shadow edge, 0.01 right of it.
 void ShadeHardShadow(const Hierarchy& h, SampleCache& cache, bool uniform = false) {
@@ -36,7 +21,7 @@ void ShadeHardShadow(const Hierarchy& h, SampleCache& cache, bool uniform = fals
   cache.Store(samples);
 }
 
-struct Fixture {
+struct RefinementFixture {
   Scene scene = GridScene();
   Hierarchy hierarchy{scene};
   SampleCache cache;
@@ -46,7 +31,7 @@ struct Fixture {
 
   // `shade`: the hard shadow (or uniform light) on every vertex; false leaves
   // the cache empty for a test's own field.
-  explicit Fixture(bool uniform = false, bool shade = true) {
+  explicit RefinementFixture(bool uniform = false, bool shade = true) {
     auto t = VisibilityTracer::Build(scene);
     EXPECT_TRUE(t.ok());
     tracer = std::move(*t);
@@ -132,7 +117,7 @@ TEST(CriterionTest, ParsesNames) {
 }
 
 TEST(NldOsTest, SplitsExactlyTheLeavesAcrossTheShadowEdge) {
-  Fixture f;
+  RefinementFixture f;
   RefinementParams p;
   p.criterion = Criterion::kNldOs;
   p.largeFraction = 1.0f;  // only the metric decides here
@@ -151,7 +136,7 @@ TEST(NldOsTest, SplitsExactlyTheLeavesAcrossTheShadowEdge) {
 }
 
 TEST(NldOsTest, RespectsTheBatchSizeAndTheMinimumArea) {
-  Fixture f;
+  RefinementFixture f;
   RefinementParams p;
   p.largeFraction = 1.0f;
   p.probeFraction = 1.0f;  // no interior probes: the corners decide
@@ -164,7 +149,7 @@ TEST(NldOsTest, RespectsTheBatchSizeAndTheMinimumArea) {
 }
 
 TEST(NldOsTest, LargeLeavesAreSplitWhateverTheirMetric) {
-  Fixture f(/*uniform=*/true);
+  RefinementFixture f(/*uniform=*/true);
   RefinementParams p;
   p.largeFraction = 0.005f;  // each grid triangle covers ~1% of the image
   p.batch = 1000;
@@ -177,7 +162,7 @@ TEST(NldOsTest, LargeLeavesAreSplitWhateverTheirMetric) {
 }
 
 TEST(NldOsTest, IsDoneOnlyWhenNothingIsOutstanding) {
-  Fixture f(/*uniform=*/true);
+  RefinementFixture f(/*uniform=*/true);
   RefinementParams p;
   p.largeFraction = 1.0f;
   p.probeFraction = 1.0f;  // no interior probes: the corners decide
@@ -189,7 +174,7 @@ TEST(NldOsTest, IsDoneOnlyWhenNothingIsOutstanding) {
 }
 
 TEST(NldOsTest, RefinesDownToTheEdgeAndLeavesTheRestAlone) {
-  Fixture f;
+  RefinementFixture f;
   RefinementParams p;
   p.largeFraction = 1.0f;
   p.probeFraction = 1.0f;  // no interior probes: the corners decide
@@ -217,7 +202,7 @@ TEST(NldOsTest, RefinesDownToTheEdgeAndLeavesTheRestAlone) {
 }
 
 TEST(NldOsTest, NoiseAwareMetricSplitsTheEdgeAndNotTheNoise) {
-  Fixture f;
+  RefinementFixture f;
   // Re-shade with noise: a random relative error of up to 20% on every
   // vertex, reported as such.
   SampleCache noisy;
@@ -269,7 +254,7 @@ void ShadeBump(const Hierarchy& h, SampleCache& cache) {
 }
 
 // Runs NLD_OS to exhaustion on the bump field (`f` made unshaded).
-void RefineBump(Fixture& f, const RefinementParams& p) {
+void RefineBump(RefinementFixture& f, const RefinementParams& p) {
   f.cache.Reserve(f.hierarchy.VertexCount());
   ShadeBump(f.hierarchy, f.cache);
   f.Remap();
@@ -289,12 +274,12 @@ TEST(NldOsTest, CornersThatAgreeDoNotHideTheInteriorOfABigLeaf) {
   p.largeFraction = 1.0f;  // each grid triangle covers ~1.4 % of the image: not "large"
   p.batch = 1000;
   {
-    Fixture f(/*uniform=*/false, /*shade=*/false);
+    RefinementFixture f(/*uniform=*/false, /*shade=*/false);
     p.probeFraction = 1.0f;  // corners only (the paper's NLD_OS)
     RefineBump(f, p);
     EXPECT_EQ(f.hierarchy.NodeCount(), f.scene.triangles.size()) << "corners alone split nothing";
   }
-  Fixture f(/*uniform=*/false, /*shade=*/false);
+  RefinementFixture f(/*uniform=*/false, /*shade=*/false);
   p.probeFraction = 1.0f / 1024.0f;  // the default: ~9 pixels of this 96 x 96 image
   RefineBump(f, p);
   // The peak is sampled: some vertex within a tenth of the bump's radius.
@@ -323,7 +308,7 @@ TEST(NldOsTest, InteriorProbesStopWhereTheMidpointsConfirmTheCorners) {
   // with its corners, so nothing is probed below. Deeper nodes only come
   // from the splits' propagation, which keeps the mesh conforming: depth 2
   // at most.
-  Fixture f(/*uniform=*/true);
+  RefinementFixture f(/*uniform=*/true);
   RefinementParams p;
   p.largeFraction = 1.0f;
   p.batch = 1000;
@@ -339,7 +324,7 @@ TEST(NldOsTest, InteriorProbesStopWhereTheMidpointsConfirmTheCorners) {
 }
 
 TEST(MidpointDeviationTest, IsTheMidpointsDistanceFromItsEdgesInterpolationBeyondNoise) {
-  Fixture f(/*uniform=*/true);
+  RefinementFixture f(/*uniform=*/true);
   const NodeId root = 0;
   f.hierarchy.Refine(root, RefineOptions{});
   const Node& n = f.hierarchy.GetNode(root);
@@ -368,7 +353,7 @@ TEST(MidpointDeviationTest, IsTheMidpointsDistanceFromItsEdgesInterpolationBeyon
 }
 
 TEST(RndTest, SpendsItsPixelBudgetAndStops) {
-  Fixture f;
+  RefinementFixture f;
   RefinementParams p;
   p.criterion = Criterion::kRnd;
   p.pixelFraction = 0.01f;  // 92 points on a 96x96 image
@@ -383,7 +368,7 @@ TEST(RndTest, SpendsItsPixelBudgetAndStops) {
 
 TEST(NldIsTest, SplitsWhereTheImageChangesAndNowhereOnAFlatImage) {
   {
-    Fixture f;
+    RefinementFixture f;
     RefinementParams p;
     p.criterion = Criterion::kNldIs;
     p.batch = 1000;
@@ -403,7 +388,7 @@ TEST(NldIsTest, SplitsWhereTheImageChangesAndNowhereOnAFlatImage) {
     }
   }
   {
-    Fixture flat(/*uniform=*/true);
+    RefinementFixture flat(/*uniform=*/true);
     RefinementParams p;
     p.criterion = Criterion::kNldIs;
     Refiner r(p);
@@ -415,7 +400,7 @@ TEST(NldIsTest, SplitsWhereTheImageChangesAndNowhereOnAFlatImage) {
 }
 
 TEST(NldOsRndTest, RandomPassFindsWorkNldOsAloneDoesNot) {
-  Fixture f(/*uniform=*/true);
+  RefinementFixture f(/*uniform=*/true);
   RefinementParams p;
   p.criterion = Criterion::kNldOsRnd;
   p.largeFraction = 1.0f;

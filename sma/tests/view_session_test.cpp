@@ -26,14 +26,14 @@ Scene QuadScene() {
   return s;
 }
 
-struct Fixture {
+struct SessionFixture {
   Scene scene = QuadScene();
   Hierarchy hierarchy{scene};
   SampleCache cache;
   Clock::time_point now = Clock::now();
   CameraView view;
 
-  Fixture() {
+  SessionFixture() {
     cache.Reserve(hierarchy.VertexCount());
     view.width = view.height = 8;
   }
@@ -77,7 +77,7 @@ RefinementParams NoRefinement() {
 }
 
 TEST(ViewSessionTest, GoesThroughItsPhasesToConvergence) {
-  Fixture f;
+  SessionFixture f;
   ViewSession s(NoRefinement(), 1000, /*improvementOn=*/false);
   EXPECT_EQ(s.CurrentPhase(), Phase::kAwaitingHello);
   EXPECT_TRUE(s.OnHello());
@@ -138,7 +138,7 @@ TEST(ViewSessionTest, GoesThroughItsPhasesToConvergence) {
 // that finds the same view plans nothing (a view stalled short of stage 1
 // with no sample awaited, seen in bench/move_bench's 10 moves/s phase).
 TEST(ViewSessionTest, ACornerAMoveTookBackIsAwaitedAgain) {
-  Fixture f;
+  SessionFixture f;
   ViewSession s(NoRefinement(), 1000, /*improvementOn=*/false);
   s.OnHello();
   s.OnNewView(1, f.view, f.now);
@@ -181,7 +181,7 @@ TEST(ViewSessionTest, ACornerAMoveTookBackIsAwaitedAgain) {
 }
 
 TEST(ViewSessionTest, AStatusThatWasNotTheLastDeltaNeverSaysConverged) {
-  Fixture f;
+  SessionFixture f;
   ViewSession s(NoRefinement(), 1000, false);
   f.ToShading(s);
   f.ToStage2(s);
@@ -192,7 +192,7 @@ TEST(ViewSessionTest, AStatusThatWasNotTheLastDeltaNeverSaysConverged) {
 }
 
 TEST(ViewSessionTest, ASupersededResultIsDroppedUntilThreeInARow) {
-  Fixture f;
+  SessionFixture f;
   ViewSession s(NoRefinement(), 1000, false);
   s.OnHello();
   uint64_t id = 1;
@@ -225,7 +225,7 @@ TEST(ViewSessionTest, ASupersededResultIsDroppedUntilThreeInARow) {
 }
 
 TEST(ViewSessionTest, RemapsAreThrottledAndATimerThatFindsItDoneDoesNothing) {
-  Fixture f;
+  SessionFixture f;
   ViewSession s(NoRefinement(), 1000, false);
   f.ToShading(s);
   f.ToStage2(s);
@@ -260,7 +260,7 @@ TEST(ViewSessionTest, RemapsAreThrottledAndATimerThatFindsItDoneDoesNothing) {
 }
 
 TEST(ViewSessionTest, ABlockedClientGetsNoWorkAndOneRefreshOnDrain) {
-  Fixture f;
+  SessionFixture f;
   RefinementParams p;  // NLD_OS
   ViewSession s(p, 1000, /*improvementOn=*/true);
   f.ToShading(s);
@@ -280,7 +280,7 @@ TEST(ViewSessionTest, ABlockedClientGetsNoWorkAndOneRefreshOnDrain) {
 }
 
 TEST(ViewSessionTest, ADrainKeepsTheRefreshThrottleButNotANewView) {
-  Fixture f;
+  SessionFixture f;
   ViewSession s(NoRefinement(), 1000, false);
   f.ToShading(s);  // its job re-mapped at f.now
   f.ToStage2(s);
@@ -307,7 +307,7 @@ TEST(ViewSessionTest, ADrainKeepsTheRefreshThrottleButNotANewView) {
 }
 
 TEST(ViewSessionTest, RefinementWaitsForStage1AndARunningJob) {
-  Fixture f;
+  SessionFixture f;
   RefinementParams p;
   ViewSession s(p, 1000, false);
   f.ToShading(s);
@@ -336,7 +336,7 @@ TEST(ViewSessionTest, RefinementWaitsForStage1AndARunningJob) {
 }
 
 TEST(ViewSessionTest, AStepThatFoundNothingWaitsOnlyIfSomethingWillWakeIt) {
-  Fixture f;
+  SessionFixture f;
   ViewSession s(RefinementParams{}, 1000, false);
   f.ToShading(s);
   f.ToStage2(s);
@@ -355,7 +355,7 @@ TEST(ViewSessionTest, AStepThatFoundNothingWaitsOnlyIfSomethingWillWakeIt) {
 }
 
 TEST(ViewSessionTest, ImprovementKeepsABatchInFlightAndEnds) {
-  Fixture f;
+  SessionFixture f;
   ViewSession s(NoRefinement(), 1000, /*improvementOn=*/true);
   f.ToShading(s);
   EXPECT_EQ(s.NextImprovement(false, 4), ViewSession::ImproveStart::kNothing);  // stage 1 first
@@ -383,7 +383,7 @@ TEST(ViewSessionTest, ImprovementKeepsABatchInFlightAndEnds) {
 // estimate of the vertex was alive comes back as that estimate (an arrival),
 // which must end the wait too, or the view never converges.
 TEST(ViewSessionTest, AnArrivalEndsAnImprovementsWait) {
-  Fixture f;
+  SessionFixture f;
   ViewSession s(NoRefinement(), 1000, /*improvementOn=*/true);
   f.ToShading(s);
   f.ToStage2(s);
@@ -398,7 +398,7 @@ TEST(ViewSessionTest, AnArrivalEndsAnImprovementsWait) {
 }
 
 TEST(ViewSessionTest, ArrivingMidpointsAskForARemap) {
-  Fixture f;
+  SessionFixture f;
   ViewSession s(RefinementParams{}, 1000, false);
   f.ToShading(s);
   f.ToStage2(s);
@@ -416,7 +416,7 @@ TEST(ViewSessionTest, ArrivingMidpointsAskForARemap) {
 // invalidated are awaited -- the view is not converged until their
 // reshades arrived, or the client let them go.
 TEST(ViewSessionTest, AMoveHoldsConvergenceUntilTheReshadesArrive) {
-  Fixture f;
+  SessionFixture f;
   ViewSession s(NoRefinement(), 1000, /*improvementOn=*/false);
   f.ToShading(s);
   f.ToStage2(s);
@@ -442,7 +442,7 @@ TEST(ViewSessionTest, AMoveHoldsConvergenceUntilTheReshadesArrive) {
 }
 
 TEST(ViewSessionTest, ImprovementLooksWalkTheVisibleNodesInLaps) {
-  Fixture f;
+  SessionFixture f;
   ViewSession s(NoRefinement(), 1000, /*improvementOn=*/true);
   f.ToShading(s);
   f.ToStage2(s);
