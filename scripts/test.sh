@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Builds Penumbra and runs every test (unit and integration); with no
 # arguments (the CI command) it then runs every fuzz target briefly
-# (scripts/fuzz.sh, PENUMBRA_FUZZ_SECONDS each, default 10: a smoke run
-# that keeps CI under 30 minutes; long runs are scripts/fuzz.sh TARGET).
+# (scripts/fuzz.sh --quick-build, PENUMBRA_FUZZ_SECONDS each, default 10: a
+# smoke run that keeps CI under 30 minutes; long runs are scripts/fuzz.sh TARGET).
 # Usage: scripts/test.sh [--asan|--tsan] [--no-fuzz] [ctest arguments, e.g. -L unit]
 # Sanitizer builds and runs narrowed by ctest arguments skip the fuzz step.
 set -euo pipefail
@@ -25,7 +25,7 @@ ctest --output-on-failure -j"$(nproc)" "${ctest_args[@]}" || status=$?
 echo "test.sh: tests $(( $(date +%s) - t0 )) s"
 if [ "$fuzz" -eq 1 ]; then
   t1=$(date +%s)
-  "$root/scripts/fuzz.sh" --seconds "${PENUMBRA_FUZZ_SECONDS:-10}" || status=1
+  "$root/scripts/fuzz.sh" --quick-build --seconds "${PENUMBRA_FUZZ_SECONDS:-10}" || status=1
   echo "test.sh: fuzz build and runs $(( $(date +%s) - t1 )) s"
 fi
 exit "$status"
