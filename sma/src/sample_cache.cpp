@@ -317,7 +317,20 @@ uint32_t SampleCache::Generation(VertexId v) const {
   return ReadSlot(v, [](const Slot& s) { return s.generation.load(std::memory_order_acquire); });
 }
 uint64_t SampleCache::ValidFrom(VertexId v) const {
-  return ReadSlot(v, [](const Slot& s) { return s.validFrom.load(std::memory_order_acquire); });
+  const uint64_t floor = UnshadedValidFrom();
+  return ReadSlot(v, [&](const Slot& s) {
+    const uint64_t own = s.validFrom.load(std::memory_order_acquire);
+    return s.shaded.load(std::memory_order_acquire) != 0 ? own : std::max(own, floor);
+  });
+}
+
+void SampleCache::InvalidateUnshaded(uint64_t epoch) {
+  uint64_t floor = unshadedValidFrom_.load(kRelaxed);
+  while (floor < epoch && !unshadedValidFrom_.compare_exchange_weak(floor, epoch, std::memory_order_seq_cst)) {
+  }
+  // Dekker's pattern with Put (file comment): the caller's reads of slots
+  // that follow are ordered after the floor's write.
+  std::atomic_thread_fence(std::memory_order_seq_cst);
 }
 
 float SampleCache::RelativeError(VertexId v) const {
@@ -381,9 +394,14 @@ size_t SampleCache::Put(std::span<const ShadedSample> samples, bool keepRounds, 
     const SlotWrite write = EnterSlot(sample.vertex, /*make=*/true);
     Slot& s = *write;
     const uint32_t sequence = BeginWrite(s);
+    // The floor of slots with no sample is read after this write made the
+    // slot's sequence odd (InvalidateUnshaded: Dekker's pattern): a planner
+    // that read the slot unshaded before that is seen here.
+    std::atomic_thread_fence(std::memory_order_seq_cst);
+    const uint64_t floor = s.shaded.load(kRelaxed) ? 0 : unshadedValidFrom_.load(kRelaxed);
     // The epoch check is inside the slot's sequence, like Invalidate's
     // write of validFrom: whichever comes second sees the other.
-    if (sample.epoch < s.validFrom.load(kRelaxed)) {
+    if (sample.epoch < s.validFrom.load(kRelaxed) || sample.epoch < floor) {
       if (stale) stale->push_back(sample.vertex);
     } else if (!s.shaded.load(kRelaxed)) {
       WriteValues(s, sample, keepRounds ? sample.round : 0);

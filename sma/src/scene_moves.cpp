@@ -248,12 +248,17 @@ Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cac
     // to its pending test.
     std::optional<CachedSample> sample = cache.Read(v);
     if (!sample) sample = cache.ReadSuspect(v);
-    // Nothing cached: invalidating costs nothing (only ValidFrom rises), and
-    // refuses a sample of it shaded at the old pose that may be on its way.
-    // So the test is asked about cached samples only (most of a refined
-    // hierarchy's vertices are not cached: 287 k of 299 k in the breakfast
-    // room seen once).
-    if (rule == InvalidationRule::kEverything || !sample) {
+    // Nothing cached: the caller's SampleCache::InvalidateUnshaded refuses
+    // a sample of it shaded at the old pose that may be on its way, and
+    // there is nothing to evict -- unless it awaits a reshade, which a
+    // client holding it wants urgently (listed). Most of a refined
+    // hierarchy's vertices are not cached: 287 k of 299 k in the
+    // breakfast room seen once.
+    if (!sample) {
+      if (cache.AwaitingReshade(v)) everythingElse.push_back(v);
+      continue;
+    }
+    if (rule == InvalidationRule::kEverything) {
       everythingElse.push_back(v);
       continue;
     }

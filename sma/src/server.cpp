@@ -2039,6 +2039,10 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
     // Every pose so far, by epoch: each cached sample is judged against the
     // pose it was shaded at. Only this job touches the history.
     poseHistory_.Record(oldPose);
+    // Before the plan reads which vertices have samples (SampleCache: a
+    // first estimate of one with none, shaded at the old pose, is refused
+    // from here on; one stored before is read by the plan and judged).
+    cache_.InvalidateUnshaded(newPose->epoch);
     const InvalidationRule rule = options_.invalidateEverythingOnMove ? InvalidationRule::kEverything
                                   : options_.pool.verifyPaths == 0     ? InvalidationRule::kTest
                                   : options_.moveTestDirect            ? InvalidationRule::kTestAll

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <chrono>
 #include <cstdio>
 #include <cmath>
 #include <functional>
@@ -563,6 +564,68 @@ TEST(SampleCache, ConcurrentStoresAndInvalidationsLeaveNothingStale) {
       EXPECT_GE(s->epoch, kEpochs) << v;
     }
     EXPECT_EQ(cache.ValidFrom(v), kEpochs);
+  }
+}
+
+// InvalidateUnshaded: one floor for every vertex with no sample -- what
+// Invalidate(v, e) on each of them did -- touching none.
+TEST(SampleCache, TheUnshadedFloorRefusesOldFirstEstimatesOfVerticesWithNoSampleOnly) {
+  SampleCache cache;
+  cache.Reserve(3 * SampleCache::kChunkVertices);
+  ASSERT_EQ(cache.Store(std::vector{At(0, 1.0f, 1)}), 1u);
+  const size_t bytes = cache.MemoryBytes();
+  cache.InvalidateUnshaded(3);
+  EXPECT_EQ(cache.MemoryBytes(), bytes) << "no chunk made for the vertices with no sample";
+  EXPECT_EQ(cache.UnshadedValidFrom(), 3u);
+  cache.InvalidateUnshaded(2);
+  EXPECT_EQ(cache.UnshadedValidFrom(), 3u) << "the floor only rises";
+  // A vertex with a sample is judged by its own ValidFrom: still 0.
+  EXPECT_EQ(cache.ValidFrom(0), 0u);
+  EXPECT_EQ(cache.Improve(std::vector{At(0, 3.0f, 1, 1)}).size(), 1u);
+  // Vertices with none, in a chunk that exists and in one that does not:
+  // a first estimate shaded before the floor is refused and reported.
+  const VertexId far = VertexId(2 * SampleCache::kChunkVertices + 5);
+  EXPECT_EQ(cache.ValidFrom(1), 3u);
+  EXPECT_EQ(cache.ValidFrom(far), 3u);
+  std::vector<VertexId> stale;
+  EXPECT_EQ(cache.Store(std::vector{At(1, 5.0f, 2), At(far, 5.0f, 2)}, &stale), 0u);
+  EXPECT_EQ(stale, (std::vector<VertexId>{1, far}));
+  EXPECT_EQ(cache.Store(std::vector{At(1, 5.0f, 3), At(far, 5.0f, 4)}), 2u);
+  // Once it has a sample, a vertex's improvements are judged by its own
+  // ValidFrom; evicted, it has none again and the floor applies.
+  EXPECT_EQ(cache.ValidFrom(1), 0u);
+  EXPECT_TRUE(cache.Evict(0));
+  EXPECT_EQ(cache.Store(std::vector{At(0, 5.0f, 2)}), 0u);
+  EXPECT_EQ(cache.Store(std::vector{At(0, 5.0f, 3)}), 1u);
+}
+
+// The race InvalidateUnshaded's fences close: a planner raises the floor,
+// then reads which vertices have samples, while replies shaded at the old
+// pose are stored. Every vertex the planner read as having none must stay
+// without an old sample: the planner did not judge it, so only the floor
+// can keep an old sample out.
+TEST(SampleCache, AVertexThePlannerReadWithNoSampleNeverGetsAnOldOne) {
+  constexpr VertexId kVertices = 4 * VertexId(SampleCache::kChunkVertices);
+  for (int trial = 0; trial < 20; ++trial) {
+    SampleCache cache;
+    cache.Reserve(kVertices);
+    std::atomic<bool> go{false};
+    std::thread replies([&] {
+      while (!go.load()) std::this_thread::yield();
+      for (VertexId v = 0; v < kVertices; ++v) cache.Store(std::vector{At(v, 1.0f, 1)});
+    });
+    std::vector<VertexId> readWithNone;
+    go = true;
+    // A later start each trial: the floor meets the replies at another place.
+    std::this_thread::sleep_for(std::chrono::microseconds(50 * trial));
+    cache.InvalidateUnshaded(2);
+    for (VertexId v = 0; v < kVertices; ++v)
+      if (!cache.Read(v)) readWithNone.push_back(v);
+    replies.join();
+    for (VertexId v : readWithNone) {
+      const auto s = cache.Read(v);
+      ASSERT_FALSE(s.has_value() && s->epoch < 2) << "trial " << trial << ": vertex " << v;
+    }
   }
 }
 

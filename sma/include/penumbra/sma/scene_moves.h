@@ -210,11 +210,13 @@ class PoseHistory {
 };
 
 /// Every vertex of a moved object (its world place changed), every vertex
-/// with no sample cached (only its ValidFrom rises: a sample of it shaded at
-/// the old pose, perhaps on its way, is refused), and the cached vertices
-/// InvalidatedStaticVertices chooses among the others, for all the moved
-/// objects together. The caller holds the state lock shared (the
-/// hierarchy is read; the cache is read as it is).
+/// with no sample that awaits a reshade (urgent: a client holding it wants
+/// it), and the cached vertices InvalidatedStaticVertices chooses among the
+/// others, for all the moved objects together. The other vertices with no
+/// sample are not listed: the caller calls the cache's
+/// InvalidateUnshaded(newPose.epoch) first, which refuses a sample of any of
+/// them shaded at the old pose and perhaps on its way. The caller holds
+/// the state lock shared (the hierarchy is read; the cache is read as it is).
 ///
 /// Each cached sample is judged against the pose it was shaded at
 /// (CachedSample::epoch, looked up in `history`), not only against
