@@ -236,7 +236,16 @@ Invalidation PlanInvalidation(const Hierarchy& hierarchy, const SampleCache& cac
   std::map<uint64_t, std::vector<InvalidationCandidate>> candidatesByEpoch;
   std::vector<VertexId> everythingElse;
   const size_t vertexCount = hierarchy.VertexCount();
+  constexpr VertexId kChunk = VertexId(SampleCache::kChunkVertices);
   for (VertexId v = 0; v < vertexCount; ++v) {
+    // A chunk of ids the cache never wrote holds no sample, suspect or
+    // awaited reshade: nothing to judge or evict, and the caller's
+    // InvalidateUnshaded already refuses old samples of it. Most of a
+    // large scene's ids are in such chunks until they are seen.
+    if (v % kChunk == 0 && !cache.HasChunk(v)) {
+      v += kChunk - 1;
+      continue;
+    }
     const SampleVertex& sv = hierarchy.GetVertex(v);
     const uint32_t object = scene.ObjectOfTriangle(sv.baseTriangle);
     if (object != kStaticObject && moved[object]) {

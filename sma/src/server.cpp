@@ -2018,6 +2018,7 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
   std::optional<ScenePose> next = NextPose(*oldPose, placed);
   if (!next) return;  // nothing changes place: no new epoch
   auto newPose = std::make_shared<const ScenePose>(std::move(*next));
+  const auto posing = Clock::now();
   auto posed = tracer_->AtPose(*newPose);
   if (!posed) {
     log_->error("move to scene epoch {} not applied: {}", newPose->epoch, posed.error().message);
@@ -2034,6 +2035,7 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
   // 2. What the move invalidates (reads the hierarchy and the cache).
   Invalidation invalidation;
   const size_t cachedBefore = cache_.ShadedCount();
+  const auto planning = Clock::now();
   {
     std::shared_lock lock(stateMutex_);
     // Every pose so far, by epoch: each cached sample is judged against the
@@ -2050,6 +2052,7 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
     invalidation = PlanInvalidation(hierarchy_, cache_, *oldPose, *newPose, rule, &poseHistory_);
     poseHistory_.Record(newPose);
   }
+  const auto invalidating = Clock::now();
   // 3. Invalidate under the exclusive lock: a delta is planned and built
   //    under the shared lock, so it sees each sample either before (then
   //    the client gets it and, holding it, its reshade) or after (then the
@@ -2132,9 +2135,11 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
     if (!arrived->empty()) NotifyArrived(session, arrived);
   }
   log_->debug("scene epoch {}: {} object(s) moved; {} vertices invalidated ({} of the objects'), {} of {} cached "
-              "samples evicted, {} held back for a test, {} prepared samples stored; applied in {:.1f} ms",
+              "samples evicted, {} held back for a test, {} prepared samples stored; applied in {:.1f} ms "
+              "(posing {:.1f}, planning {:.1f}, invalidating {:.1f})",
               newPose->epoch, notice->movedObjects.size(), invalidation.vertices.size(),
-              invalidation.objectVertices, evicted, cachedBefore, tests.size(), arrived->size(), ms);
+              invalidation.objectVertices, evicted, cachedBefore, tests.size(), arrived->size(), ms,
+              Milliseconds(planning - posing), Milliseconds(invalidating - planning), ms - Milliseconds(invalidating - start));
   if (options_.movePrediction) {
     movePredictor_.Applied(*oldPose, newPose->epoch, moves, Clock::now());
     PredictNextMove(*newPose);

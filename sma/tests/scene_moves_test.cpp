@@ -10,6 +10,7 @@
 #include <set>
 #include <vector>
 
+#include "hierarchy_test_scenes.h"
 #include "penumbra/common/embree_scene.h"
 #include "penumbra/sma/delta.h"
 #include "penumbra/sma/move_prediction.h"
@@ -161,6 +162,46 @@ TEST(SceneMoves, PlanInvalidationTakesTheMovedObjectsVerticesAndWhatTheMotionVol
   const Invalidation full = PlanInvalidation(hierarchy, cache, before, after, InvalidationRule::kEverything);
   EXPECT_EQ(full.vertices.size(), hierarchy.VertexCount());
   EXPECT_EQ(full.objectVertices, boxVertices);
+}
+
+// After InvalidateUnshaded, a plan lists what the cache holds only: a vertex
+// with no sample needs nothing more (the floor refuses its old samples)
+// unless it awaits a reshade a client wants, and chunks of ids the cache
+// never wrote are skipped whole -- most of a large scene's, on every move.
+TEST(SceneMoves, PlanInvalidationListsWhatTheCacheHoldsAndWhatAwaitsAReshade) {
+  constexpr VertexId kChunk = VertexId(SampleCache::kChunkVertices);
+  const Scene scene = FloorWithObjects();
+  Hierarchy hierarchy(scene);
+  for (int round = 0; round < 8 && hierarchy.VertexCount() < 3 * kChunk; ++round)
+    for (NodeId leaf : Leaves(hierarchy)) hierarchy.Refine(leaf, RefineOptions{});
+  ASSERT_GE(hierarchy.VertexCount(), 3 * kChunk);
+  SampleCache cache;
+  cache.Reserve(hierarchy.VertexCount());
+  // Samples of the even ids of the first chunk only (the box's base
+  // vertices among them); one of them then invalidated by an earlier move.
+  std::vector<ShadedSample> some;
+  for (VertexId v = 0; v < kChunk; v += 2) some.push_back(ShadedSample{v, Rgb(1.0f), Rgb(2.0f), 0.1f, 16});
+  cache.Store(some);
+  const VertexId awaiting = 2 * 17;
+  ASSERT_NE(scene.ObjectOfTriangle(hierarchy.GetVertex(awaiting).baseTriangle), 0u);
+  ASSERT_TRUE(cache.Invalidate(awaiting, 1));
+  ASSERT_FALSE(cache.HasChunk(kChunk)) << "nothing written beyond the first chunk";
+
+  const ScenePose before = ScenePose::Initial(scene);
+  ScenePose after = *NextPose(before, std::vector{ObjectMove{0, RigidTransform{glm::mat3(1.0f), Vec3(1, 1, 0)}}});
+  cache.InvalidateUnshaded(after.epoch);
+  const Invalidation inv = PlanInvalidation(hierarchy, cache, before, after);
+  size_t boxVertices = 0;
+  for (VertexId v : inv.vertices) {
+    EXPECT_LT(v, kChunk) << "a vertex of a chunk the cache never wrote";
+    const bool ofTheBox = scene.ObjectOfTriangle(hierarchy.GetVertex(v).baseTriangle) == 0;
+    boxVertices += ofTheBox;
+    EXPECT_TRUE(ofTheBox || v % 2 == 0) << v << ": never shaded, not the box's, listed";
+  }
+  EXPECT_GT(boxVertices, 0u);
+  EXPECT_EQ(inv.objectVertices, boxVertices);
+  EXPECT_TRUE(std::binary_search(inv.urgent.begin(), inv.urgent.end(), awaiting))
+      << "a vertex awaiting its reshade is urgent (a client holding it asks for it first)";
 }
 
 // A sample is judged against the pose it was shaded at: a tiny move far

@@ -171,6 +171,11 @@ class SampleCache {
   bool IsSuspect(VertexId v) const {
     return ReadSlot(v, [](const Slot& s) { return s.suspect.load(std::memory_order_acquire) != 0; });
   }
+  /// Whether the chunk of vertex ids holding `v` exists. Every vertex of a
+  /// chunk that does not exists reads as never shaded -- no sample, none
+  /// suspect, none awaiting a reshade -- so a scan for those can skip its
+  /// kChunkVertices ids (PlanInvalidation does, after InvalidateUnshaded).
+  bool HasChunk(VertexId v) const { return FindChunk(v) != nullptr; }
   /// The whole sample of a suspect vertex (as Read of a shaded one), for a
   /// later move to judge again; nothing when the vertex is not suspect.
   std::optional<CachedSample> ReadSuspect(VertexId v) const;

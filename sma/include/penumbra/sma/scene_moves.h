@@ -209,7 +209,8 @@ class PoseHistory {
   std::deque<std::shared_ptr<const ScenePose>> poses_;  // epochs strictly increasing
 };
 
-/// Every vertex of a moved object (its world place changed), every vertex
+/// Every vertex of a moved object (its world place changed) whose id's chunk
+/// the cache has (SampleCache::HasChunk), every vertex
 /// with no sample that awaits a reshade (urgent: a client holding it wants
 /// it), and the cached vertices InvalidatedStaticVertices chooses among the
 /// others, for all the moved objects together. The other vertices with no
