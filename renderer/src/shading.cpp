@@ -54,6 +54,14 @@ float LargestCoordinate(const Bounds3& b) {
   return std::max({m.x, m.y, m.z});
 }
 
+}  // namespace
+
+// The path tracer's own types, which Shader::Impl holds: in a named
+// namespace, not the anonymous one -- a member of a type with external
+// linkage must not use a type of it (gcc's -Wsubobject-linkage, which a
+// unity build, #including this file, reports).
+namespace shading_detail {
+
 // An emissive triangle, with what sampling it needs.
 struct Light {
   Vec3 p0, edge1, edge2;  // p = p0 + b1 edge1 + b2 edge2
@@ -72,7 +80,10 @@ struct PathVertex {
   float offset = 0.0f;  // how far the origin was moved off its surface (Shader::Impl::OffsetAt)
 };
 
-}  // namespace
+}  // namespace shading_detail
+
+using shading_detail::Light;
+using shading_detail::PathVertex;
 
 // --- Validation -------------------------------------------------------------
 
