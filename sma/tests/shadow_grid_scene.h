@@ -5,6 +5,7 @@
 
 #include <gtest/gtest.h>
 
+#include "hierarchy_test_scenes.h"
 #include "penumbra/common/scene.h"
 
 namespace penumbra::sma {
@@ -14,15 +15,8 @@ inline constexpr int kGrid = 6;
 inline constexpr int kImage = 96;
 
 inline Scene GridScene() {
-  SceneBuilder b;
-  Material m;
-  m.albedo = Rgb(0.5f);
-  const uint32_t mat = b.AddMaterial(m);
-  for (int i = 0; i < kGrid; ++i)
-    for (int j = 0; j < kGrid; ++j) b.AddQuad(Vec3(float(i), 0, float(j)), Vec3(0, 0, 1), Vec3(1, 0, 0), mat);
-  Scene s;
-  s.twoSided = false;  // one surface per triangle; two-sided hierarchies have tests of their own
-  EXPECT_TRUE(b.BuildInto(s).ok());
+  Scene s = GridScene(kGrid);  // hierarchy_test_scenes.h: one-sided, 2 triangles per cell
+  for (Material& m : s.materials) m.albedo = Rgb(0.5f);
   return s;
 }
 
