@@ -67,6 +67,9 @@ TEST_F(ShadeCodec, WhatTheSmaEncodesTheRendererDecodes) {
   EXPECT_FALSE(envelope.shade_request().urgent());
   EXPECT_TRUE(FromFrame(*sma::EncodeShadeRequestFrame(43, 16, requests_, nullptr, /*urgent=*/true)).shade_request().urgent())
       << "what a client waits for is marked so";
+  EXPECT_FALSE(envelope.shade_request().soon());
+  const wire::Envelope soon = FromFrame(*sma::EncodeShadeRequestFrame(44, 16, requests_, nullptr, false, /*soon=*/true));
+  EXPECT_TRUE(soon.shade_request().soon() && !soon.shade_request().urgent()) << "what a client is expected to want";
   auto inputs = DecodeShadeRequest(envelope.shade_request(), scene_, ShadeLimits{});
   ASSERT_TRUE(inputs) << inputs.error().message;
   ASSERT_EQ(inputs->size(), requests_.size());

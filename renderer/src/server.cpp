@@ -216,6 +216,7 @@ class RendererServer::Impl::Session : public std::enable_shared_from_this<Sessio
     }
     job->batchId = batchId;
     job->urgent = request.urgent();
+    job->soon = request.soon();
     job->paths = int(request.paths_per_sample());
     job->pose = std::move(*posed);
     job->inputs = std::move(*inputs);

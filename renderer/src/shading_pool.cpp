@@ -48,11 +48,13 @@ void ShadingPool::Submit(const std::shared_ptr<Source>& source, std::shared_ptr<
   samplesQueued_ += n;
   {
     std::lock_guard lock(mutex_);
-    // An urgent job's chunks go behind the queued urgent chunks, ahead of
-    // the rest (the queue is urgent chunks first, then the others).
+    // A job's chunks go behind the queued chunks of its rank or higher,
+    // ahead of those of lower rank (the queue is urgent chunks first, then
+    // soon ones, then the others).
     auto at = source->chunks.end();
-    if (job->urgent)
-      at = std::find_if(source->chunks.begin(), source->chunks.end(), [](const Chunk& c) { return !c.job->urgent; });
+    if (const int rank = job->Rank(); rank > 0)
+      at = std::find_if(source->chunks.begin(), source->chunks.end(),
+                        [rank](const Chunk& c) { return c.job->Rank() < rank; });
     for (size_t begin = 0; begin < n; begin += chunk) {
       at = source->chunks.insert(at, Chunk{job, begin, std::min(n, begin + chunk)});
       ++at;

@@ -456,10 +456,12 @@ TEST(PosedShadingTest, AnObjectMovedFarAwayLeavesTheStaticShadingAsItWas) {
 }
 
 // A batch a client waits for (ShadeRequest::urgent) overtakes what its
-// connection has queued: with one worker busy on a long background batch
-// and a test batch queued behind it, an urgent batch submitted last is
-// answered before both; a second urgent one goes behind the first.
-TEST(PosedShadingTest, AnUrgentJobOvertakesTheQueuedChunksOfItsSource) {
+// connection has queued, and one a client is expected to want
+// (ShadeRequest::soon) what is neither: with one worker busy on a long
+// background batch and a test batch queued behind it, a soon batch, then two
+// urgent ones, then a second soon one are answered urgent first, soon next,
+// each rank in the order it came.
+TEST(PosedShadingTest, UrgentThenSoonJobsOvertakeTheQueuedChunksOfTheirSource) {
   const OccluderScene s = MakeOccluderScene();
   const Shader shader(s.t.scene, *s.t.rays, DirectOnly());
   const ShadeInput underLight = SampleAt(s.t.scene, Vec3(0.0f), kUp);
@@ -468,11 +470,13 @@ TEST(PosedShadingTest, AnUrgentJobOvertakesTheQueuedChunksOfItsSource) {
   std::mutex mutex;
   std::condition_variable done;
   std::vector<uint64_t> finishedOrder;
-  const auto makeJob = [&](uint64_t id, int samples, bool urgent) {
+  enum Rank { kNeither, kSoon, kUrgent };
+  const auto makeJob = [&](uint64_t id, int samples, Rank rank) {
     auto job = std::make_shared<ShadeJob>();
     job->batchId = id;
     job->paths = 64;
-    job->urgent = urgent;
+    job->urgent = rank == kUrgent;
+    job->soon = rank == kSoon;
     for (int i = 0; i < samples; ++i) {
       ShadeInput in = underLight;
       in.sampleId = id * 1000 + uint64_t(i);
@@ -487,16 +491,18 @@ TEST(PosedShadingTest, AnUrgentJobOvertakesTheQueuedChunksOfItsSource) {
     return job;
   };
   // 1 worker: chunks of 64 samples; the background batch is 16 chunks.
-  pool.Submit(source, makeJob(1, 1024, false));
-  pool.Submit(source, makeJob(2, 256, false));
-  pool.Submit(source, makeJob(3, 64, true));
-  pool.Submit(source, makeJob(4, 64, true));
+  pool.Submit(source, makeJob(1, 1024, kNeither));
+  pool.Submit(source, makeJob(2, 256, kNeither));
+  pool.Submit(source, makeJob(5, 64, kSoon));
+  pool.Submit(source, makeJob(3, 64, kUrgent));
+  pool.Submit(source, makeJob(4, 64, kUrgent));
+  pool.Submit(source, makeJob(6, 64, kSoon));
   {
     std::unique_lock lock(mutex);
-    ASSERT_TRUE(done.wait_for(lock, std::chrono::seconds(120), [&] { return finishedOrder.size() == 4; }));
+    ASSERT_TRUE(done.wait_for(lock, std::chrono::seconds(120), [&] { return finishedOrder.size() == 6; }));
   }
-  EXPECT_EQ(finishedOrder, (std::vector<uint64_t>{3, 4, 1, 2}))
-      << "urgent jobs first, in their order; the others in theirs";
+  EXPECT_EQ(finishedOrder, (std::vector<uint64_t>{3, 4, 5, 6, 1, 2}))
+      << "urgent jobs first, then soon ones, each in their order; the others in theirs";
 }
 
 // Batches at different poses -- two SMAs, or one across a move -- share the

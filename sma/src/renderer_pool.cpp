@@ -363,7 +363,8 @@ void RendererPool::Dispatch() {
     if (!link) continue;  // cannot happen: a renderer leaves the scheduler when its link goes
     const ScenePose* at = batch.prepared ? preparedPose.get() : pose.get();
     auto frame = batch.verify ? EncodeVerifyRequestFrame(batch.id, batch.pathsPerSample, batch.samples, *batch.verify)
-                              : EncodeShadeRequestFrame(batch.id, batch.pathsPerSample, batch.samples, at, batch.urgent);
+                              : EncodeShadeRequestFrame(batch.id, batch.pathsPerSample, batch.samples, at, batch.urgent,
+                                                                        batch.soon);
     if (!link->Send(std::move(frame)))
       link->Drop("cannot queue a batch");  // closing requeues it (OnLinkClosed)
   }

@@ -703,7 +703,8 @@ std::vector<AssignedBatch> SampleScheduler::Assemble() {
                                                                         : options_.pathsPerSample;
       const uint64_t epoch = verify ? (verify->target ? verify->target->epoch : 0) : prepared ? preparedEpoch_ : epoch_;
       const bool urgent = !verify && !prepared && priority == Priority::kVisible;
-      AssignedBatch assigned{id, nextBatchId_++, epoch, paths, prepared, urgent, {}, verify};
+      const bool soon = prepared || (!verify && priority == Priority::kPredicted);
+      AssignedBatch assigned{id, nextBatchId_++, epoch, paths, prepared, urgent, soon, {}, verify};
       Batch batch;
       batch.prepared = prepared;
       batch.verify = verify;

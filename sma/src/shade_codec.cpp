@@ -54,10 +54,11 @@ void FillShadeRequest(uint64_t batchId, uint32_t pathsPerSample, std::span<const
 
 std::shared_ptr<const std::string> EncodeShadeRequestFrame(uint64_t batchId, uint32_t pathsPerSample,
                                                            std::span<const SampleRequest> samples,
-                                                           const ScenePose* pose, bool urgent) {
+                                                           const ScenePose* pose, bool urgent, bool soon) {
   wire::Envelope envelope;
   FillShadeRequest(batchId, pathsPerSample, samples, envelope.mutable_shade_request(), pose);
   envelope.mutable_shade_request()->set_urgent(urgent);
+  envelope.mutable_shade_request()->set_soon(soon);
   return std::make_shared<const std::string>(EncodeEnvelopeFrame(envelope));
 }
 

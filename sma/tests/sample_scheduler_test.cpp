@@ -314,12 +314,13 @@ TEST(SampleScheduler, TheLastCreditWaitsForVisibleSamples) {
   s.RendererReady(1, RendererCapacity{3, 1000, 32});
   auto background = s.Assemble();
   EXPECT_EQ(background.size(), 2u) << "two of three credits";
-  for (const auto& b : background) EXPECT_FALSE(b.urgent);
+  for (const auto& b : background) EXPECT_FALSE(b.urgent || b.soon);
   EXPECT_TRUE(s.Assemble().empty()) << "the last one is kept";
   s.Request(Requests(500, 3), Priority::kVisible);
   auto visible = s.Assemble();
   ASSERT_EQ(visible.size(), 1u);
   EXPECT_TRUE(visible[0].urgent);
+  EXPECT_FALSE(visible[0].soon);
   EXPECT_EQ(VerticesOf(visible), (std::set<VertexId>{500, 501, 502}));
   EXPECT_TRUE(s.Assemble().empty()) << "every credit in flight";
   s.Complete(s.OnReply(1, Answer(visible[0])).results);
@@ -855,8 +856,10 @@ TEST(SampleScheduler, TestsGoAfterPredictedAndPreparedBeforeBackgroundOneContext
   EXPECT_EQ(VerticesOf({order[4]}), (std::set<VertexId>{20, 21})) << "the second move's, in a batch of their own";
   EXPECT_EQ(VerticesOf({order[5]}), (std::set<VertexId>{0, 1, 2, 3})) << "background";
   for (int i : {0, 1, 2, 5}) EXPECT_EQ(order[size_t(i)].verify, nullptr) << i;
-  // Only what a client waits for overtakes the renderer's queue.
+  // What a client waits for overtakes the renderer's queue; what one is
+  // expected to want (predicted, prepared) overtakes tests and background.
   for (int i = 0; i < 6; ++i) EXPECT_EQ(order[size_t(i)].urgent, i == 0) << i;
+  for (int i = 0; i < 6; ++i) EXPECT_EQ(order[size_t(i)].soon, i == 1 || i == 2) << i;
   EXPECT_EQ(order[3].verify, first);
   EXPECT_EQ(order[4].verify, second);
   EXPECT_EQ(order[3].epoch, 6u) << "the context's target pose, not the current epoch";

@@ -3,7 +3,8 @@
 // into chunks; workers take chunks round-robin across sources (one source per
 // connection), so one connection's huge batch cannot starve another's.
 // Within a source chunks go in order, except that an urgent job's chunks
-// overtake the queued chunks of jobs that are not urgent.
+// overtake the queued chunks of jobs that are not urgent, and a soon job's
+// those of jobs that are neither urgent nor soon.
 // Results leave in parts, as chunks finish, through the job's callback.
 //
 // Threads: Submit/Cancel/AddSource are thread-safe. Callbacks run on worker
@@ -36,6 +37,11 @@ struct ShadeJob {
   /// its source's queued chunks of jobs that are not urgent (behind those
   /// of earlier urgent jobs). Chunks being shaded are not interrupted.
   bool urgent = false;
+  /// A client is expected to want it soon (ShadeRequest::soon): its chunks
+  /// go behind its source's queued urgent and soon chunks, ahead of the rest.
+  bool soon = false;
+  /// 2 urgent, 1 soon, 0 neither: a source's queue is in non-increasing rank.
+  int Rank() const { return urgent ? 2 : soon ? 1 : 0; }
   /// The pose every sample is shaded at (from the shader's RayScene); null:
   /// the scene's initial pose. Held by the job, so a newer pose built
   /// meanwhile never changes what an older batch is shaded against.

@@ -28,6 +28,9 @@
 //    samples, which go as urgent batches (AssignedBatch::urgent) that the
 //    renderer shades ahead of what it has queued: a view's samples wait for
 //    at most the chunks being shaded, not for every batch in flight.
+//    Predicted and prepared batches go as *soon* (AssignedBatch::soon): after
+//    the renderer's queued urgent batches, ahead of the rest -- a view that
+//    needs a vertex already in flight in one waits for that batch.
 //  * One requeue path (Requeue): whatever takes samples back from a renderer
 //    -- loss, timeout, bad reply, a refused batch -- puts them back at the
 //    front of their queue.
@@ -125,6 +128,12 @@ struct AssignedBatch {
   /// Visible priority: a client waits for it, so the renderer shades it
   /// ahead of the batches it has queued (ShadeRequest::urgent).
   bool urgent = false;
+  /// Predicted or prepared first estimates: a client is expected to want
+  /// them soon, so the renderer shades them after its queued urgent batches,
+  /// ahead of the rest (ShadeRequest::soon). A view that needs a vertex
+  /// already in flight waits for that batch, so it must not sit behind
+  /// refinement.
+  bool soon = false;
   std::vector<SampleRequest> samples;
   /// Set: a verification batch (Verify) testing `samples` against it;
   /// `epoch` is its target pose's.

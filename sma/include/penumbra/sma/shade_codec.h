@@ -60,10 +60,12 @@ void FillShadeRequest(uint64_t batchId, uint32_t pathsPerSample, std::span<const
                       wire::ShadeRequest* request, const ScenePose* pose = nullptr);
 /// The same batch as a whole frame, ready for net::Connection::SendFrame:
 /// built by the caller outside any lock. `urgent`: a client waits for it
-/// (ShadeRequest::urgent; AssignedBatch::urgent).
+/// (ShadeRequest::urgent; AssignedBatch::urgent); `soon`: one is expected to
+/// (ShadeRequest::soon; AssignedBatch::soon).
 std::shared_ptr<const std::string> EncodeShadeRequestFrame(uint64_t batchId, uint32_t pathsPerSample,
                                                            std::span<const SampleRequest> samples,
-                                                           const ScenePose* pose = nullptr, bool urgent = false);
+                                                           const ScenePose* pose = nullptr, bool urgent = false,
+                                                           bool soon = false);
 
 // --- Verification batches (issue 14, docs/moving-objects.md "A test instead
 // of a bound") ----------------------------------------------------------------
