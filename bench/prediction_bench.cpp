@@ -54,6 +54,7 @@ struct Options {
   double widen = 1.15;
   double resolution = 0.5;  // the predicted view's size, times the view's
   double tailSeconds = 4.0;  // after the path's end, the client keeps reading
+  std::string smaArgs;       // more SMA flags, split at spaces
 };
 
 struct RunFigures {
@@ -74,6 +75,7 @@ Expected<RunFigures> RunOnce(const Options& o, const CameraPath& path, bool pred
   so.smaArgs = {"--prediction", prediction ? "on" : "off", "--prediction-horizon", std::to_string(o.horizon),
                 "--prediction-widen", std::to_string(o.widen), "--prediction-resolution",
                 std::to_string(o.resolution)};
+  for (std::string& w : bench::SplitWords(o.smaArgs)) so.smaArgs.push_back(std::move(w));
   auto stack = bench::StartSmaStack(so);
   if (!stack) return stack.error();
   auto client = SmaTestClient::Connect(stack->sma.port, "prediction-bench");
@@ -222,6 +224,9 @@ int main(int argc, char** argv) {
   app.add_option("--widen", o.widen)->check(CLI::Range(1.0, 2.0))->capture_default_str();
   app.add_option("--resolution", o.resolution, "The predicted view's width and height, times the view's")
       ->check(CLI::Range(0.1, 2.0))->capture_default_str();
+  app.add_option("--sma-args", o.smaArgs,
+                 "More SMA flags, space-separated (--sma-args='--log-level debug': the SMA's log is bench-sma.log in "
+                 "its temporary folder)");
   CLI11_PARSE(app, argc, argv);
   return penumbra::Run(o);
 }

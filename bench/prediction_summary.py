@@ -1,6 +1,8 @@
 #!/usr/bin/env python3
 """One run of bench/prediction_bench.sh as a TSV row (summary MODE METRICS SMA_LOG),
-or the on/off table of its results (table RESULTS.tsv).
+the on/off table of its results (table RESULTS.tsv), or where a run's views
+spent their time up to stage 1 (breakdown SMA_LOG... : any SMA debug log, e.g.
+prediction_bench --sma-args='--log-level debug', one log per mode).
 
 Latency to complete display, per view the SMA applied: from the view's arrival
 at the SMA until the client next has a complete image (stage 1: every triangle
@@ -17,6 +19,15 @@ import sys
 
 COLUMNS = ["mode", "hit_rate", "new_triangles", "new_shaded", "complete_p50_ms", "complete_p99_ms", "views_applied",
            "views_never_complete", "stage1_p50_ms", "views_stage1", "predicted_views", "samples_predicted"]
+
+
+# The SMA's debug line per new view (server.cpp, "view->first delta"), and its
+# stage-1 line.
+APPLIED = r": view (\d+): .*view->first delta ([0-9.]+) ms"
+STEPS = re.compile(r": view (\d+): before its job ([0-9.]+) ms, queued ([0-9.]+) ms, trace ([0-9.]+) ms, "
+                   r"map ([0-9.]+) ms, strand wait ([0-9.]+) ms, plan\+send ([0-9.]+) ms, "
+                   r"view->first delta ([0-9.]+) ms; \d+ visible, \d+ held, (\d+) pending")
+STAGE1 = r": view (\d+): stage 1 in ([0-9.]+) ms"
 
 
 def percentile(values, p):
@@ -37,8 +48,8 @@ def metrics(path):
 def summary(mode, metrics_path, log_path):
     m = metrics(metrics_path)
     stamp = re.compile(r"^\[([0-9-]+ [0-9:.]+)\]")
-    applied = re.compile(r": view (\d+): trace .* view->first delta ([0-9.]+) ms")
-    stage1 = re.compile(r": view (\d+): stage 1 in ([0-9.]+) ms")
+    applied = re.compile(APPLIED)
+    stage1 = re.compile(STAGE1)
     arrivals, completions, stage1_ms = {}, [], []
     for line in open(log_path, errors="replace"):
         s = stamp.match(line)
@@ -96,10 +107,41 @@ def table(results_path):
         print(f"| {label} | {fmt.format(a)} | {fmt.format(b)} | {ratio} |")
 
 
+def breakdown(log_paths):
+    """Medians over the views that reached their own stage 1 (the first two
+    skipped: a cold start, and no prediction before two views): the steps to
+    the view's first delta, its stage 1 (both timed by the SMA from the view's
+    arrival), the triangles it had to wait for (pending: a corner not yet
+    shaded), and how fast the views with none were complete."""
+    print("| SMA log | views | trace | map | plan+send | first delta | stage 1 | stage 1 p90 | pending | "
+          "views with none pending | their stage 1 |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    stage1 = re.compile(STAGE1)
+    for path in log_paths:
+        steps, done = {}, {}
+        for line in open(path, errors="replace"):
+            if a := STEPS.search(line):
+                steps[int(a.group(1))] = [float(x) for x in a.group(2, 3, 4, 5, 6, 7, 8)] + [int(a.group(9))]
+            elif c := stage1.search(line):
+                done.setdefault(int(c.group(1)), float(c.group(2)))
+        views = [v for v in steps if v > 2 and v in done]
+        if not views:
+            print(f"| {path} | 0 | | | | | | | | | |")
+            continue
+        med = lambda xs: percentile(xs, 0.5)
+        col = lambda i: med([steps[v][i] for v in views])
+        none = [v for v in views if steps[v][7] == 0]
+        print(f"| {path} | {len(views)} | {col(2):.1f} | {col(3):.1f} | {col(5):.1f} | {col(6):.1f} | "
+              f"{med([done[v] for v in views]):.0f} | {percentile([done[v] for v in views], 0.9):.0f} | "
+              f"{col(7):.0f} | {len(none)} | {med([done[v] for v in none]) if none else float('nan'):.0f} |")
+
+
 if __name__ == "__main__":
     if sys.argv[1] == "summary":
         summary(*sys.argv[2:5])
     elif sys.argv[1] == "table":
         table(sys.argv[2])
+    elif sys.argv[1] == "breakdown":
+        breakdown(sys.argv[2:])
     else:
-        sys.exit("usage: prediction_summary.py summary MODE METRICS SMA_LOG | table RESULTS.tsv")
+        sys.exit("usage: prediction_summary.py summary MODE METRICS SMA_LOG | table RESULTS.tsv | breakdown SMA_LOG...")

@@ -46,7 +46,6 @@
 #include <fstream>
 #include <mutex>
 #include <numbers>
-#include <sstream>
 #include <thread>
 
 #include <CLI/CLI.hpp>
@@ -223,10 +222,7 @@ Expected<CountResult> RunCount(const Options& o, const CameraPath& path, int n) 
   const auto begin = Clock::now();
   CountResult r;
   r.clients = n;
-  std::vector<std::string> smaArgs;
-  for (std::istringstream words(o.smaArgs); !words.eof();)
-    if (std::string w; words >> w) smaArgs.push_back(w);
-  auto stack = StartSmaStack({o.scene, o.rendererExe, o.smaExe, o.threads, o.spp, o.maxBounces, smaArgs});
+  auto stack = StartSmaStack({o.scene, o.rendererExe, o.smaExe, o.threads, o.spp, o.maxBounces, SplitWords(o.smaArgs)});
   if (!stack) return stack.error();
   const uint16_t port = stack->sma.port;
   auto progress = [&](const char* phase) {

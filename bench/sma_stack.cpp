@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <fstream>
+#include <sstream>
 #include <thread>
 
 #include <fmt/format.h>
@@ -98,6 +99,13 @@ Status IdleUntil(SmaTestClient& client, const std::function<bool()>& done) {
 
 Status IdleUntil(SmaTestClient& client, Clock::time_point until) {
   return IdleUntil(client, [until] { return Clock::now() >= until; });
+}
+
+std::vector<std::string> SplitWords(const std::string& text) {
+  std::vector<std::string> words;
+  std::istringstream in(text);
+  for (std::string w; in >> w;) words.push_back(w);
+  return words;
 }
 
 std::string LoadAverage() {

@@ -66,6 +66,9 @@ Expected<ViewTiming> TimeView(testing::SmaTestClient& client, const CameraView& 
 Status IdleUntil(testing::SmaTestClient& client, const std::function<bool()>& done);
 Status IdleUntil(testing::SmaTestClient& client, Clock::time_point until);
 
+/// `text` split at white space: a benchmark's --sma-args.
+std::vector<std::string> SplitWords(const std::string& text);
+
 /// The 1-, 5- and 15-minute load averages (/proc/loadavg): how busy the
 /// machine was besides the run.
 std::string LoadAverage();
