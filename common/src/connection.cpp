@@ -54,16 +54,62 @@ void Connection::Start(MessageHandler onMessage, CloseHandler onClose) {
                            onClose = std::move(onClose)]() mutable {
     self->onMessage_ = std::move(onMessage);
     self->onClose_ = std::move(onClose);
-    self->lastReceive_ = self->lastSend_ = Clock::now();
-    if (self->closed_) {
-      // Closed before it started: still report it, exactly once.
-      if (auto handler = std::move(self->onClose_)) handler("closed before start");
-      self->onMessage_ = nullptr;
-      return;
-    }
-    self->DoRead();
-    self->ArmTick();
+    self->Begin();
   });
+}
+
+void Connection::StartOn(asio::strand<asio::any_io_executor> owner, size_t maxInbox, MessageHandler onMessage,
+                         CloseHandler onClose) {
+  // Set before the first post to the strand, read there and (the handler) on
+  // the owner's strand only after it.
+  owner_ = owner;
+  maxInbox_ = std::max<size_t>(1, maxInbox);
+  ownerOnMessage_ = std::make_shared<MessageHandler>(std::move(onMessage));
+  asio::post(strand_, [self = shared_from_this(), owner, onClose = std::move(onClose)]() mutable {
+    // The close is posted behind the messages already delivered; the
+    // message handler is dropped there, on the owner's strand, after them.
+    self->onClose_ = [self, owner, onClose = std::move(onClose)](const std::string& reason) mutable {
+      asio::post(owner, [self, onClose = std::move(onClose), reason] {
+        self->ownerOnMessage_.reset();
+        onClose(reason);
+      });
+    };
+    self->Begin();
+  });
+}
+
+void Connection::Begin() {
+  lastReceive_ = lastSend_ = Clock::now();
+  if (closed_) {
+    // Closed before it started: still report it, exactly once.
+    if (auto handler = std::move(onClose_)) handler("closed before start");
+    onMessage_ = nullptr;
+    return;
+  }
+  DoRead();
+  ArmTick();
+}
+
+void Connection::Deliver(wire::Envelope&& envelope) {
+  if (!owner_) {
+    if (onMessage_) onMessage_(std::move(envelope));
+    return;
+  }
+  ++inbox_;
+  asio::post(*owner_, [self = shared_from_this(), envelope = std::move(envelope)]() mutable {
+    if (!self->closed_ && self->ownerOnMessage_) (*self->ownerOnMessage_)(std::move(envelope));
+    asio::post(self->strand_, [self] { self->OnOwnerHandled(); });
+  });
+}
+
+void Connection::OnOwnerHandled() {
+  --inbox_;
+  // Not reading while neither paused nor draining: stopped for the owner
+  // (InboxFull). Its silence meanwhile was not the peer's: no timeout.
+  // Frames already buffered are delivered before reading more.
+  if (closed_ || reading_ || readPaused_ || draining_ || InboxFull()) return;
+  lastReceive_ = Clock::now();
+  OnRead(error_code(), 0);
 }
 
 bool Connection::Send(const wire::Envelope& envelope) {
@@ -101,7 +147,10 @@ void Connection::MaybeNotifyQueued() {
   if (!onQueuedAtMost_ || queuedBytes_.load() > queuedAtMostBytes_) return;
   auto handler = std::move(onQueuedAtMost_);
   onQueuedAtMost_ = nullptr;
-  handler();
+  if (owner_)
+    asio::post(*owner_, std::move(handler));
+  else
+    handler();
 }
 
 void Connection::FailAndClose(const wire::Envelope& error, std::string reason) {
@@ -154,7 +203,7 @@ void Connection::BeginDrain(std::string reason) {
 }
 
 void Connection::DoRead() {
-  if (closed_ || reading_ || readPaused_ || draining_) return;
+  if (closed_ || reading_ || readPaused_ || draining_ || InboxFull()) return;
   reading_ = true;
   stream_.AsyncReadSome(asio::buffer(readBuffer_),
                         asio::bind_executor(strand_, [self = shared_from_this()](const error_code& ec, size_t n) {
@@ -187,7 +236,7 @@ void Connection::OnRead(const error_code& ec, size_t n) {
     lastReceive_ = Clock::now();
     decoder_.Feed(readBuffer_.data(), n);
   }
-  while (!closed_ && !draining_ && !readPaused_) {
+  while (!closed_ && !draining_ && !readPaused_ && !InboxFull()) {
     auto next = decoder_.Next();
     if (!next) {
       log_->warn("{}: {}", id_, next.error().message);
@@ -204,7 +253,7 @@ void Connection::OnRead(const error_code& ec, size_t n) {
       return;
     }
     if (envelope->has_heartbeat()) continue;
-    if (onMessage_) onMessage_(std::move(*envelope));
+    Deliver(std::move(*envelope));
   }
   DoRead();
 }
@@ -247,8 +296,17 @@ void Connection::ArmTick() {
 }
 
 void Connection::MarkHandshakeDone() {
-  handshakeDone_ = true;
-  decoder_.SetMaxFrameBytes(options_.maxFrameBytes);
+  const auto mark = [this] {
+    handshakeDone_ = true;
+    decoder_.SetMaxFrameBytes(options_.maxFrameBytes);
+  };
+  // On the owner's strand: the strand runs it before it hears that the Hello
+  // was handled (OnOwnerHandled, posted after the handler returns), and no
+  // frame is read in between (one message at a time before the handshake).
+  if (owner_)
+    asio::post(strand_, [self = shared_from_this(), mark] { mark(); });
+  else
+    mark();
 }
 
 void Connection::OnTick() {
@@ -263,7 +321,7 @@ void Connection::OnTick() {
       DoClose(drainReason_ + " (flush timed out)");
       return;
     }
-  } else if (!readPaused_ && now - lastReceive_ > options_.readTimeout) {
+  } else if (!readPaused_ && !InboxFull() && now - lastReceive_ > options_.readTimeout) {
     const auto ms = std::chrono::duration_cast<std::chrono::milliseconds>(now - lastReceive_).count();
     const std::string why = fmt::format("peer silent for {} ms (read timeout {} ms)", ms, options_.readTimeout.count());
     log_->warn("{}: {}", id_, why);

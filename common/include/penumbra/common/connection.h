@@ -11,6 +11,10 @@
 // caller holds its own locks: they never run a handler before returning
 // (they post to the strand). The handlers run on the connection's strand,
 // never concurrently with each other. The owner must not block in a handler.
+// An owner whose handlers do real work (the SMA's sessions plan and encode
+// deltas) starts the connection with StartOn: its handlers then run on the
+// owner's own strand, on the owner's threads, and the I/O thread only reads,
+// decodes and writes frames.
 
 #include <atomic>
 #include <chrono>
@@ -19,6 +23,7 @@
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -51,6 +56,16 @@ class Connection : public std::enable_shared_from_this<Connection> {
 
   /// Begins reading. Heartbeats are answered here and not passed on.
   void Start(MessageHandler onMessage, CloseHandler onClose);
+  /// Same, but every handler (messages, close, NotifyWhenQueuedAtMost) runs
+  /// on `owner` -- a strand of the owner's threads, not an I/O thread -- in
+  /// the order the connection produced them. At most `maxInbox` messages wait
+  /// for the owner: beyond that no frame is read (and the read timeout is
+  /// suspended) until it catches up, so a peer that sends faster than its
+  /// messages are handled fills its socket buffer, not our memory. Before
+  /// the handshake one message at a time is delivered, so that the frame
+  /// after a Hello is read under the limit MarkHandshakeDone sets.
+  void StartOn(asio::strand<asio::any_io_executor> owner, size_t maxInbox, MessageHandler onMessage,
+               CloseHandler onClose);
 
   /// Queues an envelope. Returns false (and drops it) when the connection is
   /// closing or the queue would exceed maxQueuedBytes. Thread-safe.
@@ -97,6 +112,11 @@ class Connection : public std::enable_shared_from_this<Connection> {
 
   void DoRead();
   void OnRead(const boost::system::error_code& ec, size_t n);
+  void Begin();  // on the strand: the first read and tick
+  // StartOn: no more messages are delivered or read while this many wait.
+  bool InboxFull() const { return owner_ && inbox_ >= (handshakeDone_ ? maxInbox_ : 1); }
+  void Deliver(wire::Envelope&& envelope);
+  void OnOwnerHandled();  // on the strand: the owner handled one message
   void DoWrite();
   void OnWrite(const boost::system::error_code& ec, size_t n);
   void ArmTick();
@@ -130,6 +150,13 @@ class Connection : public std::enable_shared_from_this<Connection> {
   std::function<void()> onQueuedAtMost_;  // NotifyWhenQueuedAtMost
   size_t queuedAtMostBytes_ = 0;
   void MaybeNotifyQueued();
+  // StartOn: the owner's strand, and the messages posted to it that it has
+  // not handled yet (strand-owned). ownerOnMessage_ is set before the first
+  // delivery and cleared on the owner's strand after the last.
+  std::optional<asio::strand<asio::any_io_executor>> owner_;
+  size_t maxInbox_ = 0;
+  size_t inbox_ = 0;
+  std::shared_ptr<MessageHandler> ownerOnMessage_;
 
   // Shared with other threads.
   std::atomic<bool> closed_{false};
