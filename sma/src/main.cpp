@@ -104,6 +104,9 @@ int main(int argc, char** argv) {
                  "Luminance differences within this many standard errors count as noise (0: the paper's S)")
       ->capture_default_str();
   app.add_option("--io-threads", options.ioThreads, "Network threads")->check(CLI::Range(1, 64))->capture_default_str();
+  app.add_option("--session-threads", options.sessionThreads,
+                 "Threads that plan and encode the clients' deltas (each client's work in order)")
+      ->check(CLI::Range(1, 64))->capture_default_str();
   app.add_option("--view-threads", options.viewThreads, "Visibility job threads")
       ->check(CLI::Range(1, 64))->capture_default_str();
   app.add_option("--max-view-pixels", options.maxViewPixels,

@@ -96,6 +96,7 @@ class SmaServer::Impl {
        std::unique_ptr<CacheSnapshotter> snapshots, std::optional<RestoredCache> restored)
       : scene_(scene),
         options_(std::move(options)),
+        sessionThreads_(size_t(std::max(1, options_.sessionThreads))),
         hierarchy_(restored ? std::move(restored->hierarchy) : Hierarchy(scene)),
         tracer_(std::move(tracer)),
         jobs_(options_.viewThreads),
@@ -151,6 +152,10 @@ class SmaServer::Impl {
     collectorStart_ = Clock::now();
     ArmCollectorClock();
     skeleton_.RunIo(options_.ioThreads);
+    // Every client is told and closed (or the drain gave up): nothing is for
+    // the sessions to do any more.
+    sessionThreads_.stop();
+    sessionThreads_.join();
     if (snapshots_) snapshots_->Stop();  // the final snapshot
     log_->info("{}: stopped", options_.name);
   }
@@ -317,6 +322,11 @@ class SmaServer::Impl {
   const Scene& scene_;
   SmaOptions options_;
   asio::io_context io_;
+  // Where the client sessions' handlers run (each session a strand of it):
+  // planning and encoding deltas, off the I/O thread. Stopped when the I/O
+  // threads return; destroyed just before io_, so that handlers still queued
+  // here release their sessions (and their connections) while io_ lives.
+  asio::thread_pool sessionThreads_;
   std::shared_mutex stateMutex_;  // guards hierarchy_ and cache_
   Hierarchy hierarchy_;
   SampleCache cache_;
@@ -332,6 +342,7 @@ class SmaServer::Impl {
   // before it goes.
   VisibilityBudget visibilityBudget_;
   std::atomic<uint64_t> viewTraces_{0};  // visibility traces made, for every client
+  std::atomic<uint64_t> viewJobsRetargeted_{0};  // queued view jobs a newer view took over
   TextureFrames textures_;
   JobScheduler backgroundJobs_;
   std::shared_ptr<spdlog::logger> log_;
@@ -477,17 +488,20 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
         connection_(std::move(connection)),
         id_(id),
         log_(Logger("sma.client")),
-        refreshTimer_(connection_->Strand()),
+        strand_(asio::make_strand(server.sessionThreads_.get_executor())),
+        refreshTimer_(server.io_),
         params_(server.options_.refinement),
         state_(params_, server.options_.clientRefinement.maxSamplesPerView, server.options_.pool.improvePaths > 0) {}
 
   void Start() {
     auto self = shared_from_this();
-    connection_->Start([self](wire::Envelope&& e) { self->OnMessage(std::move(e)); },
-                       [self](const std::string& reason) { self->OnClosed(reason); });
+    connection_->StartOn(strand_, kMaxInbox, [self](wire::Envelope&& e) { self->OnMessage(std::move(e)); },
+                         [self](const std::string& reason) { self->OnClosed(reason); });
   }
 
   net::Connection& Connection() { return *connection_; }
+  /// Where every handler of this session runs (on the session threads).
+  const asio::strand<asio::any_io_executor>& Strand() const { return strand_; }
   /// Whether the client holds a node or a vertex `group` would free. Any
   /// thread holding the state lock exclusively: the mirror changes only
   /// under it shared (QueueChanges).
@@ -544,7 +558,26 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
     connection_->FailAndClose(MakeError(0, code, message, true), message);
   }
 
+  // A view job: what it traces and maps. The session's strand fills it in
+  // and posts it; the job thread that runs it first marks it taken (under
+  // its mutex). Until then the strand may retarget the job to a newer view:
+  // it marks this one taken (its queued copy then runs nothing) and posts a
+  // new view's job in its place.
+  struct ViewJob {
+    std::mutex mutex;
+    bool taken = false;
+    CameraView view;
+    uint64_t viewId = 0;
+    bool newView = false;
+    std::shared_ptr<HitBuffer> hits;            // a refresh's: the applied view's hits
+    std::shared_ptr<const VisibleSet> previous;  // a refresh's: their applied mapping
+    Clock::time_point posted{};
+    double beforePostMs = 0.0;
+  };
   void StartJob();
+  void PostViewJob(std::shared_ptr<ViewJob> job);
+  void RetargetQueuedJob();
+  void RunViewJob(ViewJob& job);  // job thread
   // Views above --large-view-pixels work on the background thread.
   JobScheduler& JobsFor(const CameraView& view) {
     return uint64_t(view.width) * uint64_t(view.height) > server_.options_.largeViewPixels ? server_.backgroundJobs_
@@ -606,14 +639,24 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
     if (state_.StatusOutdated()) SendStatus();
   }
 
+  // Client messages received and not yet handled: beyond this the
+  // connection stops reading (a client's views are superseded by the next
+  // anyway; its stats requests are answered in order).
+  static constexpr size_t kMaxInbox = 64;
+
   Impl& server_;
   std::shared_ptr<net::Connection> connection_;
   uint64_t id_;
   std::shared_ptr<spdlog::logger> log_;
+  // The session's own strand on the session threads (SmaOptions::
+  // sessionThreads): its handlers plan and encode deltas there, so the I/O
+  // thread only moves bytes (issue 13).
+  asio::strand<asio::any_io_executor> strand_;
   asio::steady_timer refreshTimer_;
   RefinementParams params_;  // the client's refinement options, as last accepted
   ViewSession state_;
 
+  std::shared_ptr<ViewJob> postedJob_;     // the last view job posted (taken by now, or still queued)
   std::shared_ptr<HitBuffer> hits_;        // base hits of the applied view
   std::shared_ptr<VisibleSet> visible_;    // latest mapping of hits_
   // visible_ was planned and its changes queued for the client (not held
@@ -670,14 +713,14 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
 
 void SmaServer::Impl::NotifyArrived(const std::shared_ptr<Session>& session,
                                     std::shared_ptr<const std::vector<VertexId>> vertices, bool kept) {
-  asio::post(session->Connection().Strand(),
+  asio::post(session->Strand(),
              [session, vertices = std::move(vertices), kept] { session->OnSamplesArrived(*vertices, kept); });
 }
 
 void SmaServer::Impl::NotifyImproved(const std::shared_ptr<Session>& session,
                                      std::shared_ptr<const std::vector<VertexId>> answered,
                                      std::shared_ptr<const std::vector<VertexId>> improved) {
-  asio::post(session->Connection().Strand(),
+  asio::post(session->Strand(),
              [session, answered = std::move(answered), improved = std::move(improved)] {
                session->OnSamplesImproved(*answered, *improved);
              });
@@ -782,6 +825,10 @@ void SmaServer::Impl::Session::OnView(const wire::View& v) {
 
 void SmaServer::Impl::Session::StartJob() {
   if (!connection_->IsOpen()) return;
+  if (state_.LatestViewWaitsForJob()) {
+    RetargetQueuedJob();
+    return;
+  }
   const JobStart next = state_.NextJob(Blocked());
   if (next == JobStart::kNothing) return;
   if (next == JobStart::kWaitForDrain) {
@@ -789,62 +836,104 @@ void SmaServer::Impl::Session::StartJob() {
     return;
   }
   const bool newView = next == JobStart::kNewView;
-  const CameraView view = state_.View();
-  const uint64_t id = state_.ViewId();
-  runningJobPixels_ = uint64_t(view.width) * uint64_t(view.height);
+  auto job = std::make_shared<ViewJob>();
+  job->view = state_.View();
+  job->viewId = state_.ViewId();
+  job->newView = newView;
+  runningJobPixels_ = uint64_t(job->view.width) * uint64_t(job->view.height);
   if (newView) {  // one view's buffers at a time
     hits_.reset();
     visible_.reset();
+  } else {
+    // A refresh starts from the applied mapping of the same hits.
+    job->hits = hits_;
+    job->previous = visible_;
   }
   UpdateReservation();
   state_.OnJobStarted(next, Clock::now());
+  PostViewJob(std::move(job));
+}
+
+void SmaServer::Impl::Session::PostViewJob(std::shared_ptr<ViewJob> job) {
+  job->posted = Clock::now();
+  job->beforePostMs = Milliseconds(job->posted - state_.ViewReceived());
+  postedJob_ = job;
+  JobsFor(job->view).Post(id_, job->newView ? JobClass::kNewView : JobClass::kRefresh,
+                          [self = shared_from_this(), job] { self->RunViewJob(*job); });
+}
+
+void SmaServer::Impl::Session::RetargetQueuedJob() {
+  // With 32 clients refining, a session's refresh waits in the queue for
+  // 100-300 ms; a new view arriving meanwhile would wait for it to run, be
+  // dropped, and only then queue its own trace (docs/performance.md, issue
+  // 13). While no job thread has taken it, the job traces the new view.
+  if (!postedJob_ || Blocked()) return;
+  {
+    std::lock_guard lock(postedJob_->mutex);
+    if (postedJob_->taken || (postedJob_->newView && postedJob_->viewId == state_.ViewId())) return;
+    postedJob_->taken = true;  // the copy queued runs nothing
+  }
+  auto job = std::make_shared<ViewJob>();
+  job->view = state_.View();
+  job->viewId = state_.ViewId();
+  job->newView = true;
+  runningJobPixels_ = uint64_t(job->view.width) * uint64_t(job->view.height);
+  UpdateReservation();
+  state_.OnJobRetargeted();
+  ++server_.viewJobsRetargeted_;
+  // A new view's class: it goes ahead of the refreshes it was queued among.
+  PostViewJob(std::move(job));
+}
+
+void SmaServer::Impl::Session::RunViewJob(ViewJob& job) {
+  {
+    std::lock_guard lock(job.mutex);
+    if (job.taken) return;  // retargeted: its replacement runs
+    job.taken = true;
+  }
+  Impl& server = server_;
   auto self = shared_from_this();
-  std::shared_ptr<HitBuffer> hits = newView ? nullptr : hits_;
-  // A refresh starts from the applied mapping of the same hits.
-  std::shared_ptr<const VisibleSet> previous = newView ? nullptr : visible_;
-  const auto posted = Clock::now();
-  const double beforePostMs = Milliseconds(posted - state_.ViewReceived());
-  JobsFor(view).Post(id_, newView ? JobClass::kNewView : JobClass::kRefresh,
-                     [self, view, id, hits, previous, newView, posted, beforePostMs]() mutable {
-    Impl& server = self->server_;
-    JobTimings t;
-    auto t0 = Clock::now();
-    t.beforePostMs = beforePostMs;
-    t.queuedMs = Milliseconds(t0 - posted);
-    // A re-map of hits traced before a move traces again: the object may
-    // now hide or reveal triangles.
-    const std::shared_ptr<const PosedEmbreeScene> posed = server.CurrentPosed();
-    if (!hits || hits->epoch != posed->Pose().epoch) {
-      hits = std::make_shared<HitBuffer>();
-      server.tracer_->Trace(view, *hits, &server.shuttingDown_, posed.get());
-      ++server.viewTraces_;
-      previous.reset();  // mapped from the hits just replaced
+  const CameraView& view = job.view;
+  const uint64_t id = job.viewId;
+  const bool newView = job.newView;
+  std::shared_ptr<HitBuffer> hits = std::move(job.hits);
+  std::shared_ptr<const VisibleSet> previous = std::move(job.previous);
+  JobTimings t;
+  auto t0 = Clock::now();
+  t.beforePostMs = job.beforePostMs;
+  t.queuedMs = Milliseconds(t0 - job.posted);
+  // A re-map of hits traced before a move traces again: the object may
+  // now hide or reveal triangles.
+  const std::shared_ptr<const PosedEmbreeScene> posed = server.CurrentPosed();
+  if (!hits || hits->epoch != posed->Pose().epoch) {
+    hits = std::make_shared<HitBuffer>();
+    server.tracer_->Trace(view, *hits, &server.shuttingDown_, posed.get());
+    ++server.viewTraces_;
+    previous.reset();  // mapped from the hits just replaced
+  }
+  auto t1 = Clock::now();
+  auto visible = std::make_shared<VisibleSet>();
+  if (server.shuttingDown_) return;  // the result would be dropped anyway
+  {
+    std::shared_lock lock(server.stateMutex_);
+    // Between collections ChildrenShaded only turns true (samples are
+    // added; a move's invalidated ones still count), so a refresh looks
+    // at each pixel's node instead of descending from its root.
+    if (previous) {
+      RemapHitsToNodes(server.hierarchy_, *hits, &ChildrenShaded, &server.cache_, *previous, *visible,
+                       &server.shuttingDown_);
+      ++server.viewRemaps_;
+    } else {
+      MapHitsToNodes(server.hierarchy_, *hits, &ChildrenShaded, &server.cache_, *visible, &server.shuttingDown_);
     }
-    auto t1 = Clock::now();
-    auto visible = std::make_shared<VisibleSet>();
-    if (server.shuttingDown_) return;  // the result would be dropped anyway
-    {
-      std::shared_lock lock(server.stateMutex_);
-      // Between collections ChildrenShaded only turns true (samples are
-      // added; a move's invalidated ones still count), so a refresh looks
-      // at each pixel's node instead of descending from its root.
-      if (previous) {
-        RemapHitsToNodes(server.hierarchy_, *hits, &ChildrenShaded, &server.cache_, *previous, *visible,
-                         &server.shuttingDown_);
-        ++server.viewRemaps_;
-      } else {
-        MapHitsToNodes(server.hierarchy_, *hits, &ChildrenShaded, &server.cache_, *visible, &server.shuttingDown_);
-      }
-      for (NodeId node : visible->nodes) server.TouchForCollector(node);
-    }
-    if (server.shuttingDown_) return;
-    auto t2 = Clock::now();
-    t.traceMs = newView ? Milliseconds(t1 - t0) : 0.0;
-    t.mapMs = Milliseconds(t2 - t1);
-    t.done = Clock::now();
-    asio::post(self->connection_->Strand(),
-               [self, id, newView, hits, visible, t] { self->OnJobDone(id, newView, hits, visible, t); });
-  });
+    for (NodeId node : visible->nodes) server.TouchForCollector(node);
+  }
+  if (server.shuttingDown_) return;
+  auto t2 = Clock::now();
+  t.traceMs = newView ? Milliseconds(t1 - t0) : 0.0;
+  t.mapMs = Milliseconds(t2 - t1);
+  t.done = Clock::now();
+  asio::post(strand_, [self, id, newView, hits, visible, t] { self->OnJobDone(id, newView, hits, visible, t); });
 }
 
 void SmaServer::Impl::Session::OnJobDone(uint64_t viewId, bool newView, std::shared_ptr<HitBuffer> hits,
@@ -1126,7 +1215,7 @@ void SmaServer::Impl::Session::MaybeImprove() {
 void SmaServer::Impl::Session::QueueImproveLook() {
   if (improveScanQueued_) return;
   improveScanQueued_ = true;
-  asio::post(connection_->Strand(), [self = shared_from_this()] {
+  asio::post(strand_, [self = shared_from_this()] {
     self->improveScanQueued_ = false;
     self->MaybeImprove();
   });
@@ -1281,7 +1370,7 @@ void SmaServer::Impl::Session::MaybeRefine() {
           server.pool_->Request(requests, Priority::kBackground);
         }};
     RefinementStep step = RefinementDriver::RunStep(refiner, *hits, *visible, outstanding, context);
-    asio::post(self->connection_->Strand(),
+    asio::post(self->strand_,
                [self, step = std::move(step)]() mutable { self->OnRefineStepDone(std::move(step)); });
   });
 }
@@ -1313,7 +1402,7 @@ void SmaServer::Impl::Session::OnRefineStepDone(RefinementStep step) {
     case RefinementDriver::After::kStepAgain:
       // Bounded batches (the paper's R): give the strand's queue -- a new view
       // above all -- a turn before the next step.
-      asio::post(connection_->Strand(), [self = shared_from_this()] { self->MaybeRefine(); });
+      asio::post(strand_, [self = shared_from_this()] { self->MaybeRefine(); });
       return;
     case RefinementDriver::After::kFinished:
       SyncStatus();
@@ -1442,7 +1531,7 @@ void SmaServer::Impl::Session::ScheduleRefresh() {
 
 void SmaServer::Impl::Session::ArmRefreshTimer(Clock::time_point due) {
   refreshTimer_.expires_at(std::max(due, Clock::now() + std::chrono::milliseconds(1)));
-  refreshTimer_.async_wait([self = shared_from_this()](const error_code& ec) {
+  refreshTimer_.async_wait(asio::bind_executor(strand_, [self = shared_from_this()](const error_code& ec) {
     switch (self->state_.OnRemapTimer(bool(ec))) {
       case ViewSession::TimerAction::kNothing:
         return;
@@ -1458,7 +1547,7 @@ void SmaServer::Impl::Session::ArmRefreshTimer(Clock::time_point due) {
     // step that found nothing to split was waiting for this timer to wake it:
     // wake it here, or it would wait forever (seen on the breakfast room).
     if (self->state_.RunningJob() == ViewSession::Job::kNone) self->MaybeRefine();
-  });
+  }));
 }
 
 void SmaServer::Impl::Session::WaitUntilUnblocked() {
@@ -1531,6 +1620,7 @@ void SmaServer::Impl::Session::OnStatsRequest(const wire::StatsRequest& request)
   AddCounter(reply, "visibility_pixels_reserved", double(server_.visibilityBudget_.Used()));
   AddCounter(reply, "textures_encoded", double(server_.textures_.EncodedCount()));
   AddCounter(reply, "visibility_traces", double(server_.viewTraces_.load()));
+  AddCounter(reply, "view_jobs_retargeted", double(server_.viewJobsRetargeted_.load()));
   size_t backedUp = 0;
   for (const auto& s : server_.Sessions())
     backedUp += s->Connection().QueuedBytes() > server_.options_.clientSoftQueueBytes;
@@ -1563,7 +1653,7 @@ void SmaServer::Impl::Session::OnTextureRequest(const wire::TextureRequest& requ
   std::weak_ptr<Session> weak = shared_from_this();
   auto frame = server_.textures_.Get(texture, [weak, texture](TextureFrames::Frame ready) {
     if (auto self = weak.lock())
-      asio::post(self->connection_->Strand(), [self, texture, ready] { self->OnTextureReady(texture, ready); });
+      asio::post(self->strand_, [self, texture, ready] { self->OnTextureReady(texture, ready); });
   });
   texturesOutstanding_.emplace(texture, frame);
   if (frame) SendTextures();
@@ -1983,7 +2073,7 @@ void SmaServer::Impl::ArmRendererWatch() {
     if (ec || shuttingDown_) return;
     const size_t renderers = pool_->ReadyRenderers();
     for (auto& session : Sessions())
-      asio::post(session->Connection().Strand(), [session, renderers] { session->OnRendererCount(renderers); });
+      asio::post(session->Strand(), [session, renderers] { session->OnRendererCount(renderers); });
     ArmRendererWatch();
   }));
 }
@@ -2132,7 +2222,7 @@ void SmaServer::Impl::ApplyMoveStep(std::span<const ObjectMove> moves) {
   auto arrived = std::make_shared<const std::vector<VertexId>>(std::move(prepared));
   notice->prepared = arrived;
   for (auto& session : Sessions()) {
-    asio::post(session->Connection().Strand(), [session, notice] { session->OnMoved(*notice); });
+    asio::post(session->Strand(), [session, notice] { session->OnMoved(*notice); });
     // After MOVED on the session's strand: held ones go out as RESHADED.
     if (!arrived->empty()) NotifyArrived(session, arrived);
   }

@@ -191,6 +191,36 @@ TEST(ViewSessionTest, AStatusThatWasNotTheLastDeltaNeverSaysConverged) {
   EXPECT_TRUE(s.StatusOutdated());  // so a STATUS follows
 }
 
+TEST(ViewSessionTest, AQueuedJobRetargetedToTheLatestViewAppliesIt) {
+  SessionFixture f;
+  ViewSession s(NoRefinement(), 1000, false);
+  s.OnHello();
+  s.OnNewView(1, f.view, f.now);
+  EXPECT_FALSE(s.LatestViewWaitsForJob());  // no job yet: NextJob starts one
+  s.OnJobStarted(JobStart::kNewView, f.now);
+  EXPECT_TRUE(s.LatestViewWaitsForJob());  // the view is not applied yet: the job is for it
+  ASSERT_EQ(s.OnJobDone(1, true).outcome, ViewSession::JobOutcome::kApply);
+  s.BeginShading({}, f.hierarchy, f.cache, true);
+  EXPECT_FALSE(s.LatestViewWaitsForJob());
+  // A refresh is queued; the client sends a new view before a job thread
+  // takes it: the refresh traces the new view instead.
+  s.WantRemap();
+  ASSERT_EQ(s.NextJob(false), JobStart::kRefresh);
+  s.OnJobStarted(JobStart::kRefresh, f.now);
+  EXPECT_FALSE(s.LatestViewWaitsForJob());
+  s.OnNewView(2, f.view, f.now);
+  EXPECT_TRUE(s.LatestViewWaitsForJob());
+  EXPECT_EQ(s.NextJob(false), JobStart::kNothing);  // still one job at a time
+  s.OnJobRetargeted();
+  EXPECT_EQ(s.RunningJob(), ViewSession::Job::kNewView);
+  const auto done = s.OnJobDone(2, true);
+  EXPECT_EQ(done.outcome, ViewSession::JobOutcome::kApply);
+  EXPECT_TRUE(done.firstForView);
+  EXPECT_EQ(s.AppliedViewId(), 2u);
+  EXPECT_FALSE(s.LatestViewWaitsForJob());
+  EXPECT_EQ(s.NextJob(false), JobStart::kNothing);  // nothing superseded to trace again
+}
+
 TEST(ViewSessionTest, ASupersededResultIsDroppedUntilThreeInARow) {
   SessionFixture f;
   ViewSession s(NoRefinement(), 1000, false);

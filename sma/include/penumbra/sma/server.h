@@ -5,8 +5,14 @@
 // flow and who owns what.
 //
 // Threads:
-//  * I/O threads run the io_context: every client session and renderer
-//    connection on its own strand, timers, signal handling.
+//  * I/O threads run the io_context: every client and renderer connection
+//    on its own strand (reading, decoding, writing frames), the renderer
+//    links' handling of replies (storing samples), timers, signal handling.
+//  * Session threads (sessionThreads, an asio::thread_pool): each client
+//    session's handlers on the session's own strand -- its views, the
+//    planning of what to send (PlanView) and the encoding of its deltas, its
+//    refinement driving. A connection hands a session at most 64 unhandled
+//    messages before it stops reading (net::Connection::StartOn).
 //  * View workers (viewThreads, a JobScheduler) trace visibility, map it
 //    onto the hierarchy and run refinement steps for every client: new
 //    views first, then re-maps, then refinement steps, clients taking turns
@@ -57,7 +63,12 @@ struct SmaOptions {
   /// TLS for client connections (net::MakeTlsServerContext); null: plain
   /// TCP. The handshake must complete within clientConnection.handshakeTimeout.
   std::shared_ptr<net::ssl::context> tls;
-  /// Threads running the sessions' strands (and the pool's links). Two take
+  /// Threads running the client sessions' strands: what a view, a shaded
+  /// sample or a refinement step changes for a client is planned and encoded
+  /// there (PlanView, the deltas), never on an I/O thread.
+  int sessionThreads = 2;
+  /// Threads running the connections' strands and the pool's links: they
+  /// read, decode and write frames, and store arriving samples. Two took
   /// the tail off many clients' latencies (docs/performance.md, "Two I/O
   /// threads": 32-client new-view p99 332 -> 197 ms, stats p99 73 -> 30 ms),
   /// and the strand starvation they had exposed is fixed (improvement

@@ -85,6 +85,13 @@ class ViewSession {
   JobStart NextJob(bool blocked) const;
   /// The job chosen by NextJob was posted: a refresh is no longer due.
   void OnJobStarted(JobStart job, Clock::time_point now);
+  /// A job is posted but the latest view is not what it traces: when no job
+  /// thread has taken it yet, the caller may make it trace the latest view
+  /// instead (OnJobRetargeted) -- rather than let it run, drop its result,
+  /// and only then queue the view's own job behind everyone else's.
+  bool LatestViewWaitsForJob() const { return job_ != Job::kNone && (!hasVisible_ || appliedViewId_ != viewId_); }
+  /// The posted job, not yet taken, now traces the latest view.
+  void OnJobRetargeted() { job_ = Job::kNewView; }
 
   enum class JobOutcome {
     kDrop,        // superseded: drop the result, start the next job
