@@ -40,7 +40,7 @@ struct OwnedConnection {
     guard.reset();
     io.stop();
     if (ioThread.joinable()) ioThread.join();
-    owner.join();
+    owner.join();  // runs what is queued: nothing it holds outlives io
   }
   void Start(size_t maxInbox, std::function<void(wire::Envelope&&)> onMessage) {
     connection->StartOn(asio::make_strand(owner.get_executor()), maxInbox, std::move(onMessage),
@@ -70,9 +70,11 @@ struct OwnedConnection {
     return arrived.wait_for(lock, timeout, [&] { return received.size() >= n; });
   }
 
+  // Declared before io: the connection (held by io's abandoned handlers)
+  // holds a strand of it. The SMA orders its own the same way.
+  asio::thread_pool owner{1};
   asio::io_context io;
   std::optional<asio::executor_work_guard<asio::io_context::executor_type>> guard{asio::make_work_guard(io)};
-  asio::thread_pool owner{1};
   tcp::acceptor acceptor;
   std::optional<WireClient> client;
   std::shared_ptr<net::Connection> connection;

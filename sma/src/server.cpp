@@ -152,9 +152,10 @@ class SmaServer::Impl {
     collectorStart_ = Clock::now();
     ArmCollectorClock();
     skeleton_.RunIo(options_.ioThreads);
-    // Every client is told and closed (or the drain gave up): nothing is for
-    // the sessions to do any more.
-    sessionThreads_.stop();
+    // Every client is told and closed (or the drain gave up). What is still
+    // queued for the sessions runs now and finds the server shutting down
+    // (nothing re-posts itself then), so that no handler holding a session
+    // -- and with it a socket of io_ -- outlives io_.
     sessionThreads_.join();
     if (snapshots_) snapshots_->Stop();  // the final snapshot
     log_->info("{}: stopped", options_.name);
@@ -321,12 +322,13 @@ class SmaServer::Impl {
 
   const Scene& scene_;
   SmaOptions options_;
-  asio::io_context io_;
   // Where the client sessions' handlers run (each session a strand of it):
-  // planning and encoding deltas, off the I/O thread. Stopped when the I/O
-  // threads return; destroyed just before io_, so that handlers still queued
-  // here release their sessions (and their connections) while io_ lives.
+  // planning and encoding deltas, off the I/O thread. Declared before io_,
+  // so that it outlives io_: sessions and connections that io_'s abandoned
+  // handlers release on its destruction hold strands of it. Its own queue
+  // is run empty (joined) in Run(), while io_ lives, for the converse.
   asio::thread_pool sessionThreads_;
+  asio::io_context io_;
   std::shared_mutex stateMutex_;  // guards hierarchy_ and cache_
   Hierarchy hierarchy_;
   SampleCache cache_;
@@ -603,6 +605,7 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   void WaitUntilUnblocked();
   /// The throttled refresh's timer, armed for `due` (the state says kArmed).
   void ArmRefreshTimer(Clock::time_point due);
+  void OnRefreshTimer(const boost::system::error_code& ec);  // strand
   /// Builds removals and additions into as many deltas as the size limit
   /// asks, into the outbox (caller holds the state lock shared; Flush sends
   /// them after it is released). `last`: no other delta for this event
@@ -1217,6 +1220,7 @@ void SmaServer::Impl::Session::QueueImproveLook() {
   improveScanQueued_ = true;
   asio::post(strand_, [self = shared_from_this()] {
     self->improveScanQueued_ = false;
+    if (self->server_.shuttingDown_) return;
     self->MaybeImprove();
   });
 }
@@ -1402,7 +1406,9 @@ void SmaServer::Impl::Session::OnRefineStepDone(RefinementStep step) {
     case RefinementDriver::After::kStepAgain:
       // Bounded batches (the paper's R): give the strand's queue -- a new view
       // above all -- a turn before the next step.
-      asio::post(strand_, [self = shared_from_this()] { self->MaybeRefine(); });
+      asio::post(strand_, [self = shared_from_this()] {
+        if (!self->server_.shuttingDown_) self->MaybeRefine();
+      });
       return;
     case RefinementDriver::After::kFinished:
       SyncStatus();
@@ -1531,23 +1537,31 @@ void SmaServer::Impl::Session::ScheduleRefresh() {
 
 void SmaServer::Impl::Session::ArmRefreshTimer(Clock::time_point due) {
   refreshTimer_.expires_at(std::max(due, Clock::now() + std::chrono::milliseconds(1)));
-  refreshTimer_.async_wait(asio::bind_executor(strand_, [self = shared_from_this()](const error_code& ec) {
-    switch (self->state_.OnRemapTimer(bool(ec))) {
-      case ViewSession::TimerAction::kNothing:
-        return;
-      case ViewSession::TimerAction::kReschedule:  // try again after the running job
-        self->ScheduleRefresh();
-        return;
-      case ViewSession::TimerAction::kStartJob:
-        break;
-    }
-    self->StartJob();
-    // Another path (a new view, a client that caught up) may have run the
-    // refresh while this timer waited, leaving nothing to start. A refinement
-    // step that found nothing to split was waiting for this timer to wake it:
-    // wake it here, or it would wait forever (seen on the breakfast room).
-    if (self->state_.RunningJob() == ViewSession::Job::kNone) self->MaybeRefine();
-  }));
+  // The wait completes on an I/O thread and hands over to the strand: a
+  // pending wait bound to the strand would count as the session threads'
+  // work, and Run()'s join of them would wait for a timer that the stopped
+  // io_context never fires.
+  refreshTimer_.async_wait([self = shared_from_this()](const error_code& ec) {
+    asio::post(self->strand_, [self, ec] { self->OnRefreshTimer(ec); });
+  });
+}
+
+void SmaServer::Impl::Session::OnRefreshTimer(const error_code& ec) {
+  switch (state_.OnRemapTimer(bool(ec))) {
+    case ViewSession::TimerAction::kNothing:
+      return;
+    case ViewSession::TimerAction::kReschedule:  // try again after the running job
+      ScheduleRefresh();
+      return;
+    case ViewSession::TimerAction::kStartJob:
+      break;
+  }
+  StartJob();
+  // Another path (a new view, a client that caught up) may have run the
+  // refresh while this timer waited, leaving nothing to start. A refinement
+  // step that found nothing to split was waiting for this timer to wake it:
+  // wake it here, or it would wait forever (seen on the breakfast room).
+  if (state_.RunningJob() == ViewSession::Job::kNone) MaybeRefine();
 }
 
 void SmaServer::Impl::Session::WaitUntilUnblocked() {

@@ -64,6 +64,9 @@ class Connection : public std::enable_shared_from_this<Connection> {
   /// messages are handled fills its socket buffer, not our memory. Before
   /// the handshake one message at a time is delivered, so that the frame
   /// after a Hello is read under the limit MarkHandshakeDone sets.
+  /// The connection keeps a copy of `owner`: the owner's execution context
+  /// must outlive the connection's (declare it first), and the owner's
+  /// queue must be run empty (joined) before the connection's context goes.
   void StartOn(asio::strand<asio::any_io_executor> owner, size_t maxInbox, MessageHandler onMessage,
                CloseHandler onClose);
 
