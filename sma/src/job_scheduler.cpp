@@ -41,9 +41,12 @@ JobScheduler::JobScheduler(int threads) {
   for (int i = 0; i < std::max(1, threads); ++i) threads_.emplace_back([this] { Loop(); });
 }
 
-JobScheduler::~JobScheduler() {
+JobScheduler::~JobScheduler() { Join(); }
+
+void JobScheduler::Join() {
   Stop();
-  for (auto& t : threads_) t.join();
+  for (auto& t : threads_)
+    if (t.joinable()) t.join();
 }
 
 void JobScheduler::Post(uint64_t session, JobClass jobClass, std::function<void()> job) {

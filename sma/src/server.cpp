@@ -152,10 +152,14 @@ class SmaServer::Impl {
     collectorStart_ = Clock::now();
     ArmCollectorClock();
     skeleton_.RunIo(options_.ioThreads);
-    // Every client is told and closed (or the drain gave up). What is still
-    // queued for the sessions runs now and finds the server shutting down
-    // (nothing re-posts itself then), so that no handler holding a session
-    // -- and with it a socket of io_ -- outlives io_.
+    // Every client is told and closed (or the drain gave up). The jobs
+    // still running (a trace or a step giving up) post their results to
+    // sessions' strands: they end first. Then what is queued for the
+    // sessions runs and finds the server shutting down (nothing re-posts
+    // itself then), so that no handler holding a session -- and with it a
+    // socket of io_ -- outlives io_.
+    jobs_.Join();
+    backgroundJobs_.Join();
     sessionThreads_.join();
     if (snapshots_) snapshots_->Stop();  // the final snapshot
     log_->info("{}: stopped", options_.name);

@@ -3,9 +3,12 @@
 
 #include <gtest/gtest.h>
 
+#include <atomic>
+#include <chrono>
 #include <condition_variable>
 #include <mutex>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "penumbra/sma/job_scheduler.h"
@@ -127,6 +130,26 @@ TEST(JobSchedulerTest, StopDropsQueuedAndLaterJobs) {
     scheduler.Post(1, JobClass::kNewView, [&ran] { ran = true; });
   }
   EXPECT_FALSE(ran);
+}
+
+TEST(JobSchedulerTest, JoinWaitsForTheRunningJobAndDropsTheQueued) {
+  // What the SMA's shutdown relies on: after Join nothing of the scheduler
+  // runs, so nothing posts to a session any more.
+  std::atomic<bool> started{false}, finished{false}, queuedRan{false};
+  JobScheduler scheduler(1);
+  scheduler.Post(1, JobClass::kNewView, [&] {
+    started = true;
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    finished = true;
+  });
+  scheduler.Post(1, JobClass::kNewView, [&] { queuedRan = true; });
+  while (!started) std::this_thread::yield();
+  scheduler.Join();
+  EXPECT_TRUE(finished);
+  EXPECT_FALSE(queuedRan);
+  scheduler.Post(1, JobClass::kNewView, [&] { queuedRan = true; });
+  scheduler.Join();  // again: nothing to wait for
+  EXPECT_FALSE(queuedRan);
 }
 
 }  // namespace

@@ -80,6 +80,9 @@ class JobScheduler {
   /// Drops the queued jobs; jobs posted from now on are dropped too, and the
   /// threads end once their running job returns.
   void Stop();
+  /// Stop(), then waits for the running jobs to return (not from one of
+  /// its own jobs): after it, no job of this scheduler posts anything.
+  void Join();
 
  private:
   void Loop();
