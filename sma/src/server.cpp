@@ -494,15 +494,21 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
         connection_(std::move(connection)),
         id_(id),
         log_(Logger("sma.client")),
-        strand_(asio::make_strand(server.sessionThreads_.get_executor())),
+        strand_(server.options_.sessionThreads > 0
+                    ? asio::strand<asio::any_io_executor>(asio::make_strand(server.sessionThreads_.get_executor()))
+                    : connection_->Strand()),
         refreshTimer_(server.io_),
         params_(server.options_.refinement),
         state_(params_, server.options_.clientRefinement.maxSamplesPerView, server.options_.pool.improvePaths > 0) {}
 
   void Start() {
     auto self = shared_from_this();
-    connection_->StartOn(strand_, kMaxInbox, [self](wire::Envelope&& e) { self->OnMessage(std::move(e)); },
-                         [self](const std::string& reason) { self->OnClosed(reason); });
+    auto onMessage = [self](wire::Envelope&& e) { self->OnMessage(std::move(e)); };
+    auto onClose = [self](const std::string& reason) { self->OnClosed(reason); };
+    if (server_.options_.sessionThreads > 0)
+      connection_->StartOn(strand_, kMaxInbox, std::move(onMessage), std::move(onClose));
+    else  // the connection's own strand, on the I/O thread (SmaOptions::sessionThreads)
+      connection_->Start(std::move(onMessage), std::move(onClose));
   }
 
   net::Connection& Connection() { return *connection_; }
