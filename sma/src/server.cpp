@@ -1105,6 +1105,7 @@ void SmaServer::Impl::Session::Flush() {
 void SmaServer::Impl::Session::OnSamplesArrived(const std::vector<VertexId>& vertices, bool kept) {
   if (!state_.HasVisible() || !connection_->IsOpen()) return;
   const ViewSession::Arrived arrived = state_.OnSamplesArrived(vertices, server_.hierarchy_.BaseVertexCount());
+  if (arrived.improveLookWanted) QueueImproveLook();
   // A first estimate of a vertex the client already holds, which a move
   // invalidated (ValidFrom > 0), is its reshade: it goes as RESHADED. (A
   // vertex never invalidated can also arrive while held -- a duplicate
@@ -1216,13 +1217,22 @@ void SmaServer::Impl::Session::MaybeImprove() {
   asked.reserve(requests.size());
   for (const SampleRequest& r : requests) asked.push_back(r.vertex);
   improvementsAsked_ += requests.size();
-  if (state_.OnImprovementsAsked(asked, end, nodes.size())) {
-    SyncStatus();
-    return;
+  switch (state_.OnImprovementsAsked(asked, end, nodes.size())) {
+    case ViewSession::AfterLook::kDone:
+      SyncStatus();
+      return;
+    case ViewSession::AfterLook::kLapGoesOn:
+      // Stopped by the walk's bound with room in the batch: go on after
+      // whatever else waits on the strand. (Stopped by a full batch: the
+      // answers call for the next look.)
+      if (end == stop) QueueImproveLook();
+      return;
+    case ViewSession::AfterLook::kLookAgain:
+      QueueImproveLook();
+      return;
+    case ViewSession::AfterLook::kAwaitAnswers:
+      return;
   }
-  // Stopped by the walk's bound with room in the batch: go on after
-  // whatever else waits on the strand.
-  if (end == stop && end < nodes.size()) QueueImproveLook();
 }
 
 void SmaServer::Impl::Session::QueueImproveLook() {

@@ -112,8 +112,12 @@ ViewSession::Arrived ViewSession::OnSamplesArrived(std::span<const VertexId> ver
     // vertex, so an improvement asked while a first estimate was alive (a
     // reshade, a prepared sample stored before its visible request came
     // back) is answered by that estimate, never as IMPROVED -- and the view
-    // would never converge. The next lap asks again if it is still noisy.
-    improvePending_.erase(v);
+    // would never converge. The next lap asks again if it is still noisy --
+    // and that lap must be looked for now: no IMPROVED answer will ask for
+    // it, and with nothing else pending the session would wait forever
+    // (seen with sessions and the I/O thread on different threads, where a
+    // look can find a vertex stored but not yet completed in the pool).
+    if (improvePending_.erase(v) > 0) out.improveLookWanted = true;
     auto it = waiting_.find(v);
     if (it == waiting_.end()) {
       // A midpoint this client was not waiting for may complete the children
@@ -237,19 +241,24 @@ ViewSession::ImproveStart ViewSession::NextImprovement(bool blocked, size_t batc
   return ImproveStart::kLook;
 }
 
-bool ViewSession::OnImprovementsAsked(std::span<const VertexId> asked, size_t end, size_t count) {
+ViewSession::AfterLook ViewSession::OnImprovementsAsked(std::span<const VertexId> asked, size_t end, size_t count) {
   PENUMBRA_CHECK(end <= count, "an improvement look walked past the visible nodes");
   improvePending_.insert(asked.begin(), asked.end());
   improveLapAsked_ += asked.size();
   improveScanPosition_ = end;
-  if (end < count) return false;  // the lap goes on
+  if (end < count) return AfterLook::kLapGoesOn;
   // The lap is over. Done only when all of it asked nothing and nothing is
   // out: an answer still pending may come back noisy and be asked again.
-  const bool done = improveLapAsked_ == 0 && improvePending_.empty();
+  const bool askedSome = improveLapAsked_ > 0;
   improveScanPosition_ = 0;
   improveLapAsked_ = 0;
-  if (done) improvementDone_ = true;
-  return done;
+  if (!improvePending_.empty()) return AfterLook::kAwaitAnswers;
+  // Everything this lap asked came back before it ended (a lap of several
+  // looks, answers on other threads): no answer is left to call for the
+  // next lap, which must start now or the view never converges.
+  if (askedSome) return AfterLook::kLookAgain;
+  improvementDone_ = true;
+  return AfterLook::kDone;
 }
 
 void ViewSession::OnImprovementsAnswered(std::span<const VertexId> answered) {

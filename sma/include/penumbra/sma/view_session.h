@@ -118,6 +118,10 @@ class ViewSession {
   struct Arrived {
     std::vector<NodeId> candidates;  // pending nodes one of whose corners arrived
     bool remapWanted = false;        // a midpoint arrived that may complete shown nodes' children
+    /// An improvement this session waited for was answered by a first
+    /// estimate: the wait is over, and only a new improvement look can
+    /// ask again or find the lap done (no IMPROVED answer will call one).
+    bool improveLookWanted = false;
   };
   /// Samples were stored. `baseVertices`: vertex ids below are base vertices.
   Arrived OnSamplesArrived(std::span<const VertexId> vertices, size_t baseVertices);
@@ -187,11 +191,24 @@ class ViewSession {
   /// instead of making one each (a whole walk per batch had starved a
   /// client's strand with two I/O threads: docs/performance.md).
   size_t ImproveScanPosition() const { return improveScanPosition_; }
+  /// What comes after an improvement look (OnImprovementsAsked).
+  enum class AfterLook {
+    /// end < count: the next look goes on from `end` (the caller knows
+    /// whether it stopped at its walk's bound or at a full batch).
+    kLapGoesOn,
+    /// The lap is over and answers are out: each that comes back calls for a look.
+    kAwaitAnswers,
+    /// The lap is over, it asked something, and all of it is back already:
+    /// nothing else will call for the next lap, so the caller looks now.
+    kLookAgain,
+    /// A whole lap asked nothing and nothing is pending: improvement of this
+    /// view is done (the status changed).
+    kDone,
+  };
   /// The look asked `asked`, having walked the visible nodes up to `end` of
   /// `count` (`end == count`: the lap is over, the next look starts at the
-  /// first node). True when improvement of this view is now done -- a whole
-  /// lap asked nothing and nothing is pending: the status changed.
-  bool OnImprovementsAsked(std::span<const VertexId> asked, size_t end, size_t count);
+  /// first node).
+  AfterLook OnImprovementsAsked(std::span<const VertexId> asked, size_t end, size_t count);
   void OnImprovementsAnswered(std::span<const VertexId> answered);
   /// What is displayed changed: look for improvements again, from the first node.
   void DisplayChanged() { RestartImprovementScan(); }
