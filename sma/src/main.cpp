@@ -105,7 +105,7 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--io-threads", options.ioThreads, "Network threads")->check(CLI::Range(1, 64))->capture_default_str();
   app.add_option("--session-threads", options.sessionThreads,
-                 "Threads that plan and encode the clients' deltas, off the I/O thread (0: on the I/O thread)")
+                 "Threads that plan and encode the clients' deltas, off the I/O threads (0: on an I/O thread)")
       ->check(CLI::Range(0, 64))->capture_default_str();
   app.add_option("--view-threads", options.viewThreads, "Visibility job threads")
       ->check(CLI::Range(1, 64))->capture_default_str();

@@ -587,6 +587,9 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
     double beforePostMs = 0.0;
   };
   void StartJob();
+  // The latest view's job (a new view's trace, or a refresh), its pixels
+  // counted as the running job's.
+  std::shared_ptr<ViewJob> MakeViewJob(bool newView);
   void PostViewJob(std::shared_ptr<ViewJob> job);
   void RetargetQueuedJob();
   void RunViewJob(ViewJob& job);  // job thread
@@ -849,11 +852,7 @@ void SmaServer::Impl::Session::StartJob() {
     return;
   }
   const bool newView = next == JobStart::kNewView;
-  auto job = std::make_shared<ViewJob>();
-  job->view = state_.View();
-  job->viewId = state_.ViewId();
-  job->newView = newView;
-  runningJobPixels_ = uint64_t(job->view.width) * uint64_t(job->view.height);
+  std::shared_ptr<ViewJob> job = MakeViewJob(newView);
   if (newView) {  // one view's buffers at a time
     hits_.reset();
     visible_.reset();
@@ -865,6 +864,16 @@ void SmaServer::Impl::Session::StartJob() {
   UpdateReservation();
   state_.OnJobStarted(next, Clock::now());
   PostViewJob(std::move(job));
+}
+
+std::shared_ptr<SmaServer::Impl::Session::ViewJob> SmaServer::Impl::Session::MakeViewJob(bool newView) {
+  auto job = std::make_shared<ViewJob>();
+  job->view = state_.View();
+  job->viewId = state_.ViewId();
+  job->newView = newView;
+  // The trace about to run holds its pixels in the visibility budget.
+  runningJobPixels_ = uint64_t(job->view.width) * uint64_t(job->view.height);
+  return job;
 }
 
 void SmaServer::Impl::Session::PostViewJob(std::shared_ptr<ViewJob> job) {
@@ -886,11 +895,7 @@ void SmaServer::Impl::Session::RetargetQueuedJob() {
     if (postedJob_->taken || (postedJob_->newView && postedJob_->viewId == state_.ViewId())) return;
     postedJob_->taken = true;  // the copy queued runs nothing
   }
-  auto job = std::make_shared<ViewJob>();
-  job->view = state_.View();
-  job->viewId = state_.ViewId();
-  job->newView = true;
-  runningJobPixels_ = uint64_t(job->view.width) * uint64_t(job->view.height);
+  std::shared_ptr<ViewJob> job = MakeViewJob(/*newView=*/true);
   UpdateReservation();
   state_.OnJobRetargeted();
   ++server_.viewJobsRetargeted_;

@@ -8,8 +8,8 @@
 //  * I/O threads run the io_context: every client and renderer connection
 //    on its own strand (reading, decoding, writing frames), the renderer
 //    links' handling of replies (storing samples), timers, signal handling.
-//  * Session threads (sessionThreads > 0, an asio::thread_pool; 0, the
-//    default: on the I/O thread): each client
+//  * Session threads (sessionThreads, 2, an asio::thread_pool; 0: on the
+//    I/O thread): each client
 //    session's handlers on the session's own strand -- its views, the
 //    planning of what to send (PlanView) and the encoding of its deltas, its
 //    refinement driving. A connection hands a session at most 64 unhandled
@@ -68,15 +68,13 @@ struct SmaOptions {
   /// sample or a refinement step changes for a client is planned and encoded
   /// there (PlanView, the deltas), never on an I/O thread. 32 clients:
   /// cached view -> first delta p99 776-851 -> 129-203 ms with 2
-  /// (docs/performance.md). 0, the default for now: each session on its
-  /// connection's strand, on the I/O thread, as before. Not the default yet
-  /// because a session running beside the I/O thread can stall: under
-  /// ThreadSanitizer a client behind a one-byte soft queue limit
-  /// (SmaSlowClientTest, RND) stopped short of convergence in about 1 of 2
-  /// runs -- and so does the code before this option with --io-threads 2
-  /// (1 of 6), so the race is older than the option; until it is found the
-  /// tested default stays the single-thread arrangement.
-  int sessionThreads = 0;
+  /// (docs/performance.md; one thread: 809 ms, its planning the queue). 0:
+  /// each session on its connection's strand, on an I/O thread, as before
+  /// this option (kept for comparison). A session beside the I/O thread
+  /// once stalled short of convergence (an improvement lap whose answers
+  /// had all come back before it ended waited for one more; sma/README.md):
+  /// fixed, and the suite runs with 2 under ThreadSanitizer.
+  int sessionThreads = 2;
   /// Threads running the connections' strands and the pool's links: they
   /// read, decode and write frames, and store arriving samples. Two took
   /// the tail off many clients' latencies (docs/performance.md, "Two I/O
