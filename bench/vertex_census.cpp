@@ -23,7 +23,15 @@
 //                        and without stopping at a black estimate, against a
 //                        --paths estimate;
 //   --gouraud R          linear interpolation of the corners against the
-//                        centroid on triangles reaching R or more.
+//                        centroid on triangles reaching R or more;
+//   --snapshot FILE      an SMA's cache on disk (--cache-dir): its samples
+//                        against --paths estimates of themselves (bias and
+//                        noise of the vertex values), and its leaves' linear
+//                        interpolation against the surface itself (bias of
+//                        the mesh), both per material; with --camera NAME the
+//                        leaves weigh what that preset sees of them, and
+//                        --csv writes one line per leaf (corner values, which
+//                        corners the camera sees).
 //
 //   vertex_census --scene scenes/grey-white-room.json --material Sofa [--paths 256] [--stride 32] [--csv out.csv]
 
@@ -34,6 +42,8 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <map>
+#include <unordered_map>
 #include <mutex>
 #include <string>
 #include <thread>
@@ -46,6 +56,8 @@
 #include "penumbra/common/scene.h"
 #include "penumbra/renderer/ray_scene.h"
 #include "penumbra/renderer/shading.h"
+#include "penumbra/sma/cache_snapshot.h"
+#include "penumbra/sma/shade_codec.h"
 
 namespace penumbra {
 namespace {
@@ -67,6 +79,8 @@ struct Options {
   bool simulate = false;
   int blackPaths = 80;  // SampleCache::kBlackPaths
   float gouraudMinReach = 0.0f;
+  std::string snapshot;
+  std::string camera;  // --snapshot: weigh leaves by what this preset's camera sees of them
 };
 
 struct Row {
@@ -264,6 +278,179 @@ int Gouraud(const Options& o, const Scene& scene, const Shader& shader,
   return 0;
 }
 
+// An SMA's cache snapshot against the surface. Vertex values: every
+// stride-th cached sample against a --paths estimate of the same request
+// (the cache's bias and noise). Mesh: every stride-th leaf whose corners are
+// all shaded, its linear interpolation against the surface, by the
+// edge-midpoint rule (exact for a quadratic: the triangle's mean is the mean
+// of its three edge midpoints, and interpolation's there is the mean of the
+// edges' ends) -- with the --paths estimates at the corners, so noise in the
+// cache does not count, and with the cache's own corner values, which is
+// what the client shows. Sums are weighted by leaf area, per material.
+int Snapshot(const Options& o, const Scene& scene, const RayScene& rays, const Shader& shader,
+             const std::function<bool(uint32_t)>& chosen) {
+  const CameraPreset* camera = nullptr;
+  if (!o.camera.empty() && !(camera = scene.FindCamera(o.camera))) {
+    std::fprintf(stderr, "no camera %s in the scene\n", o.camera.c_str());
+    return 1;
+  }
+  // The solid angle a leaf's point stands for, as the camera sees it: 0 when
+  // hidden or outside a 16:9 view.
+  const auto seenWeight = [&](Vec3 p, Vec3 normal) -> double {
+    if (!camera) return 1.0;
+    const Vec3 eye = camera->pose.eye, forward = glm::normalize(camera->pose.target - eye);
+    const Vec3 right = glm::normalize(glm::cross(forward, camera->pose.up)), up = glm::cross(right, forward);
+    const Vec3 d = p - eye;
+    const float depth = glm::dot(d, forward);
+    if (!(depth > 0.0f)) return 0.0;
+    const float tanY = std::tan(0.5f * camera->fovYDeg * kPi / 180.0f), tanX = tanY * 16.0f / 9.0f;
+    if (std::abs(glm::dot(d, right)) > depth * tanX || std::abs(glm::dot(d, up)) > depth * tanY) return 0.0;
+    const float dist = glm::length(d);
+    if (rays.Occluded(eye, d / dist, 0.0f, dist * (1.0f - 1e-4f))) return 0.0;
+    return std::abs(double(glm::dot(normal, d / dist))) / double(dist * dist);
+  };
+  std::ifstream file(o.snapshot, std::ios::binary);
+  std::vector<char> bytes((std::istreambuf_iterator<char>(file)), std::istreambuf_iterator<char>());
+  if (!file.good() && !file.eof()) {
+    std::fprintf(stderr, "cannot read %s\n", o.snapshot.c_str());
+    return 1;
+  }
+  Expected<sma::RestoredCache> restored = sma::DecodeCacheSnapshot(bytes, scene, sma::RadianceBounds::ForScene(scene));
+  if (!restored) {
+    std::fprintf(stderr, "%s: %s\n", o.snapshot.c_str(), restored.error().message.c_str());
+    return 1;
+  }
+  const sma::Hierarchy& h = restored->hierarchy;
+  std::unordered_map<sma::VertexId, const sma::ShadedSample*> cached;
+  for (const sma::ShadedSample& s : restored->samples) cached.emplace(s.vertex, &s);
+  const auto shadeAt = [&](uint64_t id, Vec3 position, Vec3 normal, uint32_t triangle, Vec2 bary) {
+    ShadeInput in;
+    in.sampleId = id;
+    in.position = position;
+    in.normal = normal;
+    in.triangle = triangle;
+    in.b1 = bary.x;
+    in.b2 = bary.y;
+    return double(Luminance(shader.Shade(in, o.paths, nullptr).irradiance));
+  };
+  struct Sums {
+    double cacheE = 0, trueE = 0, absError = 0;  // vertices
+    size_t vertices = 0, first = 0;
+    double area = 0, interpTrue = 0, interpCache = 0, surface = 0, absInterp = 0;  // leaves, area-weighted
+    size_t leaves = 0;
+  };
+  std::map<std::string, Sums> byMaterial;
+  std::mutex mutex;
+  std::ofstream csv;
+  if (!o.csv.empty()) {
+    csv.open(o.csv);
+    csv << "material,depth,weight,true0,true1,true2,cache0,cache1,cache2,interp,surface,x0,y0,z0,x1,y1,z1,x2,y2,z2,v0,v1,v2,mid0,mid1,mid2,seen0,seen1,seen2,cornerSeen0,cornerSeen1,cornerSeen2\n";
+  }
+  // Vertex values.
+  std::vector<const sma::ShadedSample*> samples;
+  size_t counter = 0;
+  for (const sma::ShadedSample& s : restored->samples)
+    if (chosen(h.GetVertex(s.vertex).baseTriangle) && counter++ % size_t(o.stride) == 0) samples.push_back(&s);
+  // Leaves with every corner shaded.
+  std::vector<sma::NodeId> leaves;
+  counter = 0;
+  for (sma::NodeId id = 0; id < h.NodeCount(); ++id) {
+    if (!h.Alive(id)) continue;
+    const sma::Node& n = h.GetNode(id);
+    if (!n.IsLeaf() || !chosen(n.baseTriangle)) continue;
+    if (!std::all_of(n.v.begin(), n.v.end(), [&](sma::VertexId v) { return cached.contains(v); })) continue;
+    if (counter++ % size_t(o.stride) == 0) leaves.push_back(id);
+  }
+  std::atomic<size_t> next{0};
+  std::vector<std::thread> pool;
+  for (int th = 0; th < o.threads; ++th)
+    pool.emplace_back([&] {
+      EnableFlushToZero();
+      for (size_t i; (i = next.fetch_add(1)) < samples.size() + leaves.size();) {
+        if (i < samples.size()) {
+          const sma::ShadedSample& s = *samples[i];
+          const sma::SampleRequest r = sma::MakeSampleRequest(h, s.vertex);
+          const double truth = shadeAt((uint64_t(1) << 48) + s.vertex, r.position, r.normal, r.triangle, r.bary);
+          const double value = Luminance(s.irradiance);
+          std::lock_guard lock(mutex);
+          Sums& m = byMaterial[scene.MaterialOf(r.triangle).name];
+          m.cacheE += value;
+          m.trueE += truth;
+          m.absError += std::abs(value - truth);
+          ++m.vertices;
+          m.first += s.round == 0;
+          continue;
+        }
+        const sma::Node& n = h.GetNode(leaves[i - samples.size()]);
+        double cornerTrue[3], cornerCache[3];
+        bool cornerSeen[3];
+        for (int k = 0; k < 3; ++k) {
+          const sma::SampleRequest r = sma::MakeSampleRequest(h, n.v[size_t(k)]);
+          cornerTrue[k] = shadeAt((uint64_t(2) << 48) + n.v[size_t(k)], r.position, r.normal, r.triangle, r.bary);
+          cornerCache[k] = Luminance(cached.at(n.v[size_t(k)])->irradiance);
+          cornerSeen[k] = seenWeight(r.position, r.normal) > 0.0;
+        }
+        double midpoints = 0, interpTrue = 0, interpCache = 0, seen = 0, mid[3], midSeen[3];
+        for (int k = 0; k < 3; ++k) {  // edge k joins corners k+1 and k+2
+          const int a = (k + 1) % 3, b = (k + 2) % 3;
+          const Vec2 bary = 0.5f * (n.bary[size_t(a)] + n.bary[size_t(b)]);
+          const Vec3 sum = h.GetVertex(n.v[size_t(a)]).normal + h.GetVertex(n.v[size_t(b)]).normal;
+          const Vec3 normal = glm::length(sum) > 1e-6f ? glm::normalize(sum) : h.GetVertex(n.v[size_t(a)]).normal;
+          const Vec3 at = scene.PointAt(n.baseTriangle, bary.x, bary.y);
+          mid[k] = shadeAt((uint64_t(3) << 48) + uint64_t(leaves[i - samples.size()]) * 3 + uint64_t(k), at, normal,
+                           n.baseTriangle, bary);
+          midSeen[k] = seenWeight(at, normal);
+          midpoints += mid[k] / 3;
+          seen += midSeen[k] / 3;
+          interpTrue += 0.5 * (cornerTrue[a] + cornerTrue[b]) / 3;
+          interpCache += 0.5 * (cornerCache[a] + cornerCache[b]) / 3;
+        }
+        const Vec3 p0 = h.GetVertex(n.v[0]).position, p1 = h.GetVertex(n.v[1]).position,
+                   p2 = h.GetVertex(n.v[2]).position;
+        const double area = 0.5 * double(glm::length(glm::cross(p1 - p0, p2 - p0))) * seen;
+        if (!(area > 0.0)) continue;
+        std::lock_guard lock(mutex);
+        if (csv.is_open())
+          csv << scene.MaterialOf(n.baseTriangle).name << ',' << int(n.depth) << ',' << area << ',' << cornerTrue[0]
+              << ',' << cornerTrue[1] << ',' << cornerTrue[2] << ',' << cornerCache[0] << ',' << cornerCache[1] << ','
+              << cornerCache[2] << ',' << interpTrue << ',' << midpoints << ',' << p0.x << ',' << p0.y << ','
+              << p0.z << ',' << p1.x << ',' << p1.y << ',' << p1.z << ',' << p2.x << ',' << p2.y << ',' << p2.z
+              << ',' << n.v[0] << ',' << n.v[1] << ',' << n.v[2] << ',' << mid[0] << ',' << mid[1] << ',' << mid[2]
+              << ',' << midSeen[0] << ',' << midSeen[1] << ',' << midSeen[2] << ',' << cornerSeen[0] << ','
+              << cornerSeen[1] << ',' << cornerSeen[2] << '\n';
+        Sums& m = byMaterial[scene.MaterialOf(n.baseTriangle).name];
+        m.area += area;
+        m.interpTrue += area * interpTrue;
+        m.interpCache += area * interpCache;
+        m.surface += area * midpoints;
+        m.absInterp += area * std::abs(interpTrue - midpoints);
+        ++m.leaves;
+      }
+    });
+  for (auto& t : pool) t.join();
+  std::vector<std::pair<std::string, Sums>> rows(byMaterial.begin(), byMaterial.end());
+  Sums all;
+  for (const auto& [name, m] : rows) {
+    all.cacheE += m.cacheE, all.trueE += m.trueE, all.absError += m.absError, all.vertices += m.vertices;
+    all.first += m.first, all.area += m.area, all.interpTrue += m.interpTrue, all.interpCache += m.interpCache;
+    all.surface += m.surface, all.absInterp += m.absInterp, all.leaves += m.leaves;
+  }
+  rows.emplace_back("(all)", all);
+  std::sort(rows.begin(), rows.end(), [](const auto& a, const auto& b) { return a.second.area > b.second.area; });
+  std::printf("%zu of %zu samples, %zu leaves; truth: %d paths a point; leaves weighted by %s\n", samples.size(),
+              restored->samples.size(), leaves.size(), o.paths,
+              camera ? "the solid angle the camera sees of them" : "area");
+  std::printf("%-28s %8s %6s %9s %9s | %7s %8s %13s %12s %10s\n", "material", "samples", "first", "cache/true",
+              "|err|/true", "leaves", "area", "interp/surface", "|interp-surf|", "shown/surf");
+  for (const auto& [name, m] : rows) {
+    if (m.vertices == 0 && m.leaves == 0) continue;
+    std::printf("%-28.28s %8zu %6zu %9.4f %9.4f | %7zu %8.3f %13.4f %12.4f %10.4f\n", name.c_str(), m.vertices, m.first,
+                m.cacheE / m.trueE, m.absError / m.trueE, m.leaves, m.area, m.interpTrue / m.surface,
+                m.absInterp / m.surface, m.interpCache / m.surface);
+  }
+  return 0;
+}
+
 int Run(const Options& o) {
   Expected<Scene> loaded = LoadScene(o.scene);
   if (!loaded) {
@@ -297,6 +484,7 @@ int Run(const Options& o) {
                        [&](const std::string& m) { return name.find(m) != std::string::npos; });
   };
   if (o.gouraudMinReach > 0.0f) return Gouraud(o, scene, shader, trianglesOf, chosen);
+  if (!o.snapshot.empty()) return Snapshot(o, scene, rays, shader, chosen);
   std::vector<std::pair<uint32_t, bool>> work;  // vertex, back side
   size_t counter = 0;
   for (uint32_t v = 0; v < scene.vertices.size(); ++v) {
@@ -529,6 +717,9 @@ int main(int argc, char** argv) {
                  "is this far from a corner");
   app.add_option("--black-paths", o.blackPaths, "... taking a sample as black once this many paths found nothing")
       ->check(CLI::Range(1, 1 << 20));
+  app.add_option("--snapshot", o.snapshot,
+                 "measure this SMA cache snapshot's vertex values and leaves against the surface instead");
+  app.add_option("--camera", o.camera, "--snapshot: weigh leaves by the solid angle this camera preset sees of them");
   app.add_option("--csv", o.csv, "write one line per dark vertex here");
   CLI11_PARSE(app, argc, argv);
   penumbra::SetupLogging("warn");

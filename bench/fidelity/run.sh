@@ -29,6 +29,10 @@ ref_spp="${REF_SPP:-1024}"
 # penumbra-reference's pixel filters: "box" (the references' filter) and
 # "centre" (pixel centres, to show what the box filter is worth).
 ref_filters="${REF_FILTERS:-box centre}"
+# CLIENT_ARGS: more client options (e.g. refinement parameters: --s-req 0.02).
+client_args="${CLIENT_ARGS:-}"
+# SMA_ARGS: more SMA options (e.g. --cache-dir DIR, for bench/vertex_census --snapshot).
+sma_args="${SMA_ARGS:-}"
 mkdir -p "$out"
 tool="$build/bench/penumbra-image-tool"
 
@@ -81,14 +85,14 @@ for c in "${cases[@]}"; do
   rpid=$!
   while [ ! -s "$logs/r.port" ]; do sleep 0.2; done
   "$build/sma/penumbra-sma" --scene "$root/$scene" --listen 127.0.0.1:0 --port-file "$logs/s.port" \
-    --renderer "127.0.0.1:$(cat "$logs/r.port")" --criterion nld_os --log-level warn >"$logs/s.log" 2>&1 &
+    --renderer "127.0.0.1:$(cat "$logs/r.port")" --criterion nld_os --log-level warn $sma_args >"$logs/s.log" 2>&1 &
   spid=$!
   while [ ! -s "$logs/s.port" ]; do sleep 0.2; done
   # --anisotropy 16: the texture filtering nearest the references' area average (the client's
   # default on llvmpipe is isotropic, for speed; client/README.md "Texture filtering").
   "$build/client/penumbra-client" --connect "127.0.0.1:$(cat "$logs/s.port")" --headless --gl egl --camera "$camera" \
     --size "$size" --supersample 4 --anisotropy 16 --until-converged --timeout 1800 --screenshot "$out/$name-penumbra.exr" \
-    --stats "$out/$name-stats.jsonl" --log-level warn >"$logs/c.log" 2>&1 || { cat "$logs/c.log" >&2; exit 1; }
+    --stats "$out/$name-stats.jsonl" --log-level warn $client_args >"$logs/c.log" 2>&1 || { cat "$logs/c.log" >&2; exit 1; }
   kill "$spid" "$rpid"; wait "$spid" "$rpid" 2>/dev/null || true
   cell() {
     if [ -z "$1" ]; then echo "not run"; return; fi
