@@ -50,6 +50,15 @@ Vec3 PinholeCamera::DirectionThrough(float px, float py) const {
   return glm::normalize(forward_ + sx * right_ + sy * up_);
 }
 
+std::optional<Vec2> PinholeCamera::PixelOf(const Vec3& p) const {
+  const Vec3 d = p - origin_;
+  const float depth = glm::dot(d, forward_);
+  if (!(depth > 0.0f)) return std::nullopt;
+  const float sx = glm::dot(d, right_) / depth, sy = glm::dot(d, up_) / depth;
+  return Vec2(0.5f * float(width_) * (sx / (tanHalfFovY_ * aspect_) + 1.0f),
+              0.5f * float(height_) * (1.0f - sy / tanHalfFovY_));
+}
+
 double CameraPath::DurationSeconds() const {
   return keyframes.empty() ? 0.0 : keyframes.back().timeSeconds - keyframes.front().timeSeconds;
 }

@@ -98,6 +98,36 @@ bool Refiner::Splittable(const Hierarchy& h, const SampleCache& cache, NodeId id
   return n.IsLeaf() && n.depth < params_.maxDepth && float(coverage) >= params_.minPixels && CornersShaded(n, cache);
 }
 
+bool VertexInSight(const Hierarchy& h, const HitBuffer& hits, const PinholeCamera& camera, VertexId v) {
+  const Scene& scene = h.GetScene();
+  if (hits.hits.size() != size_t(camera.Width()) * size_t(camera.Height())) return true;  // no image to look in
+  const SampleVertex& sv = h.GetVertex(v);
+  // The hierarchy holds a moving object at rest and the view saw it posed:
+  // no way to tell here, so it counts as seen (the rule stays out of its way).
+  if (scene.ObjectOfTriangle(sv.baseTriangle) != kStaticObject) return true;
+  const std::optional<Vec2> pixel = camera.PixelOf(sv.position);
+  if (!pixel || !(pixel->x >= 0.0f && pixel->x < float(camera.Width()) && pixel->y >= 0.0f &&
+                  pixel->y < float(camera.Height())))
+    return false;
+  const float distance = glm::length(sv.position - camera.Origin());
+  const float depth = glm::dot(sv.position - camera.Origin(), camera.Forward());
+  // In front of it means nearer by more than 1 % of its distance and two
+  // pixels' size there: a crease's other surface, or the vertex's own
+  // surface beside it, is not in front of it.
+  const float tolerance = 0.01f * distance + 2.0f * camera.PixelSizeAt(depth);
+  const int px = int(pixel->x), py = int(pixel->y);
+  for (int y = std::max(0, py - 1); y <= std::min(camera.Height() - 1, py + 1); ++y)
+    for (int x = std::max(0, px - 1); x <= std::min(camera.Width() - 1, px + 1); ++x) {
+      const PixelHit& hit = hits.hits[size_t(y) * size_t(camera.Width()) + size_t(x)];
+      if (hit.triangle == kNoHit || hit.triangle >= scene.triangles.size() ||
+          scene.ObjectOfTriangle(hit.triangle) != kStaticObject)
+        return true;  // nothing (known) in front of it there
+      if (glm::length(scene.PointAt(hit.triangle, hit.b1, hit.b2) - camera.Origin()) > distance - tolerance)
+        return true;
+    }
+  return false;
+}
+
 namespace {
 
 uint32_t CoverageOf(const VisibleSet& visible, NodeId id) {
@@ -126,7 +156,7 @@ std::vector<NodeId> Refiner::Select(const Hierarchy& hierarchy, const SampleCach
 
   switch (params_.criterion) {
     case Criterion::kNldOs: {
-      auto chosen = SelectObjectSpace(hierarchy, cache, visible, lum, lMax, params_.batch);
+      auto chosen = SelectObjectSpace(hierarchy, cache, hits, visible, lum, lMax, params_.batch);
       if (chosen.empty() && !samplesOutstanding) exhausted_ = true;
       return chosen;
     }
@@ -146,7 +176,7 @@ std::vector<NodeId> Refiner::Select(const Hierarchy& hierarchy, const SampleCach
         phase_ = 2;
         if (!chosen.empty()) return chosen;
       }
-      auto chosen = SelectObjectSpace(hierarchy, cache, visible, lum, lMax, params_.batch);
+      auto chosen = SelectObjectSpace(hierarchy, cache, hits, visible, lum, lMax, params_.batch);
       if (chosen.empty() && !samplesOutstanding) {
         if (phase_ == 0) {
           phase_ = 1;
@@ -163,10 +193,14 @@ std::vector<NodeId> Refiner::Select(const Hierarchy& hierarchy, const SampleCach
   return {};
 }
 
-std::vector<NodeId> Refiner::SelectObjectSpace(const Hierarchy& h, const SampleCache& cache,
+std::vector<NodeId> Refiner::SelectObjectSpace(const Hierarchy& h, const SampleCache& cache, const HitBuffer& hits,
                                                const VisibleSet& visible, VertexLuminance& lum, float lMax,
                                                size_t limit) {
   const float pixels = float(visible.pixelNode.size());
+  const PinholeCamera camera(hits.view);
+  const auto noCornerInSight = [&](const Node& n) {
+    return std::none_of(n.v.begin(), n.v.end(), [&](VertexId v) { return VertexInSight(h, hits, camera, v); });
+  };
   struct Candidate {
     float priority;
     NodeId id;
@@ -187,7 +221,8 @@ std::vector<NodeId> Refiner::SelectObjectSpace(const Hierarchy& h, const SampleC
     else if (s > params_.sReq) candidates.push_back(Candidate{s, id});
     else if (float(coverage) > params_.probeFraction * pixels &&
              (n.parent == kNoNode ||
-              MidpointDeviation(cache, h.GetNode(n.parent), lum, params_.noiseZ, lMax) > params_.sReq))
+              MidpointDeviation(cache, h.GetNode(n.parent), lum, params_.noiseZ, lMax) > params_.sReq ||
+              noCornerInSight(n)))
       candidates.push_back(Candidate{s, id});
   }
   const size_t keep = std::min(limit, candidates.size());

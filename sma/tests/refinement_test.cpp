@@ -280,7 +280,7 @@ TEST(NldOsTest, CornersThatAgreeDoNotHideTheInteriorOfABigLeaf) {
     EXPECT_EQ(f.hierarchy.NodeCount(), f.scene.triangles.size()) << "corners alone split nothing";
   }
   RefinementFixture f(/*uniform=*/false, /*shade=*/false);
-  p.probeFraction = 1.0f / 1024.0f;  // the default: ~9 pixels of this 96 x 96 image
+  p.probeFraction = 1.0f / 1024.0f;  // ~9 pixels of this 96 x 96 image
   RefineBump(f, p);
   // The peak is sampled: some vertex within a tenth of the bump's radius.
   float nearest = 1e9f;
@@ -312,7 +312,8 @@ TEST(NldOsTest, InteriorProbesStopWhereTheMidpointsConfirmTheCorners) {
   RefinementParams p;
   p.largeFraction = 1.0f;
   p.batch = 1000;
-  std::vector<NodeId> big;  // roots covering well over the probe size (~9 pixels)
+  p.probeFraction = 1.0f / 1024.0f;  // ~9 pixels of this 96 x 96 image, over minPixels
+  std::vector<NodeId> big;  // roots covering well over the probe size
   for (size_t i = 0; i < f.visible.nodes.size(); ++i)
     if (float(f.visible.coverage[i]) > 2.0f * p.probeFraction * float(kImage * kImage)) big.push_back(f.visible.nodes[i]);
   ASSERT_GT(big.size(), 20u);
@@ -321,6 +322,120 @@ TEST(NldOsTest, InteriorProbesStopWhereTheMidpointsConfirmTheCorners) {
   ASSERT_TRUE(r.Exhausted());
   for (NodeId root : big) EXPECT_FALSE(f.hierarchy.GetNode(root).IsLeaf()) << "root " << root << " was not probed";
   for (NodeId id = 0; id < f.hierarchy.NodeCount(); ++id) EXPECT_LE(f.hierarchy.GetNode(id).depth, 2) << id;
+}
+
+// A 4 x 4 floor seen from above through a 0.4 x 0.4 hole in a board at
+// y = 0.5: every vertex of the floor is hidden, the floor's middle is lit
+// and seen. The hole is inside the centre child of one root's first split
+// (away from both of the floor's diagonals and from its edges' midpoints).
+struct HiddenCornersFixture {
+  static constexpr int kSide = 192;
+  Scene scene;
+  std::unique_ptr<Hierarchy> hierarchy;
+  SampleCache cache;
+  HitBuffer hits;
+  VisibleSet visible;
+  uint32_t floorTriangles = 0;
+
+  HiddenCornersFixture() {
+    SceneBuilder b;
+    const uint32_t mat = b.AddMaterial(Material{});
+    b.AddQuad(Vec3(0, 0, 0), Vec3(0, 0, 4), Vec3(4, 0, 0), mat);  // the floor, facing up
+    floorTriangles = 2;
+    const float y = 0.5f, x0 = 0.8f, x1 = 1.2f, z0 = 2.2f, z1 = 2.6f;  // the hole
+    const auto board = [&](float ax, float az, float bx, float bz) {
+      b.AddQuad(Vec3(ax, y, az), Vec3(0, 0, bz - az), Vec3(bx - ax, 0, 0), mat);
+    };
+    board(-2, -2, 6, z0);  // in front of the hole, across the board
+    board(-2, z1, 6, 6);   // behind it
+    board(-2, z0, x0, z1);  // left of it
+    board(x1, z0, 6, z1);   // right of it
+    scene.twoSided = false;
+    EXPECT_TRUE(b.BuildInto(scene).ok());
+    hierarchy = std::make_unique<Hierarchy>(scene);
+    auto tracer = VisibilityTracer::Build(scene);
+    EXPECT_TRUE(tracer.ok());
+    CameraView view;
+    view.pose = CameraPose{Vec3(2, 6, 2), Vec3(2, 0, 2), Vec3(0, 0, -1)};
+    view.fovYDeg = 70.0f;
+    view.width = view.height = kSide;
+    (*tracer)->Trace(view, hits);
+  }
+  void ShadeUniformly() {
+    cache.Reserve(hierarchy->VertexCount());
+    std::vector<ShadedSample> samples;
+    for (VertexId v = 0; v < hierarchy->VertexCount(); ++v)
+      if (!cache.IsShaded(v)) samples.push_back(ShadedSample{v, Rgb(0.5f * kInvPi), Rgb(1.0f), 0.001f});
+    cache.Store(samples);
+    MapHitsToNodes(
+        *hierarchy, hits, [](const Node&, const void*) { return true; }, nullptr, visible);
+  }
+  PinholeCamera Camera() const { return PinholeCamera(hits.view); }
+  std::vector<NodeId> Select(Refiner& r) { return r.Select(*hierarchy, cache, hits, visible, DragoParams{}, false); }
+};
+
+TEST(VertexInSightTest, SeesWhatNothingHidesInTheImageOnly) {
+  HiddenCornersFixture f;
+  const Hierarchy& h = *f.hierarchy;
+  const PinholeCamera camera = f.Camera();
+  // Every floor vertex is under the board.
+  for (uint32_t t = 0; t < f.floorTriangles; ++t)
+    for (uint32_t v : f.scene.triangles[t].v) EXPECT_FALSE(VertexInSight(h, f.hits, camera, v)) << v;
+  // The hole's corners on the board are seen, and so are the board's
+  // vertices in the image; its outer corners (-2, 0.5, -2) ... are out of it.
+  size_t seen = 0, outside = 0;
+  for (uint32_t t = f.floorTriangles; t < f.scene.triangles.size(); ++t)
+    for (uint32_t v : f.scene.triangles[t].v) {
+      const Vec3 p = f.scene.vertices[v].position;
+      const bool inImage = std::abs(p.x - 2.0f) < 3.5f && std::abs(p.z - 2.0f) < 3.5f;
+      EXPECT_EQ(VertexInSight(h, f.hits, camera, v), inImage) << p.x << " " << p.z;
+      (inImage ? seen : outside)++;
+    }
+  EXPECT_GT(seen, 4u);
+  EXPECT_GT(outside, 4u);
+  // PixelOf inverts DirectionThrough.
+  const std::optional<Vec2> pixel = camera.PixelOf(Vec3(1, 0, 2.4f));
+  ASSERT_TRUE(pixel.has_value());
+  const Vec3 d = camera.DirectionThrough(pixel->x, pixel->y);
+  EXPECT_NEAR(glm::length(glm::cross(d, glm::normalize(Vec3(1, 0, 2.4f) - Vec3(2, 6, 2)))), 0.0f, 1e-5f);
+  EXPECT_FALSE(camera.PixelOf(Vec3(2, 7, 2)).has_value()) << "behind the camera";
+}
+
+TEST(NldOsTest, ALeafWhoseCornersAreAllHiddenIsProbed) {
+  // Uniform light: no leaf's corners differ, no split's midpoint is off its
+  // edge. Both roots are probed once (roots always are); the child seen
+  // through the hole has three hidden corners, which stand for nothing the
+  // camera sees: it is probed too, and so on down while a seen leaf has no
+  // corner in sight and covers more than the probe size.
+  HiddenCornersFixture f;
+  f.ShadeUniformly();
+  RefinementParams p;
+  p.largeFraction = 1.0f;
+  p.batch = 1000;
+  const auto refine = [&](const RefinementParams& params) {
+    Refiner r(params);
+    for (int step = 0; step < 100 && !r.Exhausted(); ++step) {
+      for (NodeId id : f.Select(r)) f.hierarchy->Refine(id, ToRefineOptions(params));
+      f.ShadeUniformly();
+    }
+    EXPECT_TRUE(r.Exhausted());
+  };
+  refine(p);
+  const PinholeCamera camera = f.Camera();
+  size_t seenLeaves = 0;
+  for (size_t i = 0; i < f.visible.nodes.size(); ++i) {
+    const Node& n = f.hierarchy->GetNode(f.visible.nodes[i]);
+    if (n.baseTriangle >= f.floorTriangles) continue;
+    ++seenLeaves;
+    const bool cornerInSight = std::any_of(n.v.begin(), n.v.end(), [&](VertexId v) {
+      return VertexInSight(*f.hierarchy, f.hits, camera, v);
+    });
+    EXPECT_TRUE(cornerInSight || float(f.visible.coverage[i]) <= p.probeFraction * float(f.hits.hits.size()))
+        << "a seen floor leaf of depth " << int(n.depth) << " covering " << f.visible.coverage[i]
+        << " pixels has no corner in sight";
+    EXPECT_GE(n.depth, 2) << "the hole's leaf was not probed below the roots' first split";
+  }
+  EXPECT_GT(seenLeaves, 0u);
 }
 
 TEST(MidpointDeviationTest, IsTheMidpointsDistanceFromItsEdgesInterpolationBeyondNoise) {

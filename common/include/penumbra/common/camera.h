@@ -8,6 +8,7 @@
 // The vertical field of view spans the image height.
 
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -50,6 +51,12 @@ class PinholeCamera {
   /// World-space unit direction through image position (px, py) in pixels,
   /// measured from the top-left corner (pixel centres at +0.5).
   Vec3 DirectionThrough(float px, float py) const;
+  /// Where world point `p` appears, in DirectionThrough's pixel coordinates
+  /// (DirectionThrough(PixelOf(p)) points at p), inside the image or not;
+  /// nullopt for a point not in front of the camera.
+  std::optional<Vec2> PixelOf(const Vec3& p) const;
+  /// The side of one pixel at `depth` along Forward(), in world units.
+  float PixelSizeAt(float depth) const { return 2.0f * depth * tanHalfFovY_ / float(height_); }
   const Vec3& Origin() const { return origin_; }
   const Vec3& Forward() const { return forward_; }
   const Vec3& Right() const { return right_; }

@@ -46,7 +46,7 @@ struct RefinementParams {
   uint8_t maxDepth = 12;          // leaves this deep are not split
   float pixelFraction = 0.1f;     // NLD_IS, RND: budget as a fraction of the image's pixels
   float noiseZ = 2.0f;            // differences within this many standard errors are noise; 0: the paper's S
-  float probeFraction = 1.0f / 1024.0f;  // NLD_OS: interior probes of leaves covering more of the image; 1: none
+  float probeFraction = 1.0f / 16384.0f;  // NLD_OS: interior probes of leaves covering more of the image; 1: none
   uint64_t seed = 1;              // RND's random stream
 
   /// The largest maxDepth Validate() accepts.

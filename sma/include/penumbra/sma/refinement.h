@@ -28,6 +28,15 @@
 //    cross it without touching a vertex, paper Fig. 2). Children become
 //    candidates once shaded. Ends when no leaf qualifies and none of its
 //    splits awaits samples.
+//    Interior probes: corners that agree say nothing about a leaf's inside.
+//    A leaf covering more than probeFraction of the image is split, whatever
+//    its S, when it is a root (never looked inside), when its parent's split
+//    found a midpoint off the line of its edge by more than S_req
+//    (MidpointDeviation), or when none of its corners is in sight
+//    (VertexInSight): corners hidden behind furniture or off screen stand
+//    for the surface around them, not for the part the camera sees between
+//    them (a wall's strip between a sofa and a painting, whose corners are
+//    behind both).
 //  * NLD_IS (image space): quadrants of the image, recursively; S over each
 //    quadrant's four corners (luminance interpolated from the displayed
 //    leaves); of each quadrant's four sub-quadrants the one with the largest
@@ -85,6 +94,13 @@ float NormalizedLuminanceDifference(std::span<const float> l, float lMax);
 float NoiseAwareLuminanceDifference(std::span<const float> l, std::span<const float> sigma, float z, float lMax);
 
 class VertexLuminance;
+
+/// Whether the camera of `hits` sees vertex `v` (static scene part): it
+/// projects into the image and at its pixel or one of the eight around it
+/// nothing is nearer than it by more than 1 % of its distance and two
+/// pixels' size. Vertices of moving objects count as seen (the hierarchy
+/// holds them at rest, the view saw them posed).
+bool VertexInSight(const Hierarchy& h, const HitBuffer& hits, const PinholeCamera& camera, VertexId v);
 
 /// How far the midpoints node `n`'s split added stand from the linear
 /// interpolation of their edges' ends (tone-mapped luminance, each
@@ -155,8 +171,8 @@ class Refiner {
     int x0, y0, x1, y1;  // pixel corners, inclusive
     int level;           // 0: the whole image; children are one level deeper
   };
-  std::vector<NodeId> SelectObjectSpace(const Hierarchy& h, const SampleCache& cache, const VisibleSet& visible,
-                                        VertexLuminance& lum, float lMax, size_t limit);
+  std::vector<NodeId> SelectObjectSpace(const Hierarchy& h, const SampleCache& cache, const HitBuffer& hits,
+                                        const VisibleSet& visible, VertexLuminance& lum, float lMax, size_t limit);
   std::vector<NodeId> SelectImageSpace(const Hierarchy& h, const SampleCache& cache, const HitBuffer& hits,
                                        const VisibleSet& visible, VertexLuminance& lum, float lMax,
                                        bool samplesOutstanding);
