@@ -47,6 +47,9 @@ cases=(
 )
 # Only these cases (names, space-separated), if set.
 only="${CASES:-}"
+# Without Blender every case is compared with penumbra-reference alone.
+have_blender=1
+command -v blender >/dev/null || { echo "blender not found: comparing with penumbra-reference only" >&2; have_blender=0; }
 
 
 # Camera of a preset, as Cycles arguments, from penumbra-scene-info.
@@ -65,6 +68,8 @@ for c in "${cases[@]}"; do
   read -r name scene camera obj size <<<"$c"
   [ -z "$only" ] || [[ " $only " == *" $name "* ]] || continue
   w="${size%x*}"; h="${size#*x}"
+  why_no_cycles="sun and sky"
+  if [ "$obj" != - ] && [ "$have_blender" = 0 ]; then obj=-; why_no_cycles="blender absent"; fi
   objpath="$shared/$obj"; [ "${obj#@}" != "$obj" ] && objpath="$root/${obj#@}"
   [ "$obj" = - ] || [ -f "$objpath" ] || { echo "| $name | skipped: $objpath absent | | | | | |"; continue; }
   cycles="$out/$name-cycles"
@@ -106,7 +111,7 @@ for c in "${cases[@]}"; do
     "$tool" tonemap "$out/$name-penumbra.exr" "$out/$name-penumbra.png" --like "$out/$name-ref-box.exr"
     "$tool" tonemap "$out/$name-ref-box.exr" "$out/$name-ref-box.png"
     [ ! -s "$centre" ] || refcentre="$(metric "$out/$name-ref-box.exr" "$centre")"
-    nocycles="no Cycles (sun and sky)"
+    nocycles="no Cycles ($why_no_cycles)"
   else
     "$tool" tonemap "$out/$name-penumbra.exr" "$out/$name-penumbra.png" --like "$cycles.exr"
     "$tool" tonemap "$cycles.exr" "$out/$name-cycles.png"
