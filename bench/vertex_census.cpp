@@ -45,6 +45,7 @@
 #include <map>
 #include <unordered_map>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
@@ -296,17 +297,17 @@ int Snapshot(const Options& o, const Scene& scene, const RayScene& rays, const S
   }
   // The solid angle a leaf's point stands for, as the camera sees it: 0 when
   // hidden or outside a 16:9 view.
+  std::optional<PinholeCamera> pinhole;
+  if (camera) pinhole.emplace(CameraView{camera->pose, camera->fovYDeg, 1920, 1080});  // a 16:9 view
   const auto seenWeight = [&](Vec3 p, Vec3 normal) -> double {
-    if (!camera) return 1.0;
-    const Vec3 eye = camera->pose.eye, forward = glm::normalize(camera->pose.target - eye);
-    const Vec3 right = glm::normalize(glm::cross(forward, camera->pose.up)), up = glm::cross(right, forward);
-    const Vec3 d = p - eye;
-    const float depth = glm::dot(d, forward);
-    if (!(depth > 0.0f)) return 0.0;
-    const float tanY = std::tan(0.5f * camera->fovYDeg * kPi / 180.0f), tanX = tanY * 16.0f / 9.0f;
-    if (std::abs(glm::dot(d, right)) > depth * tanX || std::abs(glm::dot(d, up)) > depth * tanY) return 0.0;
+    if (!pinhole) return 1.0;
+    const std::optional<Vec2> pixel = pinhole->PixelOf(p);
+    if (!pixel || pixel->x < 0.0f || pixel->x > float(pinhole->Width()) || pixel->y < 0.0f ||
+        pixel->y > float(pinhole->Height()))
+      return 0.0;
+    const Vec3 d = p - pinhole->Origin();
     const float dist = glm::length(d);
-    if (rays.Occluded(eye, d / dist, 0.0f, dist * (1.0f - 1e-4f))) return 0.0;
+    if (rays.Occluded(pinhole->Origin(), d / dist, 0.0f, dist * (1.0f - 1e-4f))) return 0.0;
     return std::abs(double(glm::dot(normal, d / dist))) / double(dist * dist);
   };
   std::ifstream file(o.snapshot, std::ios::binary);
