@@ -19,6 +19,9 @@
 // Other modes (docs/refinement.md, third round):
 //   --inspect V          the geometry on the way from vertex V to its
 //                        triangle's centroid: crossings, probes, irradiance;
+//   --noise R            R independent --paths estimates of each sample:
+//                        the noise of one, and whether the shader's standard
+//                        error says it;
 //   --simulate-improvement  the SMA's improvement rounds on each sample, with
 //                        and without stopping at a black estimate, against a
 //                        --paths estimate;
@@ -78,6 +81,7 @@ struct Options {
   std::vector<int64_t> inspect;
   bool inspectBack = false;
   bool simulate = false;
+  int noiseRepeats = 0;
   int blackPaths = 80;  // SampleCache::kBlackPaths
   float gouraudMinReach = 0.0f;
   std::string snapshot;
@@ -506,6 +510,10 @@ int Run(const Options& o) {
   std::atomic<size_t> next{0}, shaded{0}, buriedFired{0}, zeroFirst{0}, zeroFirstButLit{0};
   std::vector<float> zeroFirstLitE;
   std::vector<Improved> improved;
+  struct Noise {
+    double mean = 0.0, spread = 0.0, claimed = 0.0;  // luminance of E; spread and claimed: one estimate's
+  };
+  std::vector<Noise> noise;
   std::vector<int> nearHistAll(11, 0), nearHistDark(11, 0);
   std::vector<std::thread> pool;
   for (int th = 0; th < o.threads; ++th)
@@ -523,6 +531,28 @@ int Run(const Options& o) {
         const Vec2 b = cornerBary(base, v);
         in.b1 = b.x;
         in.b2 = b.y;
+        if (o.noiseRepeats > 0) {
+          // Independent --paths estimates of the one sample (their ids apart
+          // as the SMA's improvement rounds are): their spread is the noise
+          // of one estimate, and the shader's own standard error is compared
+          // with it.
+          double sum = 0.0, squares = 0.0, claimed = 0.0;
+          for (int r = 0; r < o.noiseRepeats; ++r) {
+            in.sampleId = uint64_t(i) + (uint64_t(r + 1) << 32);
+            const ShadeOutput out = shader.Shade(in, o.paths, nullptr);
+            const double l = Luminance(out.irradiance);
+            sum += l;
+            squares += l * l;
+            claimed += double(out.irradianceStdErr) * out.irradianceStdErr;
+          }
+          const double n = o.noiseRepeats, mean = sum / n;
+          if (mean > 0.0) {
+            std::lock_guard lock(darkMutex);
+            noise.push_back({mean, std::sqrt(std::max(0.0, (squares / n - mean * mean) * n / (n - 1.0))),
+                             std::sqrt(claimed / n)});
+          }
+          continue;
+        }
         if (o.simulate) {
           const Improved r = SimulateImprovement(shader, in, o.firstPaths, 64, 1024, 0.02, o.paths, o.blackPaths);
           std::lock_guard lock(darkMutex);
@@ -632,6 +662,24 @@ int Run(const Options& o) {
     });
   for (std::thread& t : pool) t.join();
 
+  if (o.noiseRepeats > 0) {
+    // Relative to the sum of the means, so that dim samples weigh as little
+    // as they show; and the median of the per-sample relative spreads.
+    double meanSum = 0.0, spreadSum = 0.0, claimedSum = 0.0;
+    std::vector<double> relative;
+    for (const Noise& r : noise) {
+      meanSum += r.mean;
+      spreadSum += r.spread;
+      claimedSum += r.claimed;
+      relative.push_back(r.spread / r.mean);
+    }
+    std::sort(relative.begin(), relative.end());
+    std::printf("noise of one %d-path estimate, %d estimates of each of %zu lit samples:\n", o.paths, o.noiseRepeats,
+                noise.size());
+    std::printf("  spread / mean (sums) %.4f, median per sample %.4f; shader's own standard error / spread %.3f\n",
+                spreadSum / meanSum, relative.empty() ? 0.0 : relative[relative.size() / 2], claimedSum / spreadSum);
+    return 0;
+  }
   if (o.simulate) {
     // Sums over the samples: the bias of each rule against the reference,
     // and the paths it spent.
@@ -713,6 +761,10 @@ int main(int argc, char** argv) {
   app.add_flag("--inspect-back", o.inspectBack, "... on their back side");
   app.add_flag("--simulate-improvement", o.simulate,
                "simulate the SMA's improvement of each sample instead, against a --paths estimate");
+  app.add_option("--noise", o.noiseRepeats,
+                 "shade each sample this many times with --paths paths instead: the spread of one estimate, and the "
+                 "shader's standard error against it")
+      ->check(CLI::Range(2, 1024));
   app.add_option("--gouraud", o.gouraudMinReach,
                  "compare linear interpolation of the corners with the centroid instead, on triangles whose centroid "
                  "is this far from a corner");
