@@ -175,31 +175,44 @@ Agreement Compare(const std::multimap<PlaceKey, HeldSample>& moved, const std::m
   float brightest = 0.0f;
   for (const auto& [k, s] : fresh) brightest = std::max(brightest, Luminance(s.radiance));
   const float floor = 0.02f * brightest;
+  const auto relativeDifference = [floor](float la, float lb) {
+    return double(std::abs(la - lb)) / std::max({la, lb, floor});
+  };
   double worstRel = 0.0;
-  for (const auto& [key, s] : moved) {
-    // Two sides of a surface share a place; compare with the closest of the
-    // fresh stack's samples at that place.
-    auto [lo, hi] = fresh.equal_range(key);
-    if (lo == hi) continue;
-    double best = 1e30;
-    float bestFresh = 0.0f;
-    for (auto it = lo; it != hi; ++it) {
-      const float la = Luminance(s.radiance), lb = Luminance(it->second.radiance);
-      const double relative = double(std::abs(la - lb)) / std::max({la, lb, floor});
-      if (relative < best) {
-        best = relative;
-        bestFresh = lb;
+  // Several vertices can share a place (the two sides of a surface; the
+  // faces meeting at a corner, each with its own normal), and the two
+  // stacks need not hold the same ones there (their refinement differs by
+  // noise, and with it which leaves touch a corner). At each place, pair
+  // the two stacks' samples one to one, closest pair first, and compare the
+  // pairs; a sample left without a partner has nothing to be compared with.
+  for (auto it = moved.begin(); it != moved.end(); it = moved.upper_bound(it->first)) {
+    const PlaceKey& key = it->first;
+    auto [mlo, mhi] = moved.equal_range(key);
+    auto [flo, fhi] = fresh.equal_range(key);
+    std::vector<float> ms, fs;
+    for (auto m = mlo; m != mhi; ++m) ms.push_back(Luminance(m->second.radiance));
+    for (auto f = flo; f != fhi; ++f) fs.push_back(Luminance(f->second.radiance));
+    while (!ms.empty() && !fs.empty()) {
+      size_t bi = 0, bj = 0;
+      for (size_t i = 0; i < ms.size(); ++i)
+        for (size_t j = 0; j < fs.size(); ++j)
+          if (relativeDifference(ms[i], fs[j]) < relativeDifference(ms[bi], fs[bj])) {
+            bi = i;
+            bj = j;
+          }
+      const double best = relativeDifference(ms[bi], fs[bj]);
+      ++a.compared;
+      a.meanRelative += best;
+      if (best > 0.21) ++a.outside;
+      if (best > worstRel) {
+        worstRel = best;
+        a.worst = fmt::format("object {} at ({:.4f}, {:.4f}, {:.4f}): relative difference {:.3f} (luminance {:.4g} "
+                              "against {:.4g} fresh, floor {:.4g})",
+                              key.object, double(key.position[0]) * 1e-4, double(key.position[1]) * 1e-4,
+                              double(key.position[2]) * 1e-4, best, ms[bi], fs[bj], floor);
       }
-    }
-    ++a.compared;
-    a.meanRelative += best;
-    if (best > 0.21) ++a.outside;
-    if (best > worstRel) {
-      worstRel = best;
-      a.worst = fmt::format("object {} at ({:.4f}, {:.4f}, {:.4f}): relative difference {:.3f} (luminance {:.4g} "
-                            "against {:.4g} fresh, floor {:.4g})",
-                            key.object, double(key.position[0]) * 1e-4, double(key.position[1]) * 1e-4,
-                            double(key.position[2]) * 1e-4, best, Luminance(s.radiance), bestFresh, floor);
+      ms.erase(ms.begin() + ptrdiff_t(bi));
+      fs.erase(fs.begin() + ptrdiff_t(bj));
     }
   }
   if (a.compared > 0) a.meanRelative /= double(a.compared);

@@ -41,7 +41,7 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0, 1 << 20))->capture_default_str();
   app.add_option("--target-error", shading.targetRelativeError,
                  "Adaptive sampling: relative standard error of a sample's irradiance to stop at")
-      ->check(CLI::Range(0.001f, 1.0f))->capture_default_str();
+      ->check(CLI::Range(1e-6f, 1.0f))->capture_default_str();
   app.add_option("--max-bounces", shading.maxBounces,
                  "Most surfaces a path reflects from after the first (0: direct light only); Russian roulette ends "
                  "paths long before the default cap, so the default is unbiased")
