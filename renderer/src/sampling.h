@@ -98,6 +98,74 @@ std::vector<Vec2> Stratified2D(int n, Rng& rng) {
   return points;
 }
 
+/// `n` points of the unit square for an estimate whose variance is then
+/// estimated from them (JitteredSumVariance): one uniform in each cell of the
+/// largest g x g grid with g^2 <= n, in row-major cell order (cell i at
+/// column i % g, row i / g), then n - g^2 uniform anywhere. `*cells` = g^2.
+template <typename Rng>
+std::vector<Vec2> JitteredGrid(int n, Rng& rng, int* cells) {
+  std::vector<Vec2> points(size_t(std::max(n, 0)));
+  const int g = int(std::sqrt(double(std::max(n, 0))));
+  *cells = g * g;
+  for (size_t i = 0; i < points.size(); ++i) {
+    const float u = rng.NextFloat(), v = rng.NextFloat();
+    points[i] = int(i) < g * g ? Vec2(std::min((float(int(i) % g) + u) / float(g), 0x1.fffffep-1f),
+                                      std::min((float(int(i) / g) + v) / float(g), 0x1.fffffep-1f))
+                               : Vec2(u, v);
+  }
+  return points;
+}
+
+/// Variance of the sum of `values`, where values[i] is an estimate drawn at
+/// JitteredGrid's point i and `cells` is its grid's size. The spread of
+/// independent samples would overstate it many times over for a smooth
+/// integrand: stratification removes what varies from cell to cell, and only
+/// the variation within each cell is left. That is estimated along each row
+/// of the grid from second differences of neighbouring cells,
+/// f_i - 2 f_i+1 + f_i+2: their square's expectation is the three cells'
+/// variances (1 + 4 + 1 of them) plus the square of the integrand's
+/// curvature across them -- a trend along the row cancels, and rows differ
+/// freely --, so it errs on the safe side only where the integrand bends
+/// from one cell to the next. Grids of two cells a side pair the cells
+/// instead ((f_2j - f_2j+1)^2: the pair's variances plus the square of their
+/// means' difference). The points outside the grid count as independent
+/// samples, with the spread of all the values. 0 for fewer than two values.
+inline double JitteredSumVariance(std::span<const double> values, int cells) {
+  const size_t n = values.size();
+  if (n < 2) return 0.0;
+  const size_t side = size_t(std::sqrt(double(std::max(cells, 0)) + 0.5));
+  const size_t inGrid = std::min(side * side, n);
+  double variance = 0.0;
+  size_t covered = 0;  // grid cells whose variance is estimated above
+  if (side >= 3 && inGrid == side * side) {
+    double squares = 0.0;
+    size_t count = 0;
+    for (size_t row = 0; row < side; ++row)
+      for (size_t i = row * side; i + 2 < (row + 1) * side; ++i) {
+        const double d = values[i] - 2.0 * values[i + 1] + values[i + 2];
+        squares += d * d;
+        ++count;
+      }
+    variance += double(inGrid) * squares / (6.0 * double(count));
+    covered = inGrid;
+  } else {
+    covered = inGrid / 2 * 2;
+    for (size_t i = 0; i < covered; i += 2) {
+      const double d = values[i] - values[i + 1];
+      variance += d * d;
+    }
+  }
+  if (covered < n) {
+    double mean = 0.0;
+    for (double v : values) mean += v;
+    mean /= double(n);
+    double squares = 0.0;
+    for (double v : values) squares += (v - mean) * (v - mean);
+    variance += double(n - covered) * squares / double(n - 1);
+  }
+  return variance;
+}
+
 /// Barycentrics (b1, b2) of a point uniform in area on a triangle.
 inline Vec2 UniformTriangle(float u1, float u2) {
   const float s = std::sqrt(u1);

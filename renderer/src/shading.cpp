@@ -141,11 +141,22 @@ struct Shader::Impl {
   };
   Incident IncidentRadiance(const PosedRayScene& at, const Vec3& origin, const Vec3& direction, Pcg32& rng,
                             ShadeCounters& counters) const;
+  // The numbers a path draws at its first vertex, given from outside so
+  // that the paths of one estimate can be stratified (Shade): the direction
+  // it leaves in (cosine-weighted), the sun's direction in its cone, and the
+  // area light and the point on it.
+  struct FirstVertexNumbers {
+    Vec2 direction{0.0f};
+    Vec2 inSunCone{0.0f};
+    float lightChoice = 0.0f;
+    Vec2 onLight{0.0f};
+  };
   // Irradiance estimate of one path from `start`.
   // `firstSegment` > 0: the path continues one that already has that many
   // segments (the caps on segments and Russian roulette count them).
+  // `first`: the numbers of its first vertex (else drawn from `rng`).
   Rgb TracePath(const PosedRayScene& at, const PathVertex& start, Pcg32& rng, ShadeCounters& counters,
-                int firstSegment = 0) const;
+                int firstSegment = 0, const FirstVertexNumbers* first = nullptr) const;
   // Next-event estimates at `v` (throughput not applied), one shadow ray
   // each; the area light's MIS-weighted against cosine sampling.
   // (The point on the light and the sun's direction take their two numbers
@@ -243,16 +254,32 @@ Shader::Impl::Impl(const Scene& s, const RayScene& r, ShadingSettings ss)
 }
 
 Rgb Shader::Impl::TracePath(const PosedRayScene& at, const PathVertex& start, Pcg32& rng,
-                            ShadeCounters& counters, int firstSegment) const {
+                            ShadeCounters& counters, int firstSegment, const FirstVertexNumbers* first) const {
   PathVertex v = start;
   Rgb throughput(1.0f);
   Rgb irradiance(0.0f);
   const int maxSegments = settings.MaxSegments();
   for (int depth = firstSegment; depth < maxSegments; ++depth) {
-    if (!lights.empty()) irradiance += throughput * SampleAreaLight(at, v, rng, counters);
-    if (scene.sun) irradiance += throughput * SampleSun(at, v, rng, counters);
+    const bool given = first != nullptr && depth == firstSegment;
+    if (!lights.empty())
+      irradiance += throughput * (given ? SampleAreaLight(at, v,
+                                                          {first->lightChoice, rng.NextFloat(), first->onLight.x,
+                                                           first->onLight.y},
+                                                          counters)
+                                        : SampleAreaLight(at, v, rng, counters));
+    if (scene.sun)
+      irradiance += throughput * (given ? SampleSun(at, v, first->inSunCone, counters) : SampleSun(at, v, rng, counters));
 
-    const Vec3 local = sampling::CosineHemisphere(rng.NextFloat(), rng.NextFloat());
+    Vec3 local;
+    if (given) {
+      local = sampling::CosineHemisphere(first->direction.x, first->direction.y);
+    } else {
+      // (The second number first: the order GCC evaluated the call's
+      // arguments in when they were draws, kept so that paths past the
+      // first vertex trace what they always have.)
+      const float u2 = rng.NextFloat(), u1 = rng.NextFloat();
+      local = sampling::CosineHemisphere(u1, u2);
+    }
     const Vec3 direction = v.frame.ToWorld(local);
     if (glm::dot(direction, v.geometricNormal) <= 0.0f) break;  // into the surface itself
     ++counters.rays;
@@ -720,32 +747,53 @@ ShadeOutput Shader::Shade(const PosedRayScene& posed, const ShadeInput& in, int 
   bool frontSide = true;
   const PathVertex start = s.SampleStart(at, in, rng, work, &frontSide);
   Rgb sum(0.0f);
-  double luminanceSquares = 0.0;
   int traced = 0;
+  // Variance of the sum of the paths' luminances, block by block.
+  double sumVariance = 0.0;
   // The luminance of E's standard error after `traced` paths (0 for one path).
-  const auto standardError = [&] {
-    if (traced < 2) return 0.0;
-    const double mean = Luminance(sum) / traced;
-    const double variance = std::max(0.0, (luminanceSquares / traced - mean * mean) * traced / (traced - 1));
-    return std::sqrt(variance / traced);
-  };
+  const auto standardError = [&] { return traced < 2 ? 0.0 : std::sqrt(sumVariance) / traced; };
   const int round = std::max(pathCount, 16);
   const int maxPaths = std::max(pathCount, s.settings.maxPathsPerSample);
   bool abandoned = false;
+  std::vector<double> blockLuminance;
   for (int target = pathCount; traced < target;) {
-    for (; traced < target; ++traced) {
+    // The block's paths leave in stratified directions and take stratified
+    // light and sun samples at the sample itself: where a surface sees a
+    // bright patch or a window through a small part of its hemisphere, or
+    // part of a light, the number of paths that find it no longer varies by
+    // chance, only where in its cells they land. Each block (the asked
+    // paths, then every adaptive round) is stratified on its own and its
+    // variance estimated from neighbouring cells (JitteredSumVariance);
+    // blocks are independent. Path k takes cell k of each grid -- the
+    // direction, the sun's cone, the point on the light --, so that its
+    // neighbours in the grid are its neighbours in all three and the
+    // variance estimate sees each one's stratification. That is unbiased
+    // because the three enter the path's estimate as separate terms (the
+    // sun's, the light's, and what the direction finds), each a function of
+    // its own numbers alone, each uniform; the light is chosen with numbers
+    // of their own (a separate stratification, shuffled), independent of
+    // the point on it.
+    const int block = target - traced;
+    int cells = 0;
+    const std::vector<Vec2> directions = sampling::JitteredGrid(block, rng, &cells);
+    const std::vector<Vec2> inSunCone = sampling::JitteredGrid(block, rng, &cells);
+    const std::vector<Vec2> onLight = sampling::JitteredGrid(block, rng, &cells);
+    const std::vector<float> lightChoice = sampling::Stratified1D(block, rng);
+    blockLuminance.clear();
+    for (size_t k = 0; traced < target; ++traced, ++k) {
       // Every 32 paths: cheap, and a shutdown need not wait for a sample of
       // thousands of paths. The caller drops an abandoned result.
       if (cancel && traced % 32 == 31 && cancel->load(std::memory_order_relaxed)) {
         abandoned = true;
         break;
       }
-      const Rgb estimate = s.TracePath(at, start, rng, work);
+      const Impl::FirstVertexNumbers first{directions[k], inSunCone[k], lightChoice[k], onLight[k]};
+      const Rgb estimate = s.TracePath(at, start, rng, work, 0, &first);
       sum += estimate;
-      const double l = Luminance(estimate);
-      luminanceSquares += l * l;
+      blockLuminance.push_back(Luminance(estimate));
     }
     if (abandoned) break;
+    sumVariance += sampling::JitteredSumVariance(blockLuminance, cells);
     // Adaptive sampling: another round while the estimate is too uncertain.
     // Paths that all found nothing do not show that there is nothing to
     // find (a dim corner lit through one narrow gap reads 0 in most sets of

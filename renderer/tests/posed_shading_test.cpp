@@ -271,13 +271,15 @@ TEST(ChangeThroughTest, AnOccluderMovedUnderASkyChangesTheSkyItCoversAndUncovers
                                                             1 << 16, nullptr)),
                      Rgb(float(exact)), 0.05f, 4.0f));
   // Independent full shadings at each pose with as many paths measure the
-  // same change with over three times its noise (3.3x): the hemisphere's
-  // paths mostly miss the region (the squares' 0.3 sr of the hemisphere's
-  // 2 pi; the smaller the region, the larger the gain).
+  // same change with more noise: the hemisphere's paths mostly miss the
+  // region (the squares' 0.3 sr of the hemisphere's 2 pi; the smaller the
+  // region, the larger the gain). 1.8x here against the change's reported
+  // error, which overstates its noise (stratified paths, an independent
+  // samples' spread); 3.3x before full shadings stratified their paths too.
   const Estimate full0 = EstimateAt(shader, *t.rays->Initial(), atOrigin, 16, 256);
   const Estimate full1 = EstimateAt(shader, *posed, atOrigin, 16, 256);
   const float fullChangeError = std::hypot(full0.standardError.r, full1.standardError.r);
-  EXPECT_GT(fullChangeError, 2.5f * c.standardError);
+  EXPECT_GT(fullChangeError, 1.5f * c.standardError);
 }
 
 // Common random numbers: at the same pose every path is traced identically

@@ -132,6 +132,65 @@ TEST(SamplingTest, StratifiedSamplesFillEveryStratumOnce) {
   EXPECT_EQ(extra, 4);
 }
 
+// JitteredGrid: point i in cell (i % g, i / g) of the g x g grid, the rest
+// anywhere.
+TEST(SamplingTest, JitteredGridFillsItsCellsInRowMajorOrder) {
+  Pcg32 rng(4, 1);
+  int cells = 0;
+  const std::vector<Vec2> points = JitteredGrid(70, rng, &cells);  // an 8 x 8 grid and 6 more
+  ASSERT_EQ(points.size(), 70u);
+  ASSERT_EQ(cells, 64);
+  for (int i = 0; i < 70; ++i) {
+    const Vec2 p = points[size_t(i)];
+    ASSERT_TRUE(p.x >= 0.0f && p.x < 1.0f && p.y >= 0.0f && p.y < 1.0f);
+    if (i < 64) {
+      EXPECT_EQ(int(p.x * 8.0f), i % 8) << i;
+      EXPECT_EQ(int(p.y * 8.0f), i / 8) << i;
+    }
+  }
+}
+
+// The variance JitteredSumVariance estimates is the sum's over many draws:
+// about right for a smooth integrand (a tilted plane plus a bump), and not
+// below it for a discontinuous one (a disc's indicator, whose edge cells
+// carry all the variance) -- where an independent samples' spread would
+// overstate the smooth one's many times over.
+TEST(SamplingTest, JitteredSumVarianceEstimatesTheStratifiedSumsSpread) {
+  const auto smooth = [](Vec2 p) { return 1.0 + 0.8 * p.x - 0.5 * p.y + 0.3 * std::sin(6.0 * p.x); };
+  const auto disc = [](Vec2 p) { return (p.x - 0.4) * (p.x - 0.4) + (p.y - 0.55) * (p.y - 0.55) < 0.09 ? 1.0 : 0.0; };
+  for (int n : {8, 16, 64, 70}) {
+    for (int which = 0; which < 2; ++which) {
+      Pcg32 rng(11, uint64_t(n * 2 + which));
+      constexpr int kDraws = 4000;
+      double sum = 0.0, squares = 0.0, estimated = 0.0, independent = 0.0;
+      for (int d = 0; d < kDraws; ++d) {
+        int cells = 0;
+        const std::vector<Vec2> points = JitteredGrid(n, rng, &cells);
+        std::vector<double> values;
+        for (const Vec2& p : points) values.push_back(which == 0 ? smooth(p) : disc(p));
+        double total = 0.0, totalSquares = 0.0;
+        for (double v : values) {
+          total += v;
+          totalSquares += v * v;
+        }
+        sum += total;
+        squares += total * total;
+        estimated += JitteredSumVariance(values, cells);
+        independent += (totalSquares - total * total / n) * n / (n - 1);
+      }
+      const double actual = squares / kDraws - (sum / kDraws) * (sum / kDraws);
+      const double ratio = estimated / kDraws / actual;
+      SCOPED_TRACE(::testing::Message() << "n " << n << (which == 0 ? ", smooth" : ", disc") << ": estimated / actual "
+                                        << ratio << ", independent samples' / actual " << independent / kDraws / actual);
+      EXPECT_GT(ratio, 0.85);
+      EXPECT_LT(ratio, which == 0 && n >= 64 ? 1.6 : 3.0);
+      if (which == 0 && n == 64) {
+        EXPECT_GT(independent / kDraws / actual, 10.0);
+      }
+    }
+  }
+}
+
 TEST(SamplingTest, AliasTableDrawsInProportionToWeights) {
   const std::vector<double> weights = {1.0, 0.0, 3.0, 0.5, 10.0, 2.5, 0.0, 7.0};
   double sum = 0.0;

@@ -125,9 +125,12 @@ struct ShadeInput {
 struct ShadeOutput {
   Rgb radiance{0.0f};    // L_out: emitted + reflected, linear RGB
   Rgb irradiance{0.0f};  // E, linear RGB
-  /// Standard error of Luminance(irradiance), from the spread of the paths'
-  /// estimates: how far this sample may be from the true value by noise
-  /// alone (0 when every path agrees, e.g. an unoccluded uniform sky).
+  /// Standard error of Luminance(irradiance): how far this sample may be
+  /// from the true value by noise alone (0 when every path agrees, e.g. an
+  /// unoccluded uniform sky). The paths are stratified at their first vertex
+  /// (direction, sun, point on the light; Shade's comment), so it comes from
+  /// the differences of neighbouring strata, not the paths' plain spread,
+  /// which would overstate it.
   float irradianceStdErr = 0.0f;
   uint32_t paths = 0;  // paths averaged (adaptive sampling may trace more than asked)
 };
