@@ -82,22 +82,6 @@ std::vector<float> Stratified1D(int n, Rng& rng) {
   return values;
 }
 
-/// `n` points of the unit square: one uniform in each cell of the largest
-/// g x g grid with g^2 <= n, the rest uniform anywhere, in random order.
-template <typename Rng>
-std::vector<Vec2> Stratified2D(int n, Rng& rng) {
-  std::vector<Vec2> points(size_t(std::max(n, 0)));
-  const int g = int(std::sqrt(double(std::max(n, 0))));
-  for (size_t i = 0; i < points.size(); ++i) {
-    const float u = rng.NextFloat(), v = rng.NextFloat();
-    points[i] = int(i) < g * g ? Vec2(std::min((float(int(i) % g) + u) / float(g), 0x1.fffffep-1f),
-                                      std::min((float(int(i) / g) + v) / float(g), 0x1.fffffep-1f))
-                               : Vec2(u, v);
-  }
-  for (size_t i = points.size(); i > 1; --i) std::swap(points[i - 1], points[rng.NextBelow(uint32_t(i))]);
-  return points;
-}
-
 /// `n` points of the unit square for an estimate whose variance is then
 /// estimated from them (JitteredSumVariance): one uniform in each cell of the
 /// largest g x g grid with g^2 <= n, in row-major cell order (cell i at
@@ -113,6 +97,17 @@ std::vector<Vec2> JitteredGrid(int n, Rng& rng, int* cells) {
                                       std::min((float(int(i) / g) + v) / float(g), 0x1.fffffep-1f))
                                : Vec2(u, v);
   }
+  return points;
+}
+
+/// `n` points of the unit square: one uniform in each cell of the largest
+/// g x g grid with g^2 <= n, the rest uniform anywhere, in random order
+/// (JitteredGrid's points, shuffled).
+template <typename Rng>
+std::vector<Vec2> Stratified2D(int n, Rng& rng) {
+  int cells = 0;
+  std::vector<Vec2> points = JitteredGrid(n, rng, &cells);
+  for (size_t i = points.size(); i > 1; --i) std::swap(points[i - 1], points[rng.NextBelow(uint32_t(i))]);
   return points;
 }
 
