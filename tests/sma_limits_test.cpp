@@ -518,9 +518,11 @@ class NonReadingClient {
 TEST(SmaNonReadingClientTest, ClientsThatNeverReadCostTheSmaLittle) {
   Service renderer = StartRenderer(kCornell, "noread-renderer");
   // Fine refinement and no improvement: a large mesh, soon in the cache.
+  // No lingering: each turn must be a large delta (below), not a view the
+  // client still holds.
   Service sma = StartSma(kCornell, renderer, "noread-sma",
                          {"--criterion", "nld_os", "--min-pixels", "1", "--s-req", "0.01", "--improve-paths", "0",
-                          "--client-queue-bytes", "65536"});
+                          "--client-queue-bytes", "65536", "--client-linger-triangles", "0"});
   auto normal = SmaTestClient::Connect(sma.port, "normal");
   ASSERT_TRUE(normal.ok());
   // A refined view of the box, in the cache before the clients that never

@@ -7,6 +7,7 @@
 #include <fstream>
 #include <signal.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cstdio>
 #include <functional>
@@ -53,9 +54,13 @@ Service StartRenderer(const std::string& tag, int pathsPerSample = 16, const std
 // held triangles with base-triangle visibility.
 Service StartSma(const std::vector<std::string>& renderers, const std::string& tag,
                  const std::vector<std::string>& extra = {}, const std::string& criterion = "none") {
+  // The paper's eager removal (the held set is the visible set), unless a
+  // test asks for lingering (SmaLingeringTest).
   std::vector<std::string> args = {"--scene", kScene, "--criterion", criterion};
   for (const auto& r : renderers) args.insert(args.end(), {"--renderer", r});
   args.insert(args.end(), extra.begin(), extra.end());
+  if (std::find(extra.begin(), extra.end(), "--client-linger-triangles") == extra.end())
+    args.insert(args.end(), {"--client-linger-triangles", "0"});
   return MustStart(PENUMBRA_SMA_EXE, args, tag);
 }
 
@@ -553,6 +558,51 @@ INSTANTIATE_TEST_SUITE_P(Criteria, SmaSlowClientTest, ::testing::Values("nld_os"
                          [](const ::testing::TestParamInfo<const char*>& criterion) {
                            return std::string(criterion.param);
                          });
+
+// Lingering (sma/README.md): triangles that leave a client's view stay
+// with it, within a budget, so turning back to a view it saw needs nothing
+// sent -- the picture is there in the first frame -- while everything the
+// view sees is held, as ever.
+TEST(SmaLingeringTest, TurningBackToAViewSendsNoTriangle) {
+  auto scene = LoadScene(kScene);
+  ASSERT_TRUE(scene.ok());
+  Service renderer = StartRenderer("linger-r");
+  Service sma = StartSma({renderer.Address()}, "linger-sma", {"--client-linger-triangles", "100000"});
+  auto c = SmaTestClient::Connect(sma.port);
+  ASSERT_TRUE(c.ok()) << c.error().message;
+  const CameraView front = FrontView(*c, kWidth, kHeight);
+  CameraView corner;  // from inside the box toward one corner: a few walls only
+  corner.pose = CameraPose{Vec3(0.0f, 1.0f, 0.5f), Vec3(-1.0f, 0.3f, -1.0f), Vec3(0, 1, 0)};
+  corner.fovYDeg = 40.0f;
+  corner.width = kWidth;
+  corner.height = kHeight;
+
+  ASSERT_TRUE(c->SendView(front, 1));
+  ASSERT_TRUE(c->WaitConverged(1).ok()) << sma.process.LogTail();
+  const std::set<uint64_t> seenFromFront = c->Mesh().TriangleIds();
+  ASSERT_TRUE(c->SendView(corner, 2));
+  ASSERT_TRUE(c->WaitConverged(2).ok()) << sma.process.LogTail();
+  const std::set<uint64_t> heldInTheCorner = c->Mesh().TriangleIds();
+  EXPECT_TRUE(std::includes(heldInTheCorner.begin(), heldInTheCorner.end(), seenFromFront.begin(), seenFromFront.end()))
+      << "what the front view showed left the client";
+  const BruteVisibility inTheCorner = BruteForceVisibleTriangles(*scene, corner);
+  for (uint32_t t : inTheCorner.certain)
+    EXPECT_TRUE(heldInTheCorner.contains(t)) << "visible triangle " << t << " not held";
+  size_t lingering = 0;  // held, not seen from the corner: without lingering, removed and sent again
+  for (uint64_t t : seenFromFront)
+    lingering += !inTheCorner.certain.contains(uint32_t(t)) && !inTheCorner.ties.contains(uint32_t(t));
+  EXPECT_GT(lingering, 0u);
+
+  const size_t logBefore = c->Log().size();
+  ASSERT_TRUE(c->SendView(front, 3));
+  ASSERT_TRUE(c->WaitConverged(3).ok()) << sma.process.LogTail();
+  size_t added = 0;
+  for (size_t i = logBefore; i < c->Log().size(); ++i) added += size_t(c->Log()[i].added);
+  EXPECT_EQ(added, 0u) << "turning back had to send triangles";
+  for (uint32_t t : BruteForceVisibleTriangles(*scene, front).certain)
+    EXPECT_TRUE(c->Mesh().TriangleIds().contains(t)) << "visible triangle " << t << " not held";
+  ASSERT_TRUE(sma.process.Running()) << sma.process.LogTail();
+}
 
 TEST(SmaRendererFailureTest, KillingOneOfTwoRenderersLosesNoSample) {
   auto scene = LoadScene(kScene);

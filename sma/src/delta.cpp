@@ -30,6 +30,7 @@ size_t ClientMirror::AppendChanges(std::span<const NodeId> removals, std::span<c
                                    const Hierarchy& hierarchy, const SampleCache& cache, wire::Delta& delta) {
   for (NodeId id : removals) {
     if (held_.erase(id) == 0) continue;
+    lingering_.erase(id);
     delta.add_removed_triangles(id);
     for (VertexId v : hierarchy.GetNode(id).v) {
       auto it = vertexRefs_.find(v);
@@ -93,16 +94,33 @@ size_t ClientMirror::AppendUpdates(std::span<const VertexId> vertices, const Sam
   return n;
 }
 
-size_t ClientMirror::MemoryBytes() const { return UnorderedMapBytes(held_) + UnorderedMapBytes(vertexRefs_); }
+void ClientMirror::SetLingering(std::span<const NodeId> nodes) {
+  // In place: from one plan to the next most of what lingers stays (a
+  // re-map of a resting view changes none of it), and this runs per plan.
+  PENUMBRA_CHECK(std::is_sorted(nodes.begin(), nodes.end()), "ClientMirror::SetLingering: nodes must be sorted");
+  std::erase_if(lingering_, [&](const auto& entry) {
+    return !std::binary_search(nodes.begin(), nodes.end(), entry.first);  // back in view, or removed
+  });
+  for (NodeId id : nodes) {
+    PENUMBRA_CHECK(held_.contains(id), "ClientMirror::SetLingering: a lingering node must be held");
+    lingering_.try_emplace(id, plans_);
+  }
+  ++plans_;
+}
+
+size_t ClientMirror::MemoryBytes() const {
+  return UnorderedMapBytes(held_) + UnorderedMapBytes(vertexRefs_) + UnorderedMapBytes(lingering_);
+}
 
 void ClientMirror::Clear() {
   // Assigned, not clear()ed: clear() keeps the bucket arrays.
   held_ = {};
   vertexRefs_ = {};
+  lingering_ = {};
 }
 
 ViewPlan PlanView(const VisibleSet& visible, const ClientMirror& mirror, const Hierarchy& hierarchy,
-                  const SampleCache& cache) {
+                  const SampleCache& cache, size_t lingerTriangles) {
   // Every client's refresh plans on its strand (an I/O thread), up to ten
   // times a second while anyone refines: sorted vectors and binary searches,
   // no hash sets of the ~10^4 visible and held nodes built per call.
@@ -145,12 +163,54 @@ ViewPlan PlanView(const VisibleSet& visible, const ClientMirror& mirror, const H
       if (in(gone, p)) replaced.push_back(p);
   std::sort(replaced.begin(), replaced.end());
   replaced.erase(std::unique(replaced.begin(), replaced.end()), replaced.end());
+  std::vector<NodeId> unreplaced;
   for (NodeId g : gone) {
     bool isReplaced = in(replaced, g);
     for (NodeId p = hierarchy.GetNode(g).parent; p != kNoNode && !isReplaced; p = hierarchy.GetNode(p).parent)
       isReplaced = in(plan.addCached, p);  // a coarser addition covers it
-    (isReplaced ? plan.removeReplaced : plan.removeGone).push_back(g);  // in increasing order
+    (isReplaced ? plan.removeReplaced : unreplaced).push_back(g);  // in increasing order
   }
+  if (lingerTriangles == 0 || unreplaced.empty()) {
+    plan.removeGone = std::move(unreplaced);
+    return plan;
+  }
+
+  // Lingering (the header's rule). Held nodes are disjoint, so an unreplaced
+  // gone node can overlap only a pending node (an ancestor or descendant of
+  // it), or the other side of a base triangle the view sees.
+  // (A re-map of a resting view has nothing pending: no walks then.)
+  std::vector<NodeId> pendingAncestors;
+  for (NodeId a : plan.pending)
+    for (NodeId p = hierarchy.GetNode(a).parent; p != kNoNode; p = hierarchy.GetNode(p).parent)
+      pendingAncestors.push_back(p);
+  std::sort(pendingAncestors.begin(), pendingAncestors.end());
+  const auto sideKey = [](const Node& n) { return uint64_t(n.baseTriangle) << 1 | uint64_t(n.back); };
+  std::vector<uint64_t> visibleSides;
+  visibleSides.reserve(visible.nodes.size());
+  for (NodeId id : visible.nodes) visibleSides.push_back(sideKey(hierarchy.GetNode(id)));
+  std::sort(visibleSides.begin(), visibleSides.end());
+  std::vector<NodeId> candidates;
+  for (NodeId g : unreplaced) {
+    const Node& node = hierarchy.GetNode(g);
+    bool overlaps = std::binary_search(pendingAncestors.begin(), pendingAncestors.end(), g) ||
+                    std::binary_search(visibleSides.begin(), visibleSides.end(), sideKey(node) ^ 1);
+    for (NodeId p = node.parent; p != kNoNode && !overlaps && !plan.pending.empty(); p = hierarchy.GetNode(p).parent)
+      overlaps = in(plan.pending, p);
+    (overlaps ? plan.removeGone : candidates).push_back(g);
+  }
+  if (candidates.size() > lingerTriangles) {
+    // The most recently seen stay; ties (left in the same plan) by id, so
+    // the choice does not depend on hash order.
+    std::sort(candidates.begin(), candidates.end(), [&](NodeId a, NodeId b) {
+      const uint64_t ta = mirror.LeftViewAt(a), tb = mirror.LeftViewAt(b);
+      return ta != tb ? ta > tb : a < b;
+    });
+    plan.removeGone.insert(plan.removeGone.end(), candidates.begin() + lingerTriangles, candidates.end());
+    candidates.resize(lingerTriangles);
+    std::sort(plan.removeGone.begin(), plan.removeGone.end());
+    std::sort(candidates.begin(), candidates.end());
+  }
+  plan.linger = std::move(candidates);
   return plan;
 }
 

@@ -148,6 +148,13 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(1u, 20u))->capture_default_str();
   app.add_option("--client-max-refine-batch", clientLimits.maxBatch, "Largest R (leaves per step) a client may ask for")
       ->check(CLI::Range(1u, 1000000u))->capture_default_str();
+  auto* lingerOption =
+      app.add_option("--client-linger-triangles", options.clientLingerTriangles,
+                     "Triangles a client keeps, drawn under the depth test, after they leave its view -- the most "
+                     "recently seen -- so that turning back shows them at once (0: removed as they leave; with "
+                     "--memory-budget 0 unless given: the collector cannot take what a client holds)")
+          ->check(CLI::Range(size_t(0), size_t(1) << 24))
+          ->capture_default_str();
   app.add_option("--client-max-refinement-samples", clientLimits.maxSamplesPerView,
                  "New vertices one client's refinement may create for one view; then its refinement ends")
       ->check(CLI::Range(uint64_t(0), uint64_t(1) << 32))->capture_default_str();
@@ -214,6 +221,9 @@ int main(int argc, char** argv) {
   options.predictionOn = prediction == "on";
   options.movePrediction = movePrediction == "on";
   options.prediction.horizon = std::chrono::duration<double>(predictionHorizon);
+  // A memory budget comes first: held triangles cannot be collected, and
+  // lingering ones are held for nothing but a faster return.
+  if (options.memoryBudgetBytes > 0 && lingerOption->count() == 0) options.clientLingerTriangles = 0;
 
   if (auto failed = serverMain.Setup()) return *failed;
   if (maxDepthAlias->count() > 0)

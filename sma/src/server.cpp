@@ -1024,7 +1024,7 @@ void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
     return;
   }
   visibleApplied_ = false;
-  ViewPlan plan = PlanView(*visible_, mirror_, server.hierarchy_, server.cache_);
+  ViewPlan plan = PlanView(*visible_, mirror_, server.hierarchy_, server.cache_, server.options_.clientLingerTriangles);
 
   // Ask for what is missing before letting go of the old interest, so a
   // vertex both views need is never demoted in between. Requests are made
@@ -1062,6 +1062,7 @@ void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
     removals.insert(removals.end(), plan.removeGone.begin(), plan.removeGone.end());
     QueueChanges(wire::DELTA_KIND_REFINED, removals, plan.addCached, /*alwaysSend=*/false, /*last=*/true);
   }
+  mirror_.SetLingering(plan.linger);
   visibleApplied_ = true;
   lock.unlock();
   // Reshades of vertices the client no longer holds are not awaited.
@@ -1472,6 +1473,15 @@ void SmaServer::Impl::Session::OnMoveObject(const wire::MoveObject& move) {
 void SmaServer::Impl::Session::OnMoved(const MoveNotice& notice) {
   if (!state_.Handshook() || !connection_->IsOpen()) return;
   const uint64_t epoch = notice.pose->epoch;
+  // What lingers goes first: its light may have changed, and reshading what
+  // the client does not see would take the renderers from what it does.
+  if (!mirror_.Lingering().empty()) {
+    std::vector<NodeId> lingering;
+    for (const auto& entry : mirror_.Lingering()) lingering.push_back(entry.first);
+    std::sort(lingering.begin(), lingering.end());
+    std::shared_lock lock(server_.stateMutex_);
+    QueueChanges(wire::DELTA_KIND_REMOVED, lingering, {}, /*alwaysSend=*/false, /*last=*/true);
+  }
   // Held vertices the move invalidated (a held vertex was shaded when it
   // was sent, so an unshaded one now was invalidated): asked again with
   // this view's interest and awaited -- where a shadow or lit patch moved

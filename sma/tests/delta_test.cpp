@@ -322,6 +322,128 @@ TEST(PlanViewTest, ParentReplacedByItsChildrenGoesWithThem) {
   EXPECT_EQ(plan.addCached.size(), children.size());
 }
 
+// What a session does with a plan (server.cpp, ApplyVisibility).
+void Apply(const ViewPlan& plan, ClientMirror& mirror, const Hierarchy& h, const SampleCache& cache) {
+  std::vector<NodeId> removals = plan.removeReplaced;
+  removals.insert(removals.end(), plan.removeGone.begin(), plan.removeGone.end());
+  wire::Delta d;
+  mirror.AppendChanges(removals, plan.addCached, h, cache, d);
+  mirror.SetLingering(plan.linger);
+}
+
+// A triangle that leaves the view stays held within the budget, and when
+// the view comes back to it there is nothing to send: it is still there.
+TEST(PlanViewTest, ATriangleThatLeftTheViewLingersAndIsThereOnReturn) {
+  const Scene s = QuadScene();
+  Hierarchy h(s);
+  SampleCache cache;
+  ShadeAll(h, cache);
+  ClientMirror mirror;
+  Apply(PlanView(Visible({0}), mirror, h, cache, /*lingerTriangles=*/1), mirror, h, cache);
+  const ViewPlan away = PlanView(Visible({1}), mirror, h, cache, 1);
+  EXPECT_EQ(away.linger, std::vector<NodeId>{0});
+  EXPECT_TRUE(away.removeGone.empty());
+  EXPECT_EQ(away.addCached, std::vector<NodeId>{1});
+  Apply(away, mirror, h, cache);
+  EXPECT_EQ(mirror.TriangleCount(), 2u);
+  EXPECT_EQ(mirror.Lingering().size(), 1u);
+
+  const ViewPlan back = PlanView(Visible({0}), mirror, h, cache, 1);
+  EXPECT_TRUE(back.addCached.empty());  // shown at once
+  EXPECT_TRUE(back.pending.empty());
+  EXPECT_EQ(back.linger, std::vector<NodeId>{1});
+  Apply(back, mirror, h, cache);
+  EXPECT_FALSE(mirror.Lingering().contains(0));
+  EXPECT_TRUE(mirror.Lingering().contains(1));
+  // Without a budget the paper's eager removal, unchanged.
+  EXPECT_EQ(PlanView(Visible({1}), mirror, h, cache, 0).removeGone, (std::vector<NodeId>{0}));
+}
+
+// Over the budget, the triangles that left the view longest ago go first.
+TEST(PlanViewTest, TheTrianglesThatLeftLongestAgoAreRemovedFirst) {
+  const Scene s = QuadScene();
+  Hierarchy h(s);
+  h.Refine(0, RefineOptions{});
+  SampleCache cache;
+  ShadeAll(h, cache);
+  std::vector<NodeId> leaves;
+  h.ForEachLeaf(kNoNode, [&](NodeId id) { leaves.push_back(id); });
+  ASSERT_GE(leaves.size(), 3u);
+  const NodeId a = leaves[0], b = leaves[1], c = leaves[2];
+  ClientMirror mirror;
+  Apply(PlanView(Visible({a}), mirror, h, cache, 1), mirror, h, cache);
+  Apply(PlanView(Visible({b}), mirror, h, cache, 1), mirror, h, cache);  // a lingers
+  const ViewPlan third = PlanView(Visible({c}), mirror, h, cache, 1);
+  EXPECT_EQ(third.linger, std::vector<NodeId>{b});
+  EXPECT_EQ(third.removeGone, std::vector<NodeId>{a});
+  Apply(third, mirror, h, cache);
+  EXPECT_EQ(mirror.TriangleCount(), 2u);
+  EXPECT_FALSE(mirror.Holds(a));
+}
+
+// A lingering triangle never overlaps what the view needs: not a node
+// whose ancestor or descendant waits for samples (it would show under the
+// same pixels), nor one side of a base triangle whose other side is seen
+// (the same plane: the two would fight in the depth test).
+TEST(PlanViewTest, NothingLingersOverWhatTheViewNeeds) {
+  {
+    const Scene s = QuadScene();
+    Hierarchy h(s);
+    h.Refine(0, RefineOptions{});  // root 0 1 -> 4, root 1 1 -> 2 (the diagonal's midpoint)
+    SampleCache cache;
+    std::vector<ShadedSample> bases;
+    for (VertexId v = 0; v < 4; ++v) bases.push_back(ShadedSample{v, Rgb(1.0f), Rgb(1.0f)});
+    cache.Store(bases);  // the midpoints stay unshaded
+    ClientMirror mirror;
+    Apply(PlanView(Visible({1}), mirror, h, cache, 100), mirror, h, cache);
+    ASSERT_TRUE(mirror.Holds(1));
+    // Root 1's children wait for the midpoint: root 1 may not linger over them.
+    std::vector<NodeId> children;
+    h.ForEachLeaf(1, [&](NodeId id) { children.push_back(id); });
+    ASSERT_EQ(children.size(), 2u);
+    const ViewPlan finer = PlanView(Visible(children), mirror, h, cache, 100);
+    EXPECT_EQ(finer.pending.size(), 2u);
+    EXPECT_EQ(finer.removeGone, std::vector<NodeId>{1});
+    EXPECT_TRUE(finer.linger.empty());
+  }
+  {
+    const Scene s = QuadScene();
+    Hierarchy h(s);
+    h.Refine(0, RefineOptions{});
+    SampleCache cache;
+    ShadeAll(h, cache);
+    std::vector<NodeId> children;
+    h.ForEachLeaf(0, [&](NodeId id) { children.push_back(id); });
+    ClientMirror mirror;
+    Apply(PlanView(Visible({children[0]}), mirror, h, cache, 100), mirror, h, cache);
+    // Its parent is visible again but one of its corners lost its sample: pending.
+    const auto& childCorners = h.GetNode(children[0]).v;
+    for (VertexId v : h.GetNode(0).v)
+      if (std::find(childCorners.begin(), childCorners.end(), v) == childCorners.end()) {
+        ASSERT_TRUE(cache.Evict(v));
+        break;
+      }
+    const ViewPlan coarser = PlanView(Visible({0}), mirror, h, cache, 100);
+    ASSERT_EQ(coarser.pending, std::vector<NodeId>{0});
+    EXPECT_EQ(coarser.removeGone, std::vector<NodeId>{children[0]});
+    EXPECT_TRUE(coarser.linger.empty());
+  }
+  {
+    Scene s = QuadScene();
+    s.twoSided = true;
+    Hierarchy h(s);
+    SampleCache cache;
+    ShadeAll(h, cache);
+    ClientMirror mirror;
+    Apply(PlanView(Visible({0}), mirror, h, cache, 100), mirror, h, cache);
+    const NodeId backOf0 = h.RootOf(0, /*backFace=*/true), backOf1 = h.RootOf(1, true);
+    EXPECT_EQ(PlanView(Visible({backOf1}), mirror, h, cache, 100).linger, std::vector<NodeId>{0});
+    const ViewPlan otherSide = PlanView(Visible({backOf0}), mirror, h, cache, 100);
+    EXPECT_EQ(otherSide.removeGone, std::vector<NodeId>{0});
+    EXPECT_TRUE(otherSide.linger.empty());
+  }
+}
+
 TEST(DeltaWireBytesTest, MatchesTheEncodedEnvelope) {
   wire::Delta d;
   d.set_view_id(3);

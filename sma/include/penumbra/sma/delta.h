@@ -12,6 +12,18 @@
 // PlanView compares a visible set with the mirror and sorts the difference
 // into the paper's three lists: additions found shaded in the cache,
 // removals, and additions that wait for samples.
+//
+// Lingering. The paper removes a triangle the moment it leaves the view; a
+// client that turns back then waits a round trip, a trace and the other
+// clients' jobs for what it showed a second ago (with four clients on two
+// cores the first frame back was 10-34 % off; docs/refinement.md,
+// "Walkthrough"). So a triangle that left the view may stay held -- drawn,
+// hidden by the depth test or outside the frustum -- up to a budget, the
+// ones that left longest ago removed first. A lingering triangle never
+// overlaps one the view needs: not an ancestor or descendant of a visible
+// node (those are replaced or removed as before), nor on the other side of
+// a base triangle the view sees (the two sides share a plane and clients
+// draw both).
 
 #include <cstdint>
 #include <span>
@@ -31,6 +43,17 @@ class ClientMirror {
   bool Holds(NodeId node) const { return held_.contains(node); }
   bool HoldsVertex(VertexId v) const { return vertexRefs_.contains(v); }
   size_t TriangleCount() const { return held_.size(); }
+  /// Held triangles that are not in the view (PlanView's `linger`), each
+  /// with the plan count when it left the view.
+  const std::unordered_map<NodeId, uint64_t>& Lingering() const { return lingering_; }
+  /// When `node` left the view (a plan count), or now if it has not.
+  uint64_t LeftViewAt(NodeId node) const {
+    auto it = lingering_.find(node);
+    return it == lingering_.end() ? plans_ : it->second;
+  }
+  /// Records the nodes that linger after the plan just applied (held, not
+  /// visible: `ViewPlan::linger`); every other held node is in the view.
+  void SetLingering(std::span<const NodeId> nodes);
   size_t VertexCount() const { return vertexRefs_.size(); }
   const std::unordered_set<NodeId>& Held() const { return held_; }
   /// Calls f(vertex) for every vertex the client holds.
@@ -67,20 +90,25 @@ class ClientMirror {
  private:
   std::unordered_set<NodeId> held_;
   std::unordered_map<VertexId, uint32_t> vertexRefs_;
+  std::unordered_map<NodeId, uint64_t> lingering_;  // a subset of held_
+  uint64_t plans_ = 0;                              // SetLingering calls
 };
 
 struct ViewPlan {
   std::vector<NodeId> addCached;       // (a) visible, all corners shaded, not held
   std::vector<NodeId> removeReplaced;  // held, not visible, overlapping an addition (sent with it)
-  std::vector<NodeId> removeGone;      // (b) held, not visible, nothing replaces it now
+  std::vector<NodeId> removeGone;      // (b) held, not visible, nothing replaces it now, not lingering
+  std::vector<NodeId> linger;          // held, not visible, kept (ClientMirror "Lingering")
   std::vector<NodeId> pending;         // (c) visible, not held, some corner unshaded
   std::vector<VertexId> missing;       // the unshaded corners of `pending`, each once
 };
 
-/// Plans the change from what `mirror` holds to `visible`. Also counts cache
+/// Plans the change from what `mirror` holds to `visible`, letting at most
+/// `lingerTriangles` held triangles that left the view stay (the most
+/// recently seen first; 0: the paper's eager removal). Also counts cache
 /// hits and misses (a visible node's corners) in `cache`.
 ViewPlan PlanView(const VisibleSet& visible, const ClientMirror& mirror, const Hierarchy& hierarchy,
-                  const SampleCache& cache);
+                  const SampleCache& cache, size_t lingerTriangles = 0);
 
 /// Bytes a delta takes on the wire (its encoded frame, header included).
 size_t DeltaWireBytes(const wire::Delta& delta);

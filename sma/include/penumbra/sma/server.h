@@ -89,6 +89,12 @@ struct SmaOptions {
   int viewThreads = 2;                 // visibility jobs in parallel (each also uses TBB inside)
   size_t clientSoftQueueBytes = size_t(4) << 20;  // beyond this, a client's deltas are coalesced
   uint32_t maxTrianglesPerDelta = 16384;          // larger changes go in several deltas
+  /// Triangles a client keeps after they leave its view (delta.h,
+  /// "Lingering"), so that turning back shows them at once; 0: removed as
+  /// they leave (the paper). A move removes them (their light may change).
+  /// 65536: a few MB a client (theirs and the mirror's), several views of
+  /// the bathroom; docs/refinement.md, "Walkthrough", has what it bought.
+  size_t clientLingerTriangles = 65536;
   uint64_t maxViewPixels = uint64_t(8192) * 4608;  // larger views are refused (visibility's time and memory)
   /// Client connections (counting those yet to say Hello) served at once;
   /// more are refused with TOO_MANY_CONNECTIONS and closed at once.
