@@ -19,7 +19,7 @@
 #   measurement on 2 cores, plus the references the first time)
 # Environment: INTERVAL (1 s), REF_SPP (64), SUPERSAMPLE (2: the client's
 # samples per pixel per axis, box-filtered as the path tracer's are),
-# STEPS ("measure references report").
+# STEPS ("measure references report"), SMA_ARGS (more penumbra-sma flags).
 set -euo pipefail
 root="$(cd "$(dirname "$0")/../.." && pwd)"
 here="$root/bench/walkthrough"
@@ -46,7 +46,7 @@ start_stack() {
   rpid=$!
   wait_for_file "$logs/r.port"
   "$build/sma/penumbra-sma" --scene "$scene" --listen 127.0.0.1:0 --port-file "$logs/s.port" \
-    --renderer "127.0.0.1:$(cat "$logs/r.port")" --criterion nld_os --log-level warn >"$logs/sma.log" 2>&1 &
+    --renderer "127.0.0.1:$(cat "$logs/r.port")" --criterion nld_os --log-level warn ${SMA_ARGS:-} >"$logs/sma.log" 2>&1 &
   spid=$!
   wait_for_file "$logs/s.port"
   sma_port="$(cat "$logs/s.port")"
