@@ -57,10 +57,15 @@ Service StartRenderer(const std::string& tag, const std::string& scene = kScene)
 
 Service StartSma(const std::vector<std::string>& renderers, const std::string& tag, const std::string& scene = kScene,
                  const std::vector<std::string>& extra = {}) {
-  // No refinement, no improvement: the deltas are about the move.
+  // No refinement, no improvement: the deltas are about the move. No
+  // lingering unless asked: these tests compare what two stacks' clients
+  // hold at one pose, and a drag's client would also keep what the drag's
+  // earlier places showed (sma/README.md, "Lingering").
   std::vector<std::string> args = {"--scene", scene, "--criterion", "none", "--improve-paths", "0"};
   for (const auto& r : renderers) args.insert(args.end(), {"--renderer", r});
   args.insert(args.end(), extra.begin(), extra.end());
+  if (std::find(extra.begin(), extra.end(), "--client-linger-triangles") == extra.end())
+    args.insert(args.end(), {"--client-linger-triangles", "0"});
   return MustStart(PENUMBRA_SMA_EXE, args, tag);
 }
 
@@ -246,6 +251,33 @@ TEST_F(SmaMovesTest, AfterAMoveHeldVerticesComeBackReshaded) {
   EXPECT_TRUE(sma.process.Running());
 }
 
+
+// What lingers goes with a move (sma/README.md, "Lingering"): its light may
+// have changed. A client turns away from the room (what it saw lingers:
+// it still holds all of it, though it sees nothing), then the box moves:
+// the client holds nothing after it.
+TEST_F(SmaMovesTest, AMoveRemovesWhatLingers) {
+  Service renderer = StartRenderer("renderer-linger");
+  Service sma = StartSma({renderer.Address()}, "sma-linger", kScene, {"--client-linger-triangles", "65536"});
+  SmaTestClient c = Connect(sma, "turner");
+  const CameraView front = ViewFromPreset(c.Info().cameras(0), kWidth, kHeight);
+  CameraView away = front;  // out of the open box's front: nothing to see
+  away.pose.target = front.pose.eye + (front.pose.eye - front.pose.target);
+  ASSERT_TRUE(c.SendView(front, 1));
+  ASSERT_TRUE(c.WaitConverged(1, 60s).ok()) << sma.process.LogTail();
+  const std::set<uint64_t> seenFromFront = c.Mesh().TriangleIds();
+  ASSERT_FALSE(seenFromFront.empty());
+  ASSERT_TRUE(c.SendView(away, 2));
+  ASSERT_TRUE(c.WaitConverged(2, 60s).ok()) << sma.process.LogTail();
+  EXPECT_EQ(c.Mesh().TriangleIds(), seenFromFront) << "what the front view showed should linger";
+
+  const RigidTransform moved{glm::mat3(1.0f), scene_.objects[0].objectToWorld.translation + Vec3(0.0f, 0.05f, 0.0f)};
+  ASSERT_TRUE(c.Wire().Send(MoveEnvelope(41, 1, RowMajor(moved))));
+  ASSERT_TRUE(WaitMoved(c).ok());
+  ASSERT_TRUE(c.WaitConverged(2, 60s).ok()) << sma.process.LogTail();
+  EXPECT_TRUE(c.Mesh().TriangleIds().empty()) << "a move should remove what lingers";
+  EXPECT_TRUE(sma.process.Running());
+}
 
 // The SMA plays an animation path on its own clock: clients see MOVED
 // deltas with increasing epochs without asking, and may not move the object.
