@@ -1047,10 +1047,12 @@ void SmaServer::Impl::Session::ApplyVisibility(bool newView) {
   if (Blocked()) {
     // The client is behind: send nothing now; once its queue drains, one
     // refresh sends the difference that has built up (coalescing).
+    state_.OnPlanHeldBack();
     lock.unlock();
     WaitUntilUnblocked();
     return;
   }
+  state_.OnPlanQueued();  // before its deltas' status: the last may say converged
   if (newView) {
     // The paper's order: what the cache already has, then what is gone;
     // what must be rendered follows as it arrives.
@@ -1643,6 +1645,7 @@ void SmaServer::Impl::Session::OnStatsRequest(const wire::StatsRequest& request)
   AddCounter(reply, "client_refinement_done", state_.RefinementDone() ? 1.0 : 0.0);
   AddCounter(reply, "client_improvement_done", state_.ImprovementDone() ? 1.0 : 0.0);
   AddCounter(reply, "client_remap_wanted", state_.RemapWanted() ? 1.0 : 0.0);
+  AddCounter(reply, "client_plan_owed", state_.PlanOwed() ? 1.0 : 0.0);
   AddCounter(reply, "client_deltas_sent", double(deltasSent_));
   AddCounter(reply, "client_improvements_pending", double(state_.ImprovementsPending()));
   AddCounter(reply, "client_improvements_asked", double(improvementsAsked_));

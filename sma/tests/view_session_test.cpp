@@ -191,6 +191,33 @@ TEST(ViewSessionTest, AStatusThatWasNotTheLastDeltaNeverSaysConverged) {
   EXPECT_TRUE(s.StatusOutdated());  // so a STATUS follows
 }
 
+// A client behind on reading: the view's plan is made but held back until
+// its queue drains. Its samples may all be in meanwhile (another client's
+// view shaded them): the client holds nothing of the view yet, so no
+// status may say converged -- one sent between the drain and the throttled
+// refresh did, over an empty mesh (SmaSlowClientTest, once in CI).
+TEST(ViewSessionTest, APlanHeldBackHoldsConvergenceUntilItIsQueued) {
+  SessionFixture f;
+  ViewSession s(NoRefinement(), 1000, false);
+  f.ToShading(s);
+  s.OnPlanHeldBack();
+  f.ToStage2(s);
+  EXPECT_TRUE(s.Stage1Done());
+  EXPECT_TRUE(s.PlanOwed());
+  EXPECT_FALSE(s.Converged());
+  EXPECT_NE(s.CurrentPhase(), Phase::kConverged);
+  wire::Delta early;
+  s.FillStatus(early, /*last=*/true, 1, f.now);
+  EXPECT_FALSE(early.converged());
+  EXPECT_FALSE(s.StatusOutdated());
+  s.OnPlanQueued();  // the refresh after the drain sends the plan
+  EXPECT_TRUE(s.Converged());
+  EXPECT_TRUE(s.StatusOutdated());  // so its last delta, or a STATUS, says so
+  wire::Delta sent;
+  s.FillStatus(sent, /*last=*/true, 1, f.now);
+  EXPECT_TRUE(sent.converged());
+}
+
 TEST(ViewSessionTest, AQueuedJobRetargetedToTheLatestViewAppliesIt) {
   SessionFixture f;
   ViewSession s(NoRefinement(), 1000, false);

@@ -156,6 +156,15 @@ class ViewSession {
   TimerAction OnRemapTimer(bool cancelled);
 
   // --- Waiting for the client to read ---------------------------------------
+  /// The applied mapping was planned but its changes were held back: the
+  /// client is behind, and the refresh after its queue drains sends them.
+  /// Until then the client does not hold the view, so it is not converged,
+  /// whatever the samples say -- a status sent between the drain and that
+  /// (throttled) refresh once told a client "converged" over an empty mesh.
+  void OnPlanHeldBack() { planOwed_ = true; }
+  /// The applied mapping's changes were queued for the client.
+  void OnPlanQueued() { planOwed_ = false; }
+  bool PlanOwed() const { return planOwed_; }
   /// True when the caller should ask the connection for a drain callback
   /// (false: already waiting).
   bool BeginDrainWait();
@@ -231,7 +240,7 @@ class ViewSession {
   bool RefinementDone() const { return driver_.Finished() && !RemapWanted(); }
   bool ImprovementDone() const { return !improvementOn_ || (improvementDone_ && improvePending_.empty()); }
   bool Converged() const {
-    return Stage1Done() && RefinementDone() && ImprovementDone() && reshadesAwaited_.empty();
+    return Stage1Done() && RefinementDone() && ImprovementDone() && reshadesAwaited_.empty() && !planOwed_;
   }
   bool RefiningNow() const { return Stage1Done() && !Converged() && (driver_.Enabled() || improvementOn_); }
   /// Fills a delta's status fields (view id, pending, converged, refining,
@@ -265,6 +274,7 @@ class ViewSession {
   Remap remap_ = Remap::kNone;
   Clock::time_point lastRemap_;
   bool awaitingDrain_ = false;
+  bool planOwed_ = false;  // OnPlanHeldBack
   int newViewsDroppedInARow_ = 0;
 
   std::unordered_set<NodeId> pending_;                         // visible, waiting for samples
