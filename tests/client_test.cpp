@@ -190,6 +190,7 @@ class ClientTest : public ::testing::Test {
     return CameraView{front->pose, front->fovYDeg, kWidth, kHeight};
   }
   std::string FrontPathFile() const { return WritePathFile(dir_, *scene_->FindCamera("front")); }
+  std::string WalkOntoTheFrontViewWithPathSnapshots(std::vector<std::string> extraArgs);
 
   static Scene* scene_;
   static Service* renderer_;
@@ -380,39 +381,72 @@ TEST_F(ClientTest, SupersampledImagesAreBoxFilteredToTheViewsSize) {
 // its milliseconds, at the view's size, whether or not anything changed;
 // once the path rests on the front view and the view is shaded, the image
 // is the Cornell box from the front.
+// A 6-s headless walk from 0.5 to the right of the front view onto it in
+// 1 s, then resting, writing the image shown every 0.5 s of path time: each
+// is the view's size, and the rested one shows the box. Returns the client's
+// log. No refinement, no improvement: each wall is its four corner samples,
+// and the green wall's upper ones sit in the creases, lit mostly by
+// interreflection. 64 first paths, not the default 8, so that the colour
+// check reads the wall and not the luck of 8 paths in a crease (which on
+// some random streams came out grey).
+std::string ClientTest::WalkOntoTheFrontViewWithPathSnapshots(std::vector<std::string> extraArgs) {
+  Service sma = StartSma({"--criterion", "none", "--improve-paths", "0", "--first-paths", "64"});
+  SetDisplay("");
+  const CameraPreset& front = *scene_->FindCamera("front");
+  const auto& p = front.pose;
+  const std::string path = dir_ + "/moving.json";
+  std::ofstream(path) << fmt::format(
+      R"({{"fov_y_deg": {}, "width": {}, "height": {}, "keyframes": [)"
+      R"({{"t": 0, "eye": [{}, {}, {}], "target": [{}, {}, {}]}}, {{"t": 1, "eye": [{}, {}, {}], "target": [{}, {}, {}]}}]}})",
+      front.fovYDeg, kWidth, kHeight, p.eye.x + 0.5f, p.eye.y, p.eye.z, p.target.x + 0.5f, p.target.y, p.target.z,
+      p.eye.x, p.eye.y, p.eye.z, p.target.x, p.target.y, p.target.z);
+  std::vector<std::string> args = {"--connect", sma.Address(), "--headless", "--camera-path", path,
+                                   "--snapshot-path-interval", "0.5", "--snapshot-prefix", dir_ + "/walk",
+                                   "--seconds", "6"};
+  args.insert(args.end(), extraArgs.begin(), extraArgs.end());
+  ChildProcess client = StartClient(args, dir_ + "/client.log");
+  const auto exit = client.WaitExit(120s);
+  EXPECT_TRUE(exit.has_value()) << client.LogTail();
+  EXPECT_EQ(exit.value_or(-1), 0) << client.LogTail();
+  for (const char* ms : {"000000", "000500", "001000", "001500", "002000", "002500", "003000", "003500", "004000"}) {
+    auto image = ReadImage(dir_ + "/walk_t" + ms + ".exr");
+    EXPECT_TRUE(image.ok()) << image.error().message;
+    if (!image.ok()) continue;
+    EXPECT_EQ(image->width, kWidth);
+    EXPECT_EQ(image->height, kHeight);
+  }
+  auto rested = ReadImage(dir_ + "/walk_t004000.exr");
+  EXPECT_TRUE(rested.ok());
+  if (rested.ok()) ExpectCornellBox(*rested, ClassifyPixels(*scene_, FrontView()));
+  std::ifstream in(dir_ + "/client.log");
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
 TEST_F(ClientTest, PathTimeSnapshotsShowThePoseOfTheirTime) {
   // No refinement, no improvement: each wall is its four corner samples,
   // and the green wall's upper ones sit in the creases, lit mostly by
   // interreflection. 64 first paths, not the default 8, so that the colour
   // check below reads the wall and not the luck of 8 paths in a crease
   // (which on some random streams came out grey).
-  Service sma = StartSma({"--criterion", "none", "--improve-paths", "0", "--first-paths", "64"});
-  SetDisplay("");
-  const CameraPreset& front = *scene_->FindCamera("front");
-  const auto& p = front.pose;
-  const std::string path = dir_ + "/moving.json";
-  // From 0.5 to the right of the front view onto it in 1 s, then resting.
-  std::ofstream(path) << fmt::format(
-      R"({{"fov_y_deg": {}, "width": {}, "height": {}, "keyframes": [)"
-      R"({{"t": 0, "eye": [{}, {}, {}], "target": [{}, {}, {}]}}, {{"t": 1, "eye": [{}, {}, {}], "target": [{}, {}, {}]}}]}})",
-      front.fovYDeg, kWidth, kHeight, p.eye.x + 0.5f, p.eye.y, p.eye.z, p.target.x + 0.5f, p.target.y, p.target.z,
-      p.eye.x, p.eye.y, p.eye.z, p.target.x, p.target.y, p.target.z);
-  ChildProcess client = StartClient({"--connect", sma.Address(), "--headless", "--camera-path", path,
-                                     "--snapshot-path-interval", "0.5", "--snapshot-prefix", dir_ + "/walk",
-                                     "--seconds", "6"},
-                                    dir_ + "/client.log");
-  const auto exit = client.WaitExit(120s);
-  ASSERT_TRUE(exit.has_value()) << client.LogTail();
-  ASSERT_EQ(*exit, 0) << client.LogTail();
-  for (const char* ms : {"000000", "000500", "001000", "001500", "002000", "002500", "003000", "003500", "004000"}) {
-    auto image = ReadImage(dir_ + "/walk_t" + ms + ".exr");
-    ASSERT_TRUE(image.ok()) << image.error().message;
-    EXPECT_EQ(image->width, kWidth);
-    EXPECT_EQ(image->height, kHeight);
-  }
-  auto rested = ReadImage(dir_ + "/walk_t004000.exr");
-  ASSERT_TRUE(rested.ok());
-  ExpectCornellBox(*rested, ClassifyPixels(*scene_, FrontView()));
+  WalkOntoTheFrontViewWithPathSnapshots({});
+}
+
+// A bench's headless clients draw only what they write: the same snapshots,
+// a frame drawn for each of them (and the last), none in between -- while
+// every frame still sends its view and takes its deltas.
+TEST_F(ClientTest, DrawingOnlyWrittenFramesWritesTheSameSnapshots) {
+  const std::string log = WalkOntoTheFrontViewWithPathSnapshots({"--draw-only-written-frames", "--log-level", "info"});
+  // "done after N frames (M drawn)"
+  const size_t at = log.find("done after ");
+  ASSERT_NE(at, std::string::npos) << log;
+  unsigned long frames = 0, drawn = 0;
+  ASSERT_EQ(std::sscanf(log.c_str() + at, "done after %lu frames (%lu drawn)", &frames, &drawn), 2) << log;
+  size_t written = 0;
+  for (const auto& entry : std::filesystem::directory_iterator(dir_))
+    written += entry.path().filename().string().starts_with("walk_t");
+  EXPECT_GE(written, 12u);  // path times 0, 0.5, ..., 5.5 at least, in 6 s
+  EXPECT_LE(drawn, written + 1) << "frames drawn that no file holds";
+  EXPECT_GT(frames, 2 * drawn) << "a frame loop that waits for the snapshots";
 }
 
 // GLFW with a hidden window on a private Xvfb: the tone-mapped PNG shows the

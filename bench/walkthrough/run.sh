@@ -19,7 +19,12 @@
 #   measurement on 2 cores, plus the references the first time)
 # Environment: INTERVAL (1 s), REF_SPP (64), SUPERSAMPLE (2: the client's
 # samples per pixel per axis, box-filtered as the path tracer's are),
-# STEPS ("measure references report"), SMA_ARGS (more penumbra-sma flags).
+# STEPS ("measure references report"), SMA_ARGS (more penumbra-sma flags),
+# DRAW ("written": the clients rasterise only the frames they write, as the
+# path tracers compute only theirs -- a client's display is its own GPU's
+# work, not the two cores'; "every": every frame, 12-30 a second each, on
+# Mesa's software rasteriser on the same two cores). OUT/cpu.txt says where
+# the CPU went.
 set -euo pipefail
 root="$(cd "$(dirname "$0")/../.." && pwd)"
 here="$root/bench/walkthrough"
@@ -30,6 +35,11 @@ interval="${INTERVAL:-1}"
 ref_spp="${REF_SPP:-64}"
 supersample="${SUPERSAMPLE:-2}"
 steps="${STEPS:-measure references report}"
+case "${DRAW:-written}" in
+  written) draw_flag=--draw-only-written-frames ;;
+  every) draw_flag= ;;
+  *) echo "DRAW is written or every" >&2; exit 2 ;;
+esac
 python=/usr/bin/python3  # Debian's, which has python3-matplotlib
 mkdir -p "$out"
 paths=(walk-a walk-b walk-c walk-d)
@@ -53,12 +63,17 @@ start_stack() {
 }
 stop_stack() { kill "$spid" "$rpid"; wait "$spid" "$rpid" 2>/dev/null || true; }
 
+# CPU seconds (user + system) a live process has used so far.
+cpu_seconds() { awk -v hz="$(getconf CLK_TCK)" '{ printf "%.1f", ($14 + $15) / hz }' "/proc/$1/stat"; }
+# Where the two cores went: CPU seconds per process, appended to OUT/cpu.txt.
+note_cpu() { echo "$(date -u +%T) $1" | tee -a "$out/cpu.txt"; }
+
 # One headless client walking path $2, snapshots to $1/penumbra-$2_t*.exr. --anisotropy 16: the
 # filtering nearest the references' area average, as the figures were measured (the default on
 # llvmpipe is isotropic, for speed; client/README.md "Texture filtering").
 client() {
-  "$build/client/penumbra-client" --connect "127.0.0.1:$sma_port" --headless --gl egl \
-    --camera-path "$here/$2.json" --supersample "$supersample" --anisotropy 16 --snapshot-path-interval "$interval" \
+  /usr/bin/time -f "%U %S" -o "$1/penumbra-$2.cpu" "$build/client/penumbra-client" --connect "127.0.0.1:$sma_port" --headless --gl egl \
+    --camera-path "$here/$2.json" --supersample "$supersample" --anisotropy 16 --snapshot-path-interval "$interval" $draw_flag \
     --snapshot-prefix "$1/penumbra-$2" --seconds $((duration + 8)) --stats "$1/penumbra-$2-stats.jsonl" \
     --log-level warn >"$1/penumbra-$2.log" 2>&1
 }
@@ -69,7 +84,8 @@ tracers() {
   rm -f "$dir/start"
   local pids=()
   for p in "$@"; do
-    "$build/renderer/penumbra-reference" --scene "$scene" --camera-path "$here/$p.json" --progressive "$interval" \
+    /usr/bin/time -f "%U %S" -o "$dir/pt-$p.cpu" "$build/renderer/penumbra-reference" --scene "$scene" \
+      --camera-path "$here/$p.json" --progressive "$interval" \
       --snapshot-prefix "$dir/pt-$p" --start-file "$dir/start" --threads 2 >"$dir/pt-$p.log" 2>&1 &
     pids+=($!)
   done
@@ -86,9 +102,13 @@ measure() {
   local pids=()
   for p in "$@"; do client "$dir" "$p" & pids+=($!); done
   for pid in "${pids[@]}"; do wait "$pid"; done
+  local clients_cpu
+  clients_cpu="$(cat "$dir"/penumbra-*.cpu | awk '{ s += $1 + $2 } END { printf "%.1f", s }')"
+  note_cpu "$dir: CPU seconds: renderer $(cpu_seconds "$rpid"), SMA $(cpu_seconds "$spid"), clients $clients_cpu"
   stop_stack
   echo "$(date -u +%T) $dir: Penumbra done, load $(cut -d' ' -f1-3 /proc/loadavg)" | tee -a "$out/load.txt"
   tracers "$dir" "$@"
+  note_cpu "$dir: CPU seconds: path tracers $(cat "$dir"/pt-*.cpu | awk '{ s += $1 + $2 } END { printf "%.1f", s }')"
   echo "$(date -u +%T) $dir: path tracers done, load $(cut -d' ' -f1-3 /proc/loadavg)" | tee -a "$out/load.txt"
 }
 

@@ -123,6 +123,7 @@ class ClientApp {
   Status WriteScreenshot(const std::filesystem::path& path);
   void CycleCriterion();
   void SetCriterion(const std::string& criterion);
+  bool SnapshotDue(Clock::time_point now) const;  // a --snapshot-every file is written this frame
   void MaybeWriteSnapshot(Clock::time_point now);
   void WritePathSnapshot(double pathTime);
   void SaveInteractiveScreenshot();
@@ -184,6 +185,7 @@ class ClientApp {
   // Counters.
   const Clock::time_point start_;
   uint64_t frames_ = 0;
+  uint64_t framesDrawn_ = 0;  // rasterised (ClientOptions::drawOnlyWrittenFrames)
   HeadlessRun headlessRun_;
   SnapshotSchedule snapshots_;
   uint64_t pathSnapshots_ = 0;     // path-time snapshots written (--snapshot-path-interval)
@@ -307,7 +309,13 @@ int ClientApp::Run() {
       if (auto failure = headlessRun_.Failure(seen, now)) return Failed(*failure);
     }
 
-    Render();
+    // Headless frames that no file will hold are seen by nobody: with
+    // --draw-only-written-frames they are not rasterised.
+    const bool written = pathSnapshotTime || finishing || SnapshotDue(now);
+    if (!options_.headless || !options_.drawOnlyWrittenFrames || written) {
+      Render();
+      ++framesDrawn_;
+    }
     if (screenshotRequested_) SaveInteractiveScreenshot();
     if (window_ && !options_.headless) {
       targets_.BlitToDefault(window_->FramebufferSize());
@@ -817,6 +825,11 @@ void ClientApp::SetCriterion(const std::string& criterion) {
   noticeUntil_ = Clock::now() + std::chrono::seconds(3);
 }
 
+bool ClientApp::SnapshotDue(Clock::time_point now) const {
+  const MeshStore& mesh = model_.Mesh();
+  return snapshots_.Due(now, mesh.TriangleCount(), mesh.LastSequence(), frames_).has_value();
+}
+
 void ClientApp::MaybeWriteSnapshot(Clock::time_point now) {
   const MeshStore& mesh = model_.Mesh();
   const auto path = snapshots_.Due(now, mesh.TriangleCount(), mesh.LastSequence(), frames_);
@@ -844,8 +857,9 @@ int ClientApp::Finish() {
     if (auto ok = WriteScreenshot(options_.screenshot); !ok) return Failed(ok.error().message);
   }
   const MeshStore& mesh = model_.Mesh();
-  log_->info("done after {} frames: {} triangles and {} vertices held{}", frames_, mesh.TriangleCount(),
-             mesh.VertexCount(), options_.screenshot.empty() ? "" : "; wrote " + options_.screenshot.string());
+  log_->info("done after {} frames ({} drawn): {} triangles and {} vertices held{}", frames_, framesDrawn_,
+             mesh.TriangleCount(), mesh.VertexCount(),
+             options_.screenshot.empty() ? "" : "; wrote " + options_.screenshot.string());
   return 0;
 }
 

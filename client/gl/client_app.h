@@ -55,6 +55,11 @@ struct ClientOptions {
   /// Frame-rate cap; 0: 60 in a window (plus vsync), 30 headless, so a
   /// headless client leaves the CPU to the renderers it shares a host with.
   double maxFps = 0.0;
+  /// Headless: rasterise only the frames written to a file (path-time and
+  /// periodic snapshots, the final screenshot). Every frame still applies
+  /// what arrived, uploads it and sends its view; a frame nobody sees is
+  /// not drawn. Off: every frame is drawn (the cost of a display, measured).
+  bool drawOnlyWrittenFrames = false;
   ToneSettings tone;
   /// Where the screenshot key writes its PNG and EXR (made when missing).
   std::filesystem::path screenshotDir = "penumbra-screenshots";

@@ -165,7 +165,12 @@ int main(int argc, char** argv) {
                                       "Headless: path prefix of --snapshot-every's and --snapshot-path-interval's files");
   snapshotOption->needs(prefixOption);
   pathSnapshotOption->needs(prefixOption);
-  for (CLI::Option* o : {glOption, pathOption, screenshotOption, convergedFlag, framesOption, secondsOption,
+  auto* drawOnlyOption = app.add_flag(
+      "--draw-only-written-frames", options.drawOnlyWrittenFrames,
+      "Headless: draw only the frames written to a file (snapshots, the screenshot); the others still send their "
+      "view and take their deltas, but nobody sees them, so they are not rasterised -- a bench's clients then leave "
+      "the CPU to the stack they share it with, as clients on their own GPUs would");
+  for (CLI::Option* o : {drawOnlyOption, glOption, pathOption, screenshotOption, convergedFlag, framesOption, secondsOption,
                          connectTimeoutOption, timeoutOption, snapshotOption, pathSnapshotOption, prefixOption,
                          supersampleOption, movesOption, movesStartOption})
     o->needs(headless);
