@@ -1,6 +1,7 @@
 #include "penumbra/sma/delta.h"
 
 #include <algorithm>
+#include <iterator>
 
 #include <google/protobuf/io/coded_stream.h>
 
@@ -28,20 +29,25 @@ uint32_t WireObjectOf(const Scene& scene, uint32_t baseTriangle) {
 
 size_t ClientMirror::AppendChanges(std::span<const NodeId> removals, std::span<const NodeId> additions,
                                    const Hierarchy& hierarchy, const SampleCache& cache, wire::Delta& delta) {
+  bool removedLingering = false;
   for (NodeId id : removals) {
     if (held_.erase(id) == 0) continue;
-    lingering_.erase(id);
+    heldTouched_.push_back(id);
+    removedLingering = removedLingering || IsLingering(id);
     delta.add_removed_triangles(id);
     for (VertexId v : hierarchy.GetNode(id).v) {
       auto it = vertexRefs_.find(v);
       if (it != vertexRefs_.end() && --it->second == 0) vertexRefs_.erase(it);
     }
   }
+  if (removedLingering)
+    std::erase_if(lingering_, [&](const Left& left) { return !held_.contains(left.node); });
   const Scene& scene = hierarchy.GetScene();
   const bool objects = !scene.objects.empty();
   size_t added = 0;
   for (NodeId id : additions) {
     if (!held_.insert(id).second) continue;
+    heldTouched_.push_back(id);
     ++added;
     const Node& node = hierarchy.GetNode(id);
     for (VertexId v : node.v) {
@@ -68,6 +74,9 @@ size_t ClientMirror::AppendChanges(std::span<const NodeId> removals, std::span<c
       }
     }
   }
+  // Merged now and then even if no plan asks: the changes since a merge
+  // stay within a bound of what is held.
+  if (heldTouched_.size() > 2 * held_.size() + 4096) SortedHeld();
   return added;
 }
 
@@ -94,29 +103,78 @@ size_t ClientMirror::AppendUpdates(std::span<const VertexId> vertices, const Sam
   return n;
 }
 
+const std::vector<NodeId>& ClientMirror::SortedHeld() const {
+  if (heldTouched_.empty()) return heldSorted_;
+  std::sort(heldTouched_.begin(), heldTouched_.end());
+  heldTouched_.erase(std::unique(heldTouched_.begin(), heldTouched_.end()), heldTouched_.end());
+  std::vector<NodeId> merged;
+  merged.reserve(held_.size());
+  auto old = heldSorted_.begin();
+  for (NodeId touched : heldTouched_) {
+    for (; old != heldSorted_.end() && *old < touched; ++old) merged.push_back(*old);
+    if (old != heldSorted_.end() && *old == touched) ++old;
+    if (held_.contains(touched)) merged.push_back(touched);
+  }
+  merged.insert(merged.end(), old, heldSorted_.end());
+  PENUMBRA_CHECK(merged.size() == held_.size(), "ClientMirror::SortedHeld: the merge lost or invented a node");
+  heldSorted_ = std::move(merged);
+  heldTouched_.clear();
+  return heldSorted_;
+}
+
+std::vector<NodeId> ClientMirror::LingeringNodes() const {
+  std::vector<NodeId> nodes;
+  nodes.reserve(lingering_.size());
+  for (const Left& left : lingering_) nodes.push_back(left.node);
+  return nodes;
+}
+
+namespace {
+auto FindLeft(auto& lingering, NodeId node) {
+  return std::lower_bound(lingering.begin(), lingering.end(), node,
+                          [](const auto& left, NodeId n) { return left.node < n; });
+}
+}  // namespace
+
+bool ClientMirror::IsLingering(NodeId node) const {
+  const auto it = FindLeft(lingering_, node);
+  return it != lingering_.end() && it->node == node;
+}
+
+uint64_t ClientMirror::LeftViewAt(NodeId node) const {
+  const auto it = FindLeft(lingering_, node);
+  return it != lingering_.end() && it->node == node ? it->atPlan : plans_;
+}
+
 void ClientMirror::SetLingering(std::span<const NodeId> nodes) {
-  // In place: from one plan to the next most of what lingers stays (a
-  // re-map of a resting view changes none of it), and this runs per plan.
+  // A merge of two sorted lists: from one plan to the next most of what
+  // lingers stays (a re-map of a resting view changes none of it), and this
+  // runs per plan.
   PENUMBRA_CHECK(std::is_sorted(nodes.begin(), nodes.end()), "ClientMirror::SetLingering: nodes must be sorted");
-  std::erase_if(lingering_, [&](const auto& entry) {
-    return !std::binary_search(nodes.begin(), nodes.end(), entry.first);  // back in view, or removed
-  });
+  std::vector<Left> next;
+  next.reserve(nodes.size());
+  auto old = lingering_.begin();
   for (NodeId id : nodes) {
     PENUMBRA_CHECK(held_.contains(id), "ClientMirror::SetLingering: a lingering node must be held");
-    lingering_.try_emplace(id, plans_);
+    while (old != lingering_.end() && old->node < id) ++old;
+    next.push_back(Left{id, old != lingering_.end() && old->node == id ? old->atPlan : plans_});
   }
+  lingering_ = std::move(next);
   ++plans_;
 }
 
 size_t ClientMirror::MemoryBytes() const {
-  return UnorderedMapBytes(held_) + UnorderedMapBytes(vertexRefs_) + UnorderedMapBytes(lingering_);
+  return UnorderedMapBytes(held_) + UnorderedMapBytes(vertexRefs_) + lingering_.capacity() * sizeof(Left) +
+         (heldSorted_.capacity() + heldTouched_.capacity()) * sizeof(NodeId);
 }
 
 void ClientMirror::Clear() {
   // Assigned, not clear()ed: clear() keeps the bucket arrays.
   held_ = {};
   vertexRefs_ = {};
-  lingering_ = {};
+  lingering_ = std::vector<Left>();  // (not "= {}": a vector's keeps its capacity)
+  heldSorted_ = std::vector<NodeId>();
+  heldTouched_ = std::vector<NodeId>();
 }
 
 ViewPlan PlanView(const VisibleSet& visible, const ClientMirror& mirror, const Hierarchy& hierarchy,
@@ -153,10 +211,9 @@ ViewPlan PlanView(const VisibleSet& visible, const ClientMirror& mirror, const H
   const auto in = [](const std::vector<NodeId>& sorted, NodeId id) {
     return std::binary_search(sorted.begin(), sorted.end(), id);
   };
-  std::vector<NodeId> gone;
-  for (NodeId id : mirror.Held())
-    if (!in(visible.nodes, id)) gone.push_back(id);
-  std::sort(gone.begin(), gone.end());
+  std::vector<NodeId> gone;  // in increasing order
+  const std::vector<NodeId>& held = mirror.SortedHeld();
+  std::set_difference(held.begin(), held.end(), visible.nodes.begin(), visible.nodes.end(), std::back_inserter(gone));
   std::vector<NodeId> replaced;  // gone ancestors of an addition
   for (NodeId a : plan.addCached)
     for (NodeId p = hierarchy.GetNode(a).parent; p != kNoNode; p = hierarchy.GetNode(p).parent)

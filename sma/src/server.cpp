@@ -1477,10 +1477,8 @@ void SmaServer::Impl::Session::OnMoved(const MoveNotice& notice) {
   const uint64_t epoch = notice.pose->epoch;
   // What lingers goes first: its light may have changed, and reshading what
   // the client does not see would take the renderers from what it does.
-  if (!mirror_.Lingering().empty()) {
-    std::vector<NodeId> lingering;
-    for (const auto& entry : mirror_.Lingering()) lingering.push_back(entry.first);
-    std::sort(lingering.begin(), lingering.end());
+  if (mirror_.LingeringCount() > 0) {
+    const std::vector<NodeId> lingering = mirror_.LingeringNodes();
     std::shared_lock lock(server_.stateMutex_);
     QueueChanges(wire::DELTA_KIND_REMOVED, lingering, {}, /*alwaysSend=*/false, /*last=*/true);
   }

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <set>
 
 #include <gtest/gtest.h>
 
@@ -201,6 +202,42 @@ TEST(ClientMirrorTest, SendsEachVertexOnceWhileHeld) {
   EXPECT_EQ(d3.triangle_ids_size(), 0);
 }
 
+// SortedHeld is merged from the changes since it was last asked for: after
+// any mix of additions and removals -- a node added then removed, removed
+// then added, asked for or not in between -- it is what is held, in order.
+TEST(ClientMirrorTest, SortedHeldFollowsAdditionsAndRemovalsInAnyOrder) {
+  const Scene s = QuadScene();
+  Hierarchy h(s);
+  for (int level = 0; level < 3; ++level) {
+    std::vector<NodeId> leaves;
+    h.ForEachLeaf(kNoNode, [&](NodeId id) { leaves.push_back(id); });
+    for (NodeId leaf : leaves) h.Refine(leaf, RefineOptions{});
+  }
+  SampleCache cache;
+  ShadeAll(h, cache);
+  const NodeId nodes = NodeId(h.NodeCount());
+  ASSERT_GE(nodes, 80u);
+  ClientMirror mirror;
+  std::set<NodeId> expected;
+  uint32_t state = 12345;
+  const auto next = [&] { return state = state * 1664525u + 1013904223u; };
+  for (int step = 0; step < 300; ++step) {
+    std::vector<NodeId> removals, additions;
+    for (int i = 0; i < 8; ++i) removals.push_back(NodeId(next() % nodes));
+    for (int i = 0; i < 8; ++i) additions.push_back(NodeId(next() % nodes));
+    wire::Delta d;
+    mirror.AppendChanges(removals, additions, h, cache, d);
+    for (NodeId r : removals) expected.erase(r);
+    for (NodeId a : additions) expected.insert(a);
+    if (next() % 4 == 0) {  // asked for now and then, as plans do
+      const std::vector<NodeId>& sorted = mirror.SortedHeld();
+      ASSERT_EQ(sorted, std::vector<NodeId>(expected.begin(), expected.end())) << "step " << step;
+    }
+  }
+  EXPECT_EQ(mirror.SortedHeld(), std::vector<NodeId>(expected.begin(), expected.end()));
+  EXPECT_EQ(mirror.TriangleCount(), expected.size());
+}
+
 TEST(ClientMirrorTest, RemovalsComeFirstSoAFreedVertexIsResent) {
   const Scene s = QuadScene();
   Hierarchy h(s);
@@ -346,15 +383,15 @@ TEST(PlanViewTest, ATriangleThatLeftTheViewLingersAndIsThereOnReturn) {
   EXPECT_EQ(away.addCached, std::vector<NodeId>{1});
   Apply(away, mirror, h, cache);
   EXPECT_EQ(mirror.TriangleCount(), 2u);
-  EXPECT_EQ(mirror.Lingering().size(), 1u);
+  EXPECT_EQ(mirror.LingeringCount(), 1u);
 
   const ViewPlan back = PlanView(Visible({0}), mirror, h, cache, 1);
   EXPECT_TRUE(back.addCached.empty());  // shown at once
   EXPECT_TRUE(back.pending.empty());
   EXPECT_EQ(back.linger, std::vector<NodeId>{1});
   Apply(back, mirror, h, cache);
-  EXPECT_FALSE(mirror.Lingering().contains(0));
-  EXPECT_TRUE(mirror.Lingering().contains(1));
+  EXPECT_FALSE(mirror.IsLingering(0));
+  EXPECT_TRUE(mirror.IsLingering(1));
   // Without a budget the paper's eager removal, unchanged.
   EXPECT_EQ(PlanView(Visible({1}), mirror, h, cache, 0).removeGone, (std::vector<NodeId>{0}));
 }

@@ -43,19 +43,23 @@ class ClientMirror {
   bool Holds(NodeId node) const { return held_.contains(node); }
   bool HoldsVertex(VertexId v) const { return vertexRefs_.contains(v); }
   size_t TriangleCount() const { return held_.size(); }
-  /// Held triangles that are not in the view (PlanView's `linger`), each
-  /// with the plan count when it left the view.
-  const std::unordered_map<NodeId, uint64_t>& Lingering() const { return lingering_; }
+  /// Held triangles that are not in the view (PlanView's `linger`), in
+  /// increasing order.
+  std::vector<NodeId> LingeringNodes() const;
+  size_t LingeringCount() const { return lingering_.size(); }
+  bool IsLingering(NodeId node) const;
   /// When `node` left the view (a plan count), or now if it has not.
-  uint64_t LeftViewAt(NodeId node) const {
-    auto it = lingering_.find(node);
-    return it == lingering_.end() ? plans_ : it->second;
-  }
+  uint64_t LeftViewAt(NodeId node) const;
   /// Records the nodes that linger after the plan just applied (held, not
-  /// visible: `ViewPlan::linger`); every other held node is in the view.
+  /// visible: `ViewPlan::linger`, increasing); every other held node is in
+  /// the view.
   void SetLingering(std::span<const NodeId> nodes);
   size_t VertexCount() const { return vertexRefs_.size(); }
-  const std::unordered_set<NodeId>& Held() const { return held_; }
+  /// The held nodes in increasing order. Kept up to date from the changes
+  /// since the last call (a merge), not rebuilt: PlanView walks it on every
+  /// plan, and walking the hash set -- some 10^5 nodes with lingering --
+  /// was most of the SMA's planning time (issue 11, bench/walkthrough).
+  const std::vector<NodeId>& SortedHeld() const;
   /// Calls f(vertex) for every vertex the client holds.
   template <class F>
   void ForEachVertex(F&& f) const {
@@ -81,17 +85,25 @@ class ClientMirror {
   /// so whoever owes the update keeps owing it. Returns how many were added.
   size_t AppendUpdates(std::span<const VertexId> vertices, const SampleCache& cache, wire::Delta& delta,
                        std::vector<VertexId>* stillOwed = nullptr) const;
-  /// Estimated heap bytes of what the mirror keeps (its two hash tables;
+  /// Estimated heap bytes of what the mirror keeps (its hash tables and vectors;
   /// memory_usage.h). Not synchronised: the owner's thread (the session's strand).
   size_t MemoryBytes() const;
   /// Forgets everything (the client reconnected or was reset).
   void Clear();
 
  private:
+  struct Left {
+    NodeId node;
+    uint64_t atPlan;  // the plan count when it left the view
+  };
   std::unordered_set<NodeId> held_;
   std::unordered_map<VertexId, uint32_t> vertexRefs_;
-  std::unordered_map<NodeId, uint64_t> lingering_;  // a subset of held_
-  uint64_t plans_ = 0;                              // SetLingering calls
+  std::vector<Left> lingering_;  // a subset of held_, by increasing node
+  uint64_t plans_ = 0;           // SetLingering calls
+  // SortedHeld(): held_ in order as of the last call, and the nodes added
+  // or removed since (each may be either now: held_ says which).
+  mutable std::vector<NodeId> heldSorted_;
+  mutable std::vector<NodeId> heldTouched_;
 };
 
 struct ViewPlan {
