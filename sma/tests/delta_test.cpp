@@ -396,15 +396,29 @@ TEST(PlanViewTest, ATriangleThatLeftTheViewLingersAndIsThereOnReturn) {
   EXPECT_EQ(PlanView(Visible({1}), mirror, h, cache, 0).removeGone, (std::vector<NodeId>{0}));
 }
 
+// The quad with root 0 split once (1 -> 4; root 1 -> 2 across the
+// diagonal's midpoint), every vertex shaded.
+struct SplitQuad {
+  Scene scene = QuadScene();
+  Hierarchy h{scene};
+  SampleCache cache;
+  SplitQuad() {
+    h.Refine(0, RefineOptions{});
+    ShadeAll(h, cache);
+  }
+  std::vector<NodeId> Leaves(NodeId under = kNoNode) const {
+    std::vector<NodeId> leaves;
+    h.ForEachLeaf(under, [&](NodeId id) { leaves.push_back(id); });
+    return leaves;
+  }
+};
+
 // Over the budget, the triangles that left the view longest ago go first.
 TEST(PlanViewTest, TheTrianglesThatLeftLongestAgoAreRemovedFirst) {
-  const Scene s = QuadScene();
-  Hierarchy h(s);
-  h.Refine(0, RefineOptions{});
-  SampleCache cache;
-  ShadeAll(h, cache);
-  std::vector<NodeId> leaves;
-  h.ForEachLeaf(kNoNode, [&](NodeId id) { leaves.push_back(id); });
+  SplitQuad quad;
+  Hierarchy& h = quad.h;
+  SampleCache& cache = quad.cache;
+  const std::vector<NodeId> leaves = quad.Leaves();
   ASSERT_GE(leaves.size(), 3u);
   const NodeId a = leaves[0], b = leaves[1], c = leaves[2];
   ClientMirror mirror;
@@ -444,13 +458,10 @@ TEST(PlanViewTest, NothingLingersOverWhatTheViewNeeds) {
     EXPECT_TRUE(finer.linger.empty());
   }
   {
-    const Scene s = QuadScene();
-    Hierarchy h(s);
-    h.Refine(0, RefineOptions{});
-    SampleCache cache;
-    ShadeAll(h, cache);
-    std::vector<NodeId> children;
-    h.ForEachLeaf(0, [&](NodeId id) { children.push_back(id); });
+    SplitQuad quad;
+    Hierarchy& h = quad.h;
+    SampleCache& cache = quad.cache;
+    const std::vector<NodeId> children = quad.Leaves(0);
     ClientMirror mirror;
     Apply(PlanView(Visible({children[0]}), mirror, h, cache, 100), mirror, h, cache);
     // Its parent is visible again but one of its corners lost its sample: pending.
