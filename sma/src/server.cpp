@@ -680,6 +680,7 @@ class SmaServer::Impl::Session : public std::enable_shared_from_this<Session> {
   // whose mapping is the same has nothing to plan.
   bool visibleApplied_ = false;
   bool improveScanQueued_ = false;  // a MaybeImprove is posted to the strand (OnSamplesImproved coalesces)
+  std::vector<NodeId> improveLap_;  // ImprovementLap of visible_ when the lap began
   ClientMirror mirror_;
   std::atomic<size_t> mirrorBytes_{0};     // mirror_.MemoryBytes() as of its last change (memory accounting)
   std::vector<InterestTicket> interest_;   // the interest our views' visible requests gave (released with the next plan)
@@ -1195,7 +1196,12 @@ void SmaServer::Impl::Session::MaybeImprove() {
   // kImproveNodesPerLook nodes, so the strand's other handlers (the
   // connection's reads, writes and heartbeat) never wait behind a walk of
   // the whole visible set.
-  const std::vector<NodeId>& nodes = visible_->nodes;
+  // A lap walks the visible nodes as they were when it began, the most
+  // pixels first (ImprovementLap); nodes that have left the view since are
+  // skipped, and new ones (refined children) wait for the next lap.
+  const std::vector<NodeId>& visibleNodes = visible_->nodes;
+  if (state_.ImproveScanPosition() == 0) improveLap_ = ImprovementLap(*visible_);
+  const std::vector<NodeId>& nodes = improveLap_;
   const size_t begin = std::min(state_.ImproveScanPosition(), nodes.size());
   const size_t stop = std::min(nodes.size(), begin + kImproveNodesPerLook);
   size_t end = begin;
@@ -1208,7 +1214,8 @@ void SmaServer::Impl::Session::MaybeImprove() {
     for (; end < stop; ++end) {
       if (requests.size() + state_.ImprovementsPending() >= o.improveBatch) break;
       const NodeId id = nodes[end];
-      if (!mirror_.Holds(id)) continue;  // only what the client shows
+      // Only what the client shows (held and in view: not what lingers).
+      if (!mirror_.Holds(id) || !std::binary_search(visibleNodes.begin(), visibleNodes.end(), id)) continue;
       for (VertexId v : hierarchy.GetNode(id).v) {
         if (!seen.insert(v).second || state_.ImprovementPending(v) || !cache.IsShaded(v)) continue;
         if (cache.Paths(v) >= o.improveMaxPaths || !(cache.RelativeError(v) > o.improveTargetError)) continue;

@@ -286,4 +286,18 @@ std::optional<double> ViewSession::FillStatus(wire::Delta& delta, bool last, siz
   return stage2Ms_;
 }
 
+std::vector<NodeId> ImprovementLap(const VisibleSet& visible) {
+  PENUMBRA_CHECK(visible.coverage.size() == visible.nodes.size(),
+                 "ImprovementLap: the visible set's coverage must be parallel to its nodes");
+  std::vector<uint32_t> order(visible.nodes.size());
+  for (uint32_t i = 0; i < order.size(); ++i) order[i] = i;
+  // Stable: equal coverage keeps node order (the nodes are sorted).
+  std::stable_sort(order.begin(), order.end(),
+                   [&](uint32_t a, uint32_t b) { return visible.coverage[a] > visible.coverage[b]; });
+  std::vector<NodeId> lap;
+  lap.reserve(order.size());
+  for (uint32_t i : order) lap.push_back(visible.nodes[i]);
+  return lap;
+}
+
 }  // namespace penumbra::sma

@@ -41,9 +41,18 @@
 #include "penumbra/sma/hierarchy.h"
 #include "penumbra/sma/refinement_driver.h"
 #include "penumbra/sma/sample_cache.h"
+#include "penumbra/sma/visibility.h"
 #include "penumbra/wire.pb.h"
 
 namespace penumbra::sma {
+
+/// What an improvement lap walks: the view's visible nodes as the lap
+/// begins, those covering the most pixels first (ties in node order). A lap
+/// is often cut short -- the camera moves on, or other clients' work fills
+/// the renderers -- and the image's error is per pixel: improving first what
+/// fills most of the screen lowers it soonest (bench/walkthrough,
+/// docs/refinement.md).
+std::vector<NodeId> ImprovementLap(const VisibleSet& visible);
 
 class ViewSession {
  public:
